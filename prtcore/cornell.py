@@ -1,0 +1,106 @@
+"""The Cornell box built by the project: the bundled example and the analytic-ish test scene.
+
+A 2 m room (x, z ∈ [−1, 1], y ∈ [0, 2]) open toward +z, walls single-sided facing inward,
+with the classic red (left, −x) and green (right, +x) walls and two white blocks. Written
+as a plain glTF binary through trimesh's exporter (factor-only materials, no TEXCOORD_1:
+the bake generates lightmap UVs).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from trimesh.visual.material import PBRMaterial
+
+WHITE = (0.73, 0.73, 0.73)
+RED = (0.63, 0.065, 0.05)
+GREEN = (0.14, 0.45, 0.09)
+
+#: The example bake spec shipped with the box: lights inside the room.
+EXAMPLE_SPEC = {
+    "atlas": {"resolution": 256, "padding": 4},
+    "measurement_points": {"count": 256, "supersample": 8, "seed": 1},
+    "lights": {
+        "count": 128, "holdout": 16, "seed": 2,
+        "families": [
+            {"type": "spot", "weight": 1.0,
+             "position": {"box": [[-0.8, 0.3, -0.8], [0.8, 1.9, 0.9]]},
+             "aim": {"jitter": 0.5},
+             "intensity": {"log_uniform": [0.5, 5.0]},
+             "color": "white",
+             "outer_cone_angle": {"uniform": [0.4, 1.0]}},
+            {"type": "point", "weight": 1.0,
+             "position": {"box": [[-0.8, 0.3, -0.8], [0.8, 1.9, 0.9]]},
+             "intensity": {"uniform": [0.5, 3.0]}},
+        ],
+    },
+    "transport": {"gather_rays": 64, "max_bounces": 16, "tolerance": 0.001},
+    "fit": {"basis": 16, "ridge": "auto", "channels": "mono"},
+}
+
+
+def _quad(corners: np.ndarray, subdiv: int = 1) -> trimesh.Trimesh:
+    """A planar quad from 4 corners in counter-clockwise order (seen from the front),
+    split into subdiv×subdiv cells."""
+    a, b, c, d = corners
+    n = subdiv + 1
+    s, t = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    s, t = s.ravel()[:, None], t.ravel()[:, None]
+    verts = (1 - s) * (1 - t) * a + s * (1 - t) * b + s * t * c + (1 - s) * t * d
+    faces = []
+    for i in range(subdiv):
+        for j in range(subdiv):
+            v00, v10, v11, v01 = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            faces += [[v00, v10, v11], [v00, v11, v01]]
+    return trimesh.Trimesh(verts, np.array(faces), process=False)
+
+
+def _block(center, size, angle_deg: float) -> trimesh.Trimesh:
+    box = trimesh.creation.box(extents=size)
+    rot = trimesh.transformations.rotation_matrix(np.radians(angle_deg), [0, 1, 0])
+    box.apply_transform(rot)
+    box.apply_translation(center)
+    box.unmerge_vertices()  # flat faces: no smoothing across the block's edges
+    return box
+
+
+def cornell_box(subdiv: int = 1) -> trimesh.Scene:
+    """The room and blocks as a trimesh scene with one PBR material per part."""
+    P = np.array
+    parts = {
+        # floor (y=0) facing +y
+        "floor": (_quad(P([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], float), subdiv),
+                  WHITE),
+        # ceiling (y=2) facing −y
+        "ceiling": (_quad(P([[-1, 2, -1], [1, 2, -1], [1, 2, 1], [-1, 2, 1]], float), subdiv),
+                    WHITE),
+        # back wall (z=−1) facing +z
+        "back": (_quad(P([[-1, 0, -1], [1, 0, -1], [1, 2, -1], [-1, 2, -1]], float), subdiv),
+                 WHITE),
+        # left wall (x=−1) facing +x, red
+        "left": (_quad(P([[-1, 0, 1], [-1, 0, -1], [-1, 2, -1], [-1, 2, 1]], float), subdiv),
+                 RED),
+        # right wall (x=+1) facing −x, green
+        "right": (_quad(P([[1, 0, -1], [1, 0, 1], [1, 2, 1], [1, 2, -1]], float), subdiv),
+                  GREEN),
+        "tall_block": (_block([-0.33, 0.6, -0.3], [0.6, 1.2, 0.6], 18.0), WHITE),
+        "short_block": (_block([0.35, 0.3, 0.35], [0.6, 0.6, 0.6], -17.0), WHITE),
+    }
+    scene = trimesh.Scene()
+    for name, (mesh, color) in parts.items():
+        mesh.visual = trimesh.visual.TextureVisuals(
+            material=PBRMaterial(name=name, baseColorFactor=[*color, 1.0],
+                                 metallicFactor=0.0, roughnessFactor=1.0))
+        scene.add_geometry(mesh, geom_name=name, node_name=name)
+    return scene
+
+
+def write_cornell_box(path: str | Path, subdiv: int = 1) -> Path:
+    """Write the Cornell box as a .glb; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = cornell_box(subdiv).export(file_type="glb", include_normals=True)
+    path.write_bytes(data)
+    return path

@@ -1,0 +1,43 @@
+"""Configurable intake limits, checked *before* memory is allocated for the asset.
+
+Defaults suit a desktop bake; the service narrows them through its settings. Every field
+can be overridden from the environment as ``PRT_LIMIT_<FIELD>`` (e.g.
+``PRT_LIMIT_MAX_TRIANGLES=500000``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+
+MiB = 1 << 20
+
+
+@dataclass(frozen=True)
+class IntakeLimits:
+    max_file_bytes: int = 512 * MiB  # the .glb/.gltf/.obj/.ply itself
+    max_buffer_bytes: int = 512 * MiB  # one buffer (external file or data URI, decoded)
+    max_total_bytes: int = 1024 * MiB  # all buffers + images together
+    max_data_uri_bytes: int = 64 * MiB  # one data: URI, decoded size
+    max_triangles: int = 4_000_000
+    max_vertices: int = 8_000_000
+    max_nodes: int = 100_000
+    max_meshes: int = 10_000
+    max_materials: int = 10_000
+    max_textures: int = 128
+    max_texture_pixels: int = 8192 * 8192  # per image, width * height
+    max_animations: int = 1_000
+    max_accessor_elements: int = 32_000_000
+    max_atlas_resolution: int = 4096
+
+    @classmethod
+    def from_env(cls, environ: dict[str, str] | None = None) -> IntakeLimits:
+        """Defaults overridden by ``PRT_LIMIT_*`` variables."""
+        env = os.environ if environ is None else environ
+        kwargs = {}
+        for f in dataclasses.fields(cls):
+            key = "PRT_LIMIT_" + f.name.upper()
+            if key in env:
+                kwargs[f.name] = int(env[key])
+        return cls(**kwargs)

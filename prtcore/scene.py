@@ -1,0 +1,226 @@
+"""Plain data for a loaded, flattened scene (world space, metres, +Y up).
+
+Produced by :mod:`prtcore.load`, consumed by every later stage. All arrays are numpy;
+all dataclasses are frozen. Vertices are *not* welded across primitives: each glTF
+primitive instance (a mesh primitive under a node) contributes its own vertex range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Texture:
+    """A decoded base-colour texture.
+
+    pixels : (h, w, 4) float32, *linear* RGBA (sRGB already decoded), row 0 = image top.
+    wrap_s, wrap_t : glTF sampler wrap modes (10497 REPEAT, 33071 CLAMP, 33648 MIRRORED).
+    """
+
+    pixels: np.ndarray
+    wrap_s: int = 10497
+    wrap_t: int = 10497
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Material:
+    """Lambertian transport material taken from glTF pbrMetallicRoughness.
+
+    base_color_factor : (4,) float64 linear RGBA
+    texture : index into ``Scene.textures`` or -1
+    uv_transform : (3, 3) float64, KHR_texture_transform as a matrix acting on
+        homogeneous TEXCOORD_0 (identity when absent)
+    texcoord : which TEXCOORD_n the base-colour texture reads (0 unless the asset says)
+    emissive_factor : (3,) float64 (recorded; transport ignores emission, see README)
+    """
+
+    name: str
+    base_color_factor: np.ndarray
+    texture: int = -1
+    uv_transform: np.ndarray = field(default_factory=lambda: np.eye(3))
+    texcoord: int = 0
+    emissive_factor: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    double_sided: bool = False
+
+
+@dataclass(frozen=True)
+class Light:
+    """A KHR_lights_punctual light in world space (DESIGN 3.1/3.2).
+
+    color : (3,) float64 linear RGB; intensity in cd (point/spot) or lux (directional)
+    position : (3,) float64; direction : (3,) float64 unit, the direction light travels
+    inner_cone_angle, outer_cone_angle : radians (spot only)
+    range : float or None (None = infinite)
+    """
+
+    type: str
+    color: np.ndarray
+    intensity: float
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -1.0]))
+    inner_cone_angle: float = 0.0
+    outer_cone_angle: float = np.pi / 4
+    range: float | None = None
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Node:
+    """A glTF node at rest: local TRS (or matrix), parent, mesh/skin references.
+
+    translation (3,), rotation (4,) quaternion xyzw, scale (3,) float64;
+    matrix (4, 4) float64 local transform (column vectors, i.e. ``world = parent @ local``);
+    world_from_node : (4, 4) float64 at rest.
+    """
+
+    name: str
+    parent: int
+    children: tuple[int, ...]
+    translation: np.ndarray
+    rotation: np.ndarray
+    scale: np.ndarray
+    matrix: np.ndarray
+    world_from_node: np.ndarray
+    mesh: int = -1
+    skin: int = -1
+
+
+@dataclass(frozen=True)
+class AnimationChannel:
+    """One sampler+target: node ``node``'s ``path`` (translation|rotation|scale|weights).
+
+    times : (k,) float64 seconds; values : (k, c) float64 (c = 3 or 4; CUBICSPLINE keeps
+    in-tangent, value, out-tangent rows as (3k, c)); interpolation : LINEAR|STEP|CUBICSPLINE
+    """
+
+    node: int
+    path: str
+    times: np.ndarray
+    values: np.ndarray
+    interpolation: str = "LINEAR"
+
+
+@dataclass(frozen=True)
+class Animation:
+    name: str
+    channels: tuple[AnimationChannel, ...]
+
+    @property
+    def duration(self) -> float:
+        return max((float(c.times[-1]) for c in self.channels if len(c.times)), default=0.0)
+
+
+@dataclass(frozen=True)
+class Skin:
+    """joints : (j,) int node indices; inverse_bind : (j, 4, 4) float64; skeleton : int."""
+
+    name: str
+    joints: np.ndarray
+    inverse_bind: np.ndarray
+    skeleton: int = -1
+
+
+@dataclass(frozen=True)
+class PrimitiveInstance:
+    """One mesh primitive placed by one node: how to re-pose it later (keyframes).
+
+    vertex_start/vertex_count and face_start/face_count index into the Scene arrays.
+    object_positions (v, 3), object_normals (v, 3) float64 in the node's (mesh) space;
+    joints (v, 4) int32 and weights (v, 4) float64 when skinned, else empty (0, 4).
+    """
+
+    node: int
+    mesh: int
+    primitive: int
+    vertex_start: int
+    vertex_count: int
+    face_start: int
+    face_count: int
+    object_positions: np.ndarray
+    object_normals: np.ndarray
+    joints: np.ndarray
+    weights: np.ndarray
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The flattened scene.
+
+    positions : (v, 3) float64 world
+    normals : (v, 3) float64 world, unit (computed area-weighted when the asset has none)
+    uv0 : (v, 2) float64 TEXCOORD_0 (zeros where absent; see ``has_uv0``)
+    uv1 : (v, 2) float64 TEXCOORD_1 or None when no primitive has it
+    faces : (f, 3) int64 vertex indices, counter-clockwise front faces
+    face_material : (f,) int32 index into ``materials`` (a default grey material is appended
+        for primitives without one)
+    face_instance : (f,) int32 index into ``instances``
+    """
+
+    source: str
+    positions: np.ndarray
+    normals: np.ndarray
+    uv0: np.ndarray
+    uv1: np.ndarray | None
+    faces: np.ndarray
+    face_material: np.ndarray
+    face_instance: np.ndarray
+    materials: tuple[Material, ...]
+    textures: tuple[Texture, ...] = ()
+    lights: tuple[Light, ...] = ()
+    nodes: tuple[Node, ...] = ()
+    instances: tuple[PrimitiveInstance, ...] = ()
+    animations: tuple[Animation, ...] = ()
+    skins: tuple[Skin, ...] = ()
+    has_uv0: np.ndarray | None = None  # (v,) bool
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.faces)
+
+    @cached_property
+    def _used_positions(self) -> np.ndarray:
+        """(u, 3) positions of the vertices that some face references."""
+        if not len(self.faces):
+            return self.positions
+        used = np.zeros(len(self.positions), dtype=bool)
+        used[self.faces.ravel()] = True
+        return self.positions[used]
+
+    @cached_property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) float64 axis-aligned bounds of the referenced vertices."""
+        p = self._used_positions
+        return np.stack([p.min(axis=0), p.max(axis=0)])
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) float64 centre of the bounding box."""
+        return self.bounds.mean(axis=0)
+
+    @cached_property
+    def radius(self) -> float:
+        """Bounding-sphere radius around :attr:`center` (the scene scale for tolerances)."""
+        p = self._used_positions
+        return float(np.sqrt(((p - self.center) ** 2).sum(axis=1).max()))
+
+    def face_areas(self) -> np.ndarray:
+        """(f,) float64 triangle areas."""
+        v = self.positions[self.faces]
+        return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+
+    def face_normals(self) -> np.ndarray:
+        """(f,) geometric unit normals (zero for degenerate faces)."""
+        v = self.positions[self.faces]
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        ln = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
+
+    def replace(self, **changes) -> Scene:
+        import dataclasses
+        return dataclasses.replace(self, **changes)

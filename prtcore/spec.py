@@ -1,0 +1,428 @@
+"""The bake spec (DESIGN 3.5): strict validation, defaults, and a canonical JSON echo.
+
+Every key is optional; unknown keys are rejected with their JSON path. The result is a
+tree of frozen dataclasses; :func:`spec_to_dict` gives back the complete spec with all
+defaults filled (echoed in the manifest and hashed for idempotent bakes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import SpecError
+
+# ---------------------------------------------------------------------------------------
+# Sections
+
+
+@dataclass(frozen=True)
+class AtlasSpec:
+    resolution: int = 512
+    padding: int = 4
+
+
+@dataclass(frozen=True)
+class PrepareSpec:
+    #: "auto": repair only what needs it; "always"; "never".
+    repair: str = "auto"
+    #: Isotropic remeshing target edge length as a fraction of the bounding-box diagonal,
+    #: or None for no remeshing.
+    remesh: float | None = None
+    #: "auto": keep a valid TEXCOORD_1, else generate; "generate": always generate;
+    #: "keep": require a valid TEXCOORD_1.
+    uv: str = "auto"
+
+
+@dataclass(frozen=True)
+class PointsSpec:
+    count: int = 256
+    placement: str = "surface"  # "surface" | "hull"
+    supersample: int = 8
+    seed: int = 1
+
+
+@dataclass(frozen=True)
+class LightFamily:
+    """One family of random lights. Distributions are kept as validated plain dicts."""
+
+    type: str = "point"
+    weight: float = 1.0
+    position: dict = field(default_factory=lambda: {"shell": [1.5, 3.0]})
+    aim: dict = field(default_factory=lambda: {"jitter": 0.3})
+    intensity: dict = field(default_factory=lambda: {"log_uniform": [1.0, 100.0]})
+    color: Any = "white"
+    inner_cone_angle: Any = None
+    outer_cone_angle: Any = field(default_factory=lambda: {"uniform": [0.3, 0.8]})
+    range: float | None = None
+    #: Seed this family from the asset's KHR_lights_punctual lights ("jitter around these").
+    from_asset: bool = False
+
+
+@dataclass(frozen=True)
+class LightsSpec:
+    count: int = 128
+    holdout: int = 16
+    seed: int = 2
+    families: tuple[LightFamily, ...] = (
+        LightFamily(type="spot"),
+    )
+
+
+@dataclass(frozen=True)
+class TransportSpec:
+    gather_rays: int = 64
+    max_bounces: int = 16
+    tolerance: float = 1e-3
+    seed: int = 3
+
+
+@dataclass(frozen=True)
+class FitSpec:
+    basis: int | str = 16  # int or "auto"
+    ridge: float | str = "auto"  # float ≥ 0 or "auto"
+    channels: str = "mono"  # "mono" | "rgb"
+    gamma: float | None = None
+
+
+@dataclass(frozen=True)
+class KeyframesSpec:
+    animation: int | str | None = None  # index or name; None: static bake
+    count: int = 16
+    times: tuple[float, ...] | None = None
+    transfer: str = "shared"  # "shared" | "per_keyframe"
+    seed: int = 4
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    dtype: str = "half"  # "half" | "float"
+
+
+@dataclass(frozen=True)
+class BakeSpec:
+    atlas: AtlasSpec = AtlasSpec()
+    prepare: PrepareSpec = PrepareSpec()
+    measurement_points: PointsSpec = PointsSpec()
+    lights: LightsSpec = LightsSpec()
+    transport: TransportSpec = TransportSpec()
+    fit: FitSpec = FitSpec()
+    keyframes: KeyframesSpec = KeyframesSpec()
+    output: OutputSpec = OutputSpec()
+
+
+# ---------------------------------------------------------------------------------------
+# Validation helpers
+
+
+def _type_name(v: Any) -> str:
+    return type(v).__name__ if v is not None else "null"
+
+
+def _int(v: Any, key: str, lo: int | None = None, hi: int | None = None) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        if isinstance(v, float) and v.is_integer():
+            v = int(v)
+        else:
+            raise SpecError(key, f"expected an integer, got {_type_name(v)} {v!r}")
+    if lo is not None and v < lo:
+        raise SpecError(key, f"must be ≥ {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise SpecError(key, f"must be ≤ {hi}, got {v}")
+    return int(v)
+
+
+def _num(v: Any, key: str, lo: float | None = None, hi: float | None = None,
+         lo_open: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise SpecError(key, f"expected a number, got {_type_name(v)} {v!r}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise SpecError(key, f"must be finite, got {v}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise SpecError(key, f"must be {'>' if lo_open else '≥'} {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise SpecError(key, f"must be ≤ {hi}, got {v}")
+    return v
+
+
+def _choice(v: Any, key: str, choices: tuple[str, ...]) -> str:
+    if v not in choices:
+        raise SpecError(key, f"must be one of {', '.join(map(repr, choices))}, got {v!r}")
+    return v
+
+
+def _obj(v: Any, key: str, allowed: tuple[str, ...]) -> dict:
+    if not isinstance(v, dict):
+        raise SpecError(key or "<root>", f"expected an object, got {_type_name(v)}")
+    unknown = sorted(set(v) - set(allowed))
+    if unknown:
+        where = f"{key}.{unknown[0]}" if key else unknown[0]
+        raise SpecError(where, f"unknown key (allowed: {', '.join(allowed)})")
+    return v
+
+
+def _vec3(v: Any, key: str) -> list[float]:
+    if not isinstance(v, list | tuple) or len(v) != 3:
+        raise SpecError(key, f"expected [x, y, z], got {v!r}")
+    return [_num(x, f"{key}[{i}]") for i, x in enumerate(v)]
+
+
+def _range(v: Any, key: str, lo: float | None = None, lo_open: bool = False) -> list[float]:
+    if not isinstance(v, list | tuple) or len(v) != 2:
+        raise SpecError(key, f"expected [min, max], got {v!r}")
+    a, b = (_num(x, f"{key}[{i}]", lo=lo, lo_open=lo_open) for i, x in enumerate(v))
+    if b < a:
+        raise SpecError(key, f"min {a} is greater than max {b}")
+    return [a, b]
+
+
+def _scalar_dist(v: Any, key: str, lo: float | None = None, lo_open: bool = False,
+                 allow_log: bool = True) -> dict:
+    """A number, ``{"uniform": [a, b]}``, or ``{"log_uniform": [a, b]}`` (a > 0)."""
+    if isinstance(v, int | float) and not isinstance(v, bool):
+        return {"constant": _num(v, key, lo=lo, lo_open=lo_open)}
+    kinds = ("constant", "uniform", "log_uniform") if allow_log else ("constant", "uniform")
+    d = _obj(v, key, kinds)
+    if len(d) != 1:
+        raise SpecError(key, f"give exactly one of {', '.join(kinds)}")
+    (kind, arg), = d.items()
+    if kind == "constant":
+        return {"constant": _num(arg, f"{key}.constant", lo=lo, lo_open=lo_open)}
+    if kind == "log_uniform":
+        return {"log_uniform": _range(arg, f"{key}.log_uniform", lo=0.0, lo_open=True)}
+    return {"uniform": _range(arg, f"{key}.uniform", lo=lo, lo_open=lo_open)}
+
+
+def _position(v: Any, key: str) -> dict:
+    d = _obj(v, key, ("shell", "box", "fixed"))
+    if len(d) != 1:
+        raise SpecError(key, "give exactly one of shell, box, fixed")
+    (kind, arg), = d.items()
+    if kind == "shell":
+        return {"shell": _range(arg, f"{key}.shell", lo=0.0)}
+    if kind == "fixed":
+        return {"fixed": _vec3(arg, f"{key}.fixed")}
+    if not isinstance(arg, list | tuple) or len(arg) != 2:
+        raise SpecError(f"{key}.box", f"expected [[x0,y0,z0], [x1,y1,z1]], got {arg!r}")
+    lo, hi = _vec3(arg[0], f"{key}.box[0]"), _vec3(arg[1], f"{key}.box[1]")
+    if any(b < a for a, b in zip(lo, hi, strict=True)):
+        raise SpecError(f"{key}.box", "first corner must be ≤ second corner on every axis")
+    return {"box": [lo, hi]}
+
+
+def _aim(v: Any, key: str) -> dict:
+    d = _obj(v, key, ("jitter", "target", "direction"))
+    out: dict = {}
+    if "jitter" in d:
+        out["jitter"] = _num(d["jitter"], f"{key}.jitter", lo=0.0)
+    if "target" in d:
+        out["target"] = _vec3(d["target"], f"{key}.target")
+    if "direction" in d:
+        out["direction"] = _vec3(d["direction"], f"{key}.direction")
+    if "target" in out and "direction" in out:
+        raise SpecError(key, "give target or direction, not both")
+    return out
+
+
+def _color(v: Any, key: str) -> Any:
+    if v in ("white", "random"):
+        return v
+    if isinstance(v, list | tuple):
+        c = _vec3(v, key)
+        if min(c) < 0:
+            raise SpecError(key, f"colour components must be ≥ 0, got {c}")
+        return c
+    raise SpecError(key, f"expected 'white', 'random' or [r, g, b], got {v!r}")
+
+
+_FAMILY_KEYS = tuple(f.name for f in dataclasses.fields(LightFamily))
+
+
+def _family(v: Any, key: str) -> LightFamily:
+    d = _obj(v, key, _FAMILY_KEYS)
+    base = LightFamily()
+    t = _choice(d.get("type", base.type), f"{key}.type", ("point", "spot", "directional"))
+    kw: dict[str, Any] = {"type": t}
+    kw["weight"] = _num(d.get("weight", base.weight), f"{key}.weight", lo=0.0, lo_open=True)
+    kw["position"] = _position(d.get("position", base.position), f"{key}.position")
+    kw["aim"] = _aim(d.get("aim", base.aim), f"{key}.aim")
+    kw["intensity"] = _scalar_dist(d.get("intensity", base.intensity), f"{key}.intensity",
+                                   lo=0.0)
+    kw["color"] = _color(d.get("color", base.color), f"{key}.color")
+    half_pi = math.pi / 2
+    if t == "spot":
+        outer = _scalar_dist(d.get("outer_cone_angle", base.outer_cone_angle),
+                             f"{key}.outer_cone_angle", lo=0.0, lo_open=True, allow_log=False)
+        vals = outer.get("uniform", [outer.get("constant")])
+        if max(vals) > half_pi:
+            raise SpecError(f"{key}.outer_cone_angle", f"must be ≤ π/2, got {max(vals)}")
+        kw["outer_cone_angle"] = outer
+        if d.get("inner_cone_angle") is not None:
+            kw["inner_cone_angle"] = _scalar_dist(d["inner_cone_angle"],
+                                                  f"{key}.inner_cone_angle", lo=0.0,
+                                                  allow_log=False)
+    else:
+        for k in ("outer_cone_angle", "inner_cone_angle"):
+            if d.get(k) is not None:
+                raise SpecError(f"{key}.{k}", f"only spot lights have cone angles, not {t}")
+        kw["outer_cone_angle"] = None
+    if d.get("range") is not None:
+        if t == "directional":
+            raise SpecError(f"{key}.range", "directional lights have no range")
+        kw["range"] = _num(d["range"], f"{key}.range", lo=0.0, lo_open=True)
+    if "from_asset" in d:
+        if not isinstance(d["from_asset"], bool):
+            raise SpecError(f"{key}.from_asset", "expected true or false")
+        kw["from_asset"] = d["from_asset"]
+    return LightFamily(**kw)
+
+
+def _section(cls: type, v: Any, key: str) -> dict:
+    return _obj(v, key, tuple(f.name for f in dataclasses.fields(cls)))
+
+
+def parse_spec(data: Any, file: str | None = None) -> BakeSpec:
+    """Validate a decoded JSON spec and fill defaults.
+
+    Raises :class:`SpecError` naming the JSON path of the first problem.
+    """
+    try:
+        return _parse(data)
+    except SpecError as e:
+        if file and e.file is None:
+            raise SpecError(e.key, e.what, file=file) from None
+        raise
+
+
+def _parse(data: Any) -> BakeSpec:
+    if data is None:
+        data = {}
+    root = _obj(data, "", tuple(f.name for f in dataclasses.fields(BakeSpec)))
+
+    a = _section(AtlasSpec, root.get("atlas", {}), "atlas")
+    atlas = AtlasSpec(
+        resolution=_int(a.get("resolution", 512), "atlas.resolution", lo=8, hi=16384),
+        padding=_int(a.get("padding", 4), "atlas.padding", lo=0, hi=64),
+    )
+
+    p = _section(PrepareSpec, root.get("prepare", {}), "prepare")
+    remesh = p.get("remesh")
+    prepare = PrepareSpec(
+        repair=_choice(p.get("repair", "auto"), "prepare.repair", ("auto", "always", "never")),
+        remesh=None if remesh is None else _num(remesh, "prepare.remesh", lo=1e-4, hi=0.5),
+        uv=_choice(p.get("uv", "auto"), "prepare.uv", ("auto", "keep", "generate")),
+    )
+
+    m = _section(PointsSpec, root.get("measurement_points", {}), "measurement_points")
+    points = PointsSpec(
+        count=_int(m.get("count", 256), "measurement_points.count", lo=1, hi=1 << 20),
+        placement=_choice(m.get("placement", "surface"), "measurement_points.placement",
+                          ("surface", "hull")),
+        supersample=_int(m.get("supersample", 8), "measurement_points.supersample",
+                         lo=1, hi=256),
+        seed=_int(m.get("seed", 1), "measurement_points.seed", lo=0),
+    )
+
+    lt = _section(LightsSpec, root.get("lights", {}), "lights")
+    fams = lt.get("families")
+    if fams is None:
+        families = LightsSpec().families
+    else:
+        if not isinstance(fams, list) or not fams:
+            raise SpecError("lights.families", "expected a non-empty list of light families")
+        families = tuple(_family(f, f"lights.families[{i}]") for i, f in enumerate(fams))
+    lights = LightsSpec(
+        count=_int(lt.get("count", 128), "lights.count", lo=1, hi=1 << 16),
+        holdout=_int(lt.get("holdout", 16), "lights.holdout", lo=0, hi=1 << 16),
+        seed=_int(lt.get("seed", 2), "lights.seed", lo=0),
+        families=families,
+    )
+
+    t = _section(TransportSpec, root.get("transport", {}), "transport")
+    transport = TransportSpec(
+        gather_rays=_int(t.get("gather_rays", 64), "transport.gather_rays", lo=1, hi=4096),
+        max_bounces=_int(t.get("max_bounces", 16), "transport.max_bounces", lo=0, hi=1000),
+        tolerance=_num(t.get("tolerance", 1e-3), "transport.tolerance", lo=0.0, hi=1.0,
+                       lo_open=True),
+        seed=_int(t.get("seed", 3), "transport.seed", lo=0),
+    )
+
+    f = _section(FitSpec, root.get("fit", {}), "fit")
+    basis = f.get("basis", 16)
+    basis = "auto" if basis == "auto" else _int(basis, "fit.basis", lo=1, hi=4096)
+    ridge = f.get("ridge", "auto")
+    ridge = "auto" if ridge == "auto" else _num(ridge, "fit.ridge", lo=0.0)
+    gamma = f.get("gamma")
+    fit = FitSpec(
+        basis=basis,
+        ridge=ridge,
+        channels=_choice(f.get("channels", "mono"), "fit.channels", ("mono", "rgb")),
+        gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=0.0, lo_open=True,
+                                              hi=10.0),
+    )
+
+    k = _section(KeyframesSpec, root.get("keyframes", {}), "keyframes")
+    anim = k.get("animation")
+    if anim is not None and not isinstance(anim, str):
+        anim = _int(anim, "keyframes.animation", lo=0)
+    times = k.get("times")
+    if times is not None:
+        if not isinstance(times, list) or not times:
+            raise SpecError("keyframes.times", "expected a non-empty list of times in seconds")
+        times = tuple(_num(x, f"keyframes.times[{i}]", lo=0.0) for i, x in enumerate(times))
+    keyframes = KeyframesSpec(
+        animation=anim,
+        count=_int(k.get("count", 16), "keyframes.count", lo=1, hi=4096),
+        times=times,
+        transfer=_choice(k.get("transfer", "shared"), "keyframes.transfer",
+                         ("shared", "per_keyframe")),
+        seed=_int(k.get("seed", 4), "keyframes.seed", lo=0),
+    )
+
+    o = _section(OutputSpec, root.get("output", {}), "output")
+    output = OutputSpec(dtype=_choice(o.get("dtype", "half"), "output.dtype", ("half", "float")))
+
+    return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
+                    transport=transport, fit=fit, keyframes=keyframes, output=output)
+
+
+def load_spec(path: str | Path | None) -> BakeSpec:
+    """Read and validate a spec file; ``None`` gives the defaults."""
+    if path is None:
+        return parse_spec({})
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise SpecError("<file>", f"cannot read: {e.strerror}", file=str(path)) from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SpecError("<file>", f"not valid JSON at line {e.lineno} column {e.colno}: "
+                        f"{e.msg}", file=str(path)) from None
+    return parse_spec(data, file=str(path))
+
+
+def spec_to_dict(spec: BakeSpec) -> dict:
+    """The complete spec with defaults, as plain JSON-compatible data."""
+    def conv(x: Any) -> Any:
+        if dataclasses.is_dataclass(x):
+            return {f.name: conv(getattr(x, f.name)) for f in dataclasses.fields(x)}
+        if isinstance(x, tuple | list):
+            return [conv(v) for v in x]
+        if isinstance(x, dict):
+            return {k: conv(v) for k, v in x.items()}
+        return x
+    return conv(spec)
+
+
+def spec_hash(spec: BakeSpec) -> str:
+    """sha256 of the canonical JSON of the complete spec."""
+    blob = json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()

@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Quick start, command 2: set up .venv and run the whole test suite (slow tests included).
+# In the inner loop, `.venv/bin/pytest` alone skips the tests marked slow.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+.venv/bin/ruff check .
+exec .venv/bin/python -m pytest -m "" -q "$@"
