@@ -1,0 +1,229 @@
+"""The bundle (DESIGN 3.4): what an engine loads, described entirely by manifest.json.
+
+Written atomically: everything goes to a temporary sibling directory that is renamed into
+place at the end, so a failed bake leaves no partial bundle (and an existing bundle is only
+replaced, with ``force``, once the new one is complete).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .errors import BundleError, PrtError
+from .imageio import read_image, write_exr
+from .runtime import RuntimeData
+
+SCHEMA = "prtcore.bundle"
+VERSION = 1
+PLANES_PER_FILE = 4
+
+RUNTIME_FORMULA = (
+    "x = per-point mean over its cluster of albedo/pi * E_direct (P x 3); "
+    "x' = sign(x)|x|^(1/gamma) (identity without gamma); s = ||x'|| (Frobenius); "
+    "u_c = transfer[c] @ x'_c + s * offset[c] (c = R, G, B); "
+    "plane weights: mean plane of channel c -> s*e_c, mono element i -> (u_R,i, u_G,i, u_B,i), "
+    "rgb element i channel c -> u_c,i*e_c; colour = sum_j plane_j * w_j; "
+    "with gamma: colour = max(colour, 0)^gamma"
+)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _raw(path: Path, array: np.ndarray, dtype: str) -> dict:
+    a = np.ascontiguousarray(array, dtype=dtype)
+    path.write_bytes(a.tobytes())
+    return {"file": path.name, "dtype": dtype, "shape": list(a.shape)}
+
+
+def planes_layout(channels: str, n_b: int) -> tuple[np.ndarray, np.ndarray]:
+    """(plane_element, plane_channel) for a basis of n_b elements besides the mean."""
+    el = [0, 0, 0]
+    ch = [0, 1, 2]
+    for i in range(1, n_b + 1):
+        if channels == "mono":
+            el.append(i)
+            ch.append(-1)
+        else:
+            el += [i, i, i]
+            ch += [0, 1, 2]
+    return np.asarray(el, np.int32), np.asarray(ch, np.int8)
+
+
+def basis_planes(mean: np.ndarray, basis: np.ndarray, channels: str) -> np.ndarray:
+    """Per-texel planes in layout order: (t, q) float32 from mean (t, 3) and basis
+    (t, n_b) mono or (t, n_b, 3) rgb."""
+    if channels == "mono":
+        return np.concatenate([mean, basis], axis=1).astype(np.float32)
+    return np.concatenate([mean, basis.reshape(len(basis), -1)], axis=1).astype(np.float32)
+
+
+def write_bundle(out: Path, writer: Callable[[Path], dict[str, Any]], force: bool = False,
+                 exclude: tuple[str, ...] = ()) -> Path:
+    """Run ``writer(tmpdir) -> manifest`` and move the result to ``out`` atomically.
+
+    ``writer`` writes its files into the temporary directory and returns the manifest
+    (without checksums); this function adds per-file sha256 and sizes (files named in
+    ``exclude`` — run reports — are left out), writes
+    manifest.json and renames the directory into place.
+    """
+    out = Path(out)
+    if out.exists() and not force:
+        raise PrtError(f"{out}: already exists (use --force to replace it)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    try:
+        manifest = writer(tmp)
+        files = {}
+        for p in sorted(tmp.iterdir()):
+            if p.is_file() and p.name not in exclude:
+                files[p.name] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+        manifest["checksums"] = files
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it 0700
+        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=False)
+                                           + "\n", encoding="utf-8")
+        if out.exists():
+            old = out.with_name(f".{out.name}.old")
+            if old.exists():
+                shutil.rmtree(old)
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def write_basis_files(directory: Path, planes_image: np.ndarray, dtype: str) -> list[str]:
+    """Pack (h, w, q) planes into basis_XX.exr files, 4 planes per RGBA file."""
+    h, w, q = planes_image.shape
+    names = []
+    for f in range(0, q, PLANES_PER_FILE):
+        chunk = np.zeros((h, w, PLANES_PER_FILE), np.float32)
+        part = planes_image[:, :, f:f + PLANES_PER_FILE]
+        chunk[:, :, :part.shape[2]] = part
+        name = f"basis_{f // PLANES_PER_FILE:02d}.exr"
+        write_exr(directory / name, chunk, dtype=dtype)
+        names.append(name)
+    return names
+
+
+def points_files(directory: Path, points, cluster_albedo: np.ndarray) -> dict:
+    """Measurement points and their supersample clusters as raw little-endian files.
+
+    cluster_albedo : (s, 3) the albedo used by transport (clamped), so that the engine's
+    shading reproduces the training data.
+    """
+    albedo_pts = points.average_clusters(cluster_albedo) if len(cluster_albedo) else \
+        points.albedo
+    cols = ["px", "py", "pz", "nx", "ny", "nz", "albedo_r", "albedo_g", "albedo_b",
+            "bary0", "bary1", "bary2"]
+    pts = np.concatenate([points.position, points.normal, albedo_pts, points.barycentric], 1)
+    cl = np.concatenate([points.cluster_position, points.cluster_normal, cluster_albedo,
+                         points.cluster_barycentric], 1)
+    return {
+        "count": int(points.count),
+        "placement": points.placement,
+        "columns": cols,
+        "points": _raw(directory / "points.bin", pts, "<f4"),
+        "points_triangle": _raw(directory / "points_triangle.bin", points.triangle, "<i4"),
+        "clusters": _raw(directory / "clusters.bin", cl, "<f4"),
+        "clusters_triangle": _raw(directory / "clusters_triangle.bin",
+                                  points.cluster_triangle, "<i4"),
+        "clusters_owner": _raw(directory / "clusters_owner.bin", points.cluster_owner, "<i4"),
+    }
+
+
+# ---------------------------------------------------------------------------------------
+# Reading
+
+
+def read_manifest(path: Path) -> dict:
+    path = Path(path)
+    mpath = path / "manifest.json"
+    if not mpath.is_file():
+        raise BundleError(f"{path}: not a bundle (no manifest.json)")
+    try:
+        m = json.loads(mpath.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise BundleError(f"{mpath}: invalid JSON at line {e.lineno}: {e.msg}") from None
+    if m.get("schema") != SCHEMA:
+        raise BundleError(f"{mpath}: schema is {m.get('schema')!r}, expected {SCHEMA!r}")
+    if m.get("version") != VERSION:
+        raise BundleError(f"{mpath}: bundle version {m.get('version')!r} is not supported "
+                          f"(this prtcore reads version {VERSION})")
+    return m
+
+
+def verify_bundle(path: Path, manifest: dict | None = None) -> None:
+    """Check every file listed in the manifest exists with its recorded sha256."""
+    path = Path(path)
+    manifest = manifest or read_manifest(path)
+    for name, info in manifest.get("checksums", {}).items():
+        p = path / name
+        if not p.is_file():
+            raise BundleError(f"{path}: {name} listed in manifest.json is missing")
+        if p.stat().st_size != info["bytes"] or _sha256(p) != info["sha256"]:
+            raise BundleError(f"{path}: {name} does not match its manifest checksum")
+
+
+def _load_raw(path: Path, desc: dict) -> np.ndarray:
+    p = path / desc["file"]
+    if not p.is_file():
+        raise BundleError(f"{path}: {desc['file']} is missing")
+    a = np.fromfile(p, dtype=np.dtype(desc["dtype"]))
+    shape = tuple(desc["shape"])
+    if a.size != int(np.prod(shape)):
+        raise BundleError(f"{path}: {desc['file']} holds {a.size} values, manifest says "
+                          f"shape {list(shape)}")
+    return a.reshape(shape)
+
+
+def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
+    """Everything the runtime needs, from the bundle files as the manifest describes them."""
+    path = Path(path)
+    m = manifest or read_manifest(path)
+    basis = m["basis"]
+    imgs = [read_image(path / f) for f in basis["files"]]
+    planes = np.concatenate(imgs, axis=2)[:, :, :basis["planes"]]
+    el = np.asarray(basis["plane_element"], np.int32)
+    ch = np.asarray(basis["plane_channel"], np.int8)
+    cov = read_image(path / m["atlas"]["coverage"])[:, :, 0] > 0.5
+    pts = m["points"]
+    clusters = _load_raw(path, pts["clusters"])
+    return RuntimeData(
+        planes=planes, plane_element=el, plane_channel=ch,
+        transfer=_load_raw(path, m["transfer"]["matrix"]),
+        offset=_load_raw(path, m["transfer"]["offset"]),
+        gamma=m["fit"]["gamma"], coverage=cov,
+        cluster_position=clusters[:, 0:3], cluster_normal=clusters[:, 3:6],
+        cluster_albedo=clusters[:, 6:9],
+        cluster_owner=_load_raw(path, pts["clusters_owner"]).astype(np.int64),
+        point_count=int(pts["count"]),
+        keyframe_times=None if not m.get("keyframes") else tuple(m["keyframes"]["times"]),
+    )
+
+
+def manifest_base(**fields: Any) -> dict:
+    return {"schema": SCHEMA, "version": VERSION, "generator": f"prtcore {__version__}",
+            **fields}

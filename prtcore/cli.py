@@ -1,0 +1,191 @@
+"""The ``prtcore`` command: a thin shell over the library (DESIGN 3.3).
+
+Every :class:`prtcore.errors.PrtError` becomes exit status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .errors import PrtError
+
+
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from .load import load_asset
+    from .plan import plan_asset
+    from .spec import load_spec
+
+    spec = load_spec(args.spec)
+    scene = load_asset(args.asset)
+    print(f"asset     {args.asset}: {scene.triangle_count} triangles, "
+          f"{len(scene.materials)} materials, {len(scene.lights)} lights, "
+          f"{len(scene.animations)} animations")
+    print(plan_asset(scene, spec).format())
+    return 0
+
+
+def _cmd_intake(args: argparse.Namespace) -> int:
+    """Run the intake stages (load → prepare → texels → points) and print a summary."""
+    from .pipeline import run_intake
+    from .spec import load_spec
+
+    spec = load_spec(args.spec)
+    result = run_intake(args.asset, spec, quiet=args.quiet)
+    print(result.summary())
+    return 0
+
+
+def _cmd_bake(args: argparse.Namespace) -> int:
+    from .pipeline import bake
+    from .spec import load_spec
+
+    spec = load_spec(args.spec)
+    out = bake(args.asset, spec, Path(args.out), quiet=args.quiet, force=args.force)
+    print(f"bundle: {out}")
+    print(f"report: {out / 'report.json'}")
+    return 0
+
+
+def _cmd_reference(args: argparse.Namespace) -> int:
+    from .pipeline import reference_to_exr
+
+    reference_to_exr(args.source, args.light, Path(args.out), spp=args.spp, seed=args.seed,
+                     spec_path=args.spec, quiet=args.quiet)
+    print(f"reference: {args.out}")
+    return 0
+
+
+def _cmd_relight(args: argparse.Namespace) -> int:
+    from .bundle import load_runtime, read_manifest
+    from .imageio import write_exr
+    from .lights import load_light_file
+    from .load import load_asset
+    from .raytrace import RayTracer
+    from .runtime import relight
+
+    bundle = Path(args.bundle)
+    manifest = read_manifest(bundle)
+    data = load_runtime(bundle, manifest)
+    lights = load_light_file(args.light)
+    scene = load_asset(bundle / manifest["asset"]["file"])
+    tracer = RayTracer(scene.positions, scene.faces, scene.radius)
+    if args.basis is not None and not 1 <= args.basis <= data.n_basis:
+        raise PrtError(f"--basis {args.basis}: the bundle has {data.n_basis} basis elements "
+                       f"(mean included); use 1..{data.n_basis}")
+    image = relight(data, lights, tracer, n=args.basis)
+    write_exr(args.out, image, dtype="float")
+    print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, "
+          f"{args.basis or data.n_basis} basis elements)")
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    import json
+
+    from .bundle import read_manifest
+    from .report import format_table
+
+    bundle = Path(args.bundle)
+    read_manifest(bundle)
+    path = bundle / "report.json"
+    if not path.is_file():
+        raise PrtError(f"{bundle}: report.json is missing")
+    report = json.loads(path.read_text(encoding="utf-8"))
+    print(format_table(report["table"], report.get("stage_seconds")))
+    if args.reference_spp:
+        from .progress import StageTimer
+        from .validate import format_validation, validate_bundle
+
+        report["validation"] = validate_bundle(bundle, args.reference_spp,
+                                               count=args.reference_lights, seed=args.seed,
+                                               timer=StageTimer(quiet=args.quiet))
+        path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    if report.get("validation"):
+        print(format_validation(report["validation"]))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="prtcore", description=__doc__.splitlines()[0])
+    p.add_argument("--version", action="version", version=f"prtcore {_version()}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def common(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bars or stage timings (CI, services)")
+
+    sp = sub.add_parser("plan", help="the stages this asset needs and why")
+    sp.add_argument("asset")
+    sp.add_argument("--spec", default=None, help="bake spec JSON (defaults if omitted)")
+    sp.set_defaults(func=_cmd_plan)
+
+    sp = sub.add_parser("intake", help="load, prepare, texel space and measurement points only")
+    sp.add_argument("asset")
+    sp.add_argument("--spec", default=None)
+    common(sp)
+    sp.set_defaults(func=_cmd_intake)
+
+    sp = sub.add_parser("bake", help="bake an asset into a PRT bundle")
+    sp.add_argument("asset")
+    sp.add_argument("--spec", default=None)
+    sp.add_argument("--out", required=True, help="bundle directory to write")
+    sp.add_argument("--force", action="store_true", help="replace an existing bundle")
+    common(sp)
+    sp.set_defaults(func=_cmd_bake)
+
+    sp = sub.add_parser("relight", help="runtime algorithm on the CPU from a bundle")
+    sp.add_argument("bundle", help="bundle directory")
+    sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
+    sp.add_argument("--out", required=True, help="output .exr (RGBA float, atlas size)")
+    sp.add_argument("--basis", type=int, default=None,
+                    help="basis elements to use, mean included (default: all)")
+    sp.set_defaults(func=_cmd_relight)
+
+    sp = sub.add_parser("report", help="error against run time of a bundle")
+    sp.add_argument("bundle", help="bundle directory")
+    sp.add_argument("--reference-spp", type=int, default=0,
+                    help="also validate held-out lights against the path tracer at N spp "
+                         "(stored in report.json)")
+    sp.add_argument("--reference-lights", type=int, default=None,
+                    help="how many held-out lights to path-trace (default: all)")
+    sp.add_argument("--seed", type=int, default=0)
+    common(sp)
+    sp.set_defaults(func=_cmd_report)
+
+    sp = sub.add_parser("reference", help="indirect lightmap by the independent path tracer")
+    sp.add_argument("source", help="asset file or bundle directory")
+    sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
+    sp.add_argument("--out", required=True, help="output .exr")
+    sp.add_argument("--spp", type=int, default=256)
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--spec", default=None, help="spec for an asset (atlas size etc.)")
+    common(sp)
+    sp.set_defaults(func=_cmd_reference)
+    return p
+
+
+def _version() -> str:
+    from . import __version__
+    return __version__
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except PrtError as e:
+        print(f"prtcore {args.command}: error: {e}", file=sys.stderr)
+        return e.exit_status
+    except BrokenPipeError:  # e.g. `prtcore report DIR | head`
+        sys.stderr.close()
+        return 0
+    except KeyboardInterrupt:
+        print(f"prtcore {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""Error against run time (DESIGN 5): the table every bake reports.
+
+For n ∈ {4, 8, 16, 32, 64} (≤ what the fit allows): relative RMSE of the held-out
+configurations against their reference, the projection bound (the reference projected
+onto the basis: the best any transfer could do with n elements), the CPU cost of the
+coefficients (u = M·x, µs) and of the basis blend at atlas size (ms), and storage.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .fit import TransferModel, projection_bound, reconstruct, relative_rmse
+
+TABLE_N = (4, 8, 16, 32, 64)
+
+
+def truncate(model: TransferModel, n: int) -> TransferModel:
+    """The model with its first n elements (mean included). Exact: rows of the transfer
+    are independent regressions, so the n-element fit is a prefix of the larger one."""
+    import dataclasses
+
+    nb = max(0, n - 1)
+    return dataclasses.replace(model, basis=model.basis[:, :nb], transfer=model.transfer[
+        ..., :nb, :], offset=model.offset[..., :nb])
+
+
+def _time(fn, repeat: int) -> float:
+    """Median seconds of ``fn()`` over ``repeat`` runs."""
+    ts = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
+                     holdout_indirect: np.ndarray, atlas_pixels: int,
+                     planes_bytes_per_element: float, reference: str) -> dict:
+    """The table.
+
+    holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3) reference indirect radiance.
+    atlas_pixels : W·H (the blend runs over the whole atlas, as in a fragment shader).
+    """
+    ns = [n for n in TABLE_N if n <= model.n_basis]
+    if model.n_basis not in ns:
+        ns.append(model.n_basis)
+    H = holdout_direct.shape[1]
+    rows = []
+    rng = np.random.default_rng(0)
+    for n in sorted(ns):
+        errs, bounds = [], []
+        for h in range(H):
+            x = holdout_direct[:, h, :].astype(np.float64)
+            ref = holdout_indirect[:, h, :].astype(np.float64)
+            if not np.linalg.norm(ref) > 0 or not np.linalg.norm(x) > 0:
+                continue
+            errs.append(relative_rmse(reconstruct(model, x, n=n), ref))
+            bounds.append(projection_bound(model, ref, x, n=n))
+        M = model.transfer[..., : n - 1, :]
+        M = M if M.ndim == 3 else M[0]
+        x32 = rng.random((M.shape[-1],)).astype(np.float32)
+        u_s = _time(lambda M=M, x32=x32: [M[c] @ x32 for c in range(3)], 200)
+        planes = 3 + (n - 1) * (1 if model.channels == "mono" else 3)
+        img = rng.random((atlas_pixels, planes)).astype(np.float32)
+        w = rng.random((planes, 3)).astype(np.float32)
+        blend_s = _time(lambda img=img, w=w: img @ w, 5)
+        files = -(-planes // 4)
+        storage = int(files * 4 * planes_bytes_per_element + M.size * 4 * (
+            1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
+        rows.append({
+            "n": n,
+            "heldout_rmse_mean": float(np.mean(errs)) if errs else None,
+            "heldout_rmse_max": float(np.max(errs)) if errs else None,
+            "projection_bound_mean": float(np.mean(bounds)) if bounds else None,
+            "cpu_coefficients_us": u_s * 1e6,
+            "cpu_blend_ms": blend_s * 1e3,
+            "textures": files,
+            "storage_bytes": storage,
+        })
+    return {"reference": reference, "heldout_configurations": H, "rows": rows}
+
+
+def format_table(table: dict, seconds: dict[str, float] | None = None) -> str:
+    lines = [f"error against run time — held-out configurations: "
+             f"{table['heldout_configurations']}, reference: {table['reference']}",
+             f"{'n':>4s} {'held-out rRMSE':>15s} {'(max)':>8s} {'proj. bound':>12s} "
+             f"{'u=M·x µs':>10s} {'blend ms':>9s} {'EXRs':>5s} {'storage':>10s}"]
+    for r in table["rows"]:
+        def pct(v):
+            return "—" if v is None else f"{100 * v:.2f}%"
+        lines.append(f"{r['n']:>4d} {pct(r['heldout_rmse_mean']):>15s} "
+                     f"{pct(r['heldout_rmse_max']):>8s} {pct(r['projection_bound_mean']):>12s} "
+                     f"{r['cpu_coefficients_us']:>10.1f} {r['cpu_blend_ms']:>9.2f} "
+                     f"{r['textures']:>5d} {r['storage_bytes'] / 2**20:>8.2f} MiB")
+    if seconds:
+        lines.append("bake stages: " + ", ".join(f"{k} {v:.2f} s" for k, v in seconds.items())
+                     + f"; total {sum(seconds.values()):.2f} s")
+    return "\n".join(lines)
+
+
+def plot(table: dict, path: Path) -> None:
+    """report.png: held-out error and projection bound against n, with CPU cost."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in table["rows"] if r["heldout_rmse_mean"] is not None]
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    if rows:
+        n = [r["n"] for r in rows]
+        ax.plot(n, [100 * r["heldout_rmse_mean"] for r in rows], "o-", label="held-out rRMSE")
+        ax.plot(n, [100 * r["projection_bound_mean"] for r in rows], "s--",
+                label="projection bound")
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(n, [str(v) for v in n])
+        ax2 = ax.twinx()
+        ax2.plot(n, [r["cpu_blend_ms"] for r in rows], "^:", color="grey",
+                 label="CPU blend (ms)")
+        ax2.set_ylabel("CPU blend at atlas size (ms)")
+    ax.set_xlabel("basis elements n (mean included)")
+    ax.set_ylabel("relative RMSE (%)")
+    ax.set_title(f"error against run time ({table['heldout_configurations']} held-out)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

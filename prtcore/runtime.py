@@ -1,0 +1,127 @@
+"""The runtime algorithm on the CPU, from bundle data alone (DESIGN 3.3 ``relight``).
+
+Per frame, exactly what an engine does:
+
+1. shade the measurement points' supersamples for the frame's lights
+   (``albedo/π · E`` with shadows) and average each cluster → x (P, 3);
+2. coefficients: ``s = ‖γ(x)‖``, ``u_c = M_c γ(x)_c + s·b_c`` per channel;
+3. blend the basis planes with one RGB coefficient per plane and undo gamma.
+
+The basis is stored as scalar *planes* packed four per RGBA EXR: planes 0–2 are the mean
+(element 0) for R, G, B; then, for "mono", one plane per element 1..n−1 (shared by the
+channels); for "rgb", three planes (R, G, B) per element. Plane ``j`` gets the RGB
+coefficient vector ``w_j``: mean plane of channel c → ``s·e_c``; mono element i →
+``(u_R,i, u_G,i, u_B,i)``; rgb element i, channel c → ``u_c,i·e_c``. Then
+``colour = Σ_j plane_j · w_j`` — the paper's 4×3 coefficient matrices, one per texture.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lights import irradiance
+from .raytrace import RayTracer
+from .scene import Light
+
+
+@dataclass(frozen=True)
+class RuntimeData:
+    """What the runtime needs, as loaded from a bundle.
+
+    planes : (h, w, q) float32 basis planes (q = 3 + n_b for mono, 3 + 3·n_b for rgb)
+    plane_element : (q,) int32 element index of each plane; plane_channel : (q,) int8,
+        0/1/2 for R/G/B, −1 for a plane shared by all channels (mono)
+    transfer : (3, n_b, P) or (G, 3, n_b, P) float32; offset : (3, n_b) or (G, 3, n_b)
+    gamma : float or None; coverage : (h, w) bool
+    cluster_position, cluster_normal, cluster_albedo : (s, 3) float32 (albedo as used by
+        transport, i.e. clamped); cluster_owner : (s,) int32; point_count : P
+    """
+
+    planes: np.ndarray
+    plane_element: np.ndarray
+    plane_channel: np.ndarray
+    transfer: np.ndarray
+    offset: np.ndarray
+    gamma: float | None
+    coverage: np.ndarray
+    cluster_position: np.ndarray
+    cluster_normal: np.ndarray
+    cluster_albedo: np.ndarray
+    cluster_owner: np.ndarray
+    point_count: int
+    keyframe_times: tuple[float, ...] | None = None
+
+    @property
+    def n_basis(self) -> int:
+        """Elements including the mean."""
+        return int(self.plane_element.max()) + 1
+
+
+def shade_points(data: RuntimeData, lights: Sequence[Light], tracer: RayTracer | None
+                 ) -> np.ndarray:
+    """Direct outgoing radiance at the measurement points: (P, 3) float64."""
+    pos = data.cluster_position.astype(np.float64)
+    nrm = data.cluster_normal.astype(np.float64)
+    e = np.zeros((len(pos), 3))
+    for light in lights:
+        e += irradiance(light, pos, nrm, tracer)
+    radiance = data.cluster_albedo.astype(np.float64) / np.pi * e
+    sums = np.zeros((data.point_count, 3))
+    np.add.at(sums, data.cluster_owner, radiance)
+    counts = np.bincount(data.cluster_owner, minlength=data.point_count)[:, None]
+    return sums / np.maximum(counts, 1)
+
+
+def _gamma(v: np.ndarray, g: float | None) -> np.ndarray:
+    if g is None or g == 1.0:
+        return v
+    return np.sign(v) * np.abs(v) ** (1.0 / g)
+
+
+def plane_weights(data: RuntimeData, x: np.ndarray, n: int | None = None,
+                  keyframe: int | None = None) -> np.ndarray:
+    """RGB coefficient of every basis plane for direct vector x (P, 3): (q, 3) float64.
+
+    n : elements to use, mean included (planes of later elements get weight 0).
+    keyframe : index into the per-keyframe transfers (None: the shared one).
+    """
+    M, b = data.transfer, data.offset
+    if M.ndim == 4:
+        k = 0 if keyframe is None else keyframe
+        M, b = M[k], b[k]
+    n_b = M.shape[1]
+    use = n_b if n is None else max(0, min(n - 1, n_b))
+    xg = _gamma(np.asarray(x, dtype=np.float64), data.gamma)
+    s = float(np.linalg.norm(xg))
+    u = np.zeros((3, n_b))
+    for c in range(3):
+        u[c, :use] = M[c, :use].astype(np.float64) @ xg[:, c] + s * b[c, :use]
+    w = np.zeros((len(data.plane_element), 3))
+    for j, (el, ch) in enumerate(zip(data.plane_element, data.plane_channel, strict=True)):
+        if el == 0:
+            w[j, ch] = s
+        elif ch < 0:
+            w[j] = u[:, el - 1]
+        else:
+            w[j, ch] = u[ch, el - 1]
+    return w
+
+
+def blend(data: RuntimeData, weights: np.ndarray) -> np.ndarray:
+    """Σ_j plane_j · w_j, gamma undone: (h, w, 3) float32 indirect radiance."""
+    h, w, q = data.planes.shape
+    out = data.planes.reshape(-1, q).astype(np.float32) @ weights.astype(np.float32)
+    if data.gamma is not None and data.gamma != 1.0:
+        out = np.maximum(out, 0.0) ** np.float32(data.gamma)
+    return out.reshape(h, w, 3)
+
+
+def relight(data: RuntimeData, lights: Sequence[Light], tracer: RayTracer | None,
+            n: int | None = None, keyframe: int | None = None) -> np.ndarray:
+    """The indirect lightmap for ``lights``: (h, w, 4) float32 RGBA, A = coverage."""
+    x = shade_points(data, lights, tracer)
+    rgb = blend(data, plane_weights(data, x, n, keyframe))
+    return np.concatenate([rgb, data.coverage[:, :, None].astype(np.float32)], axis=2)
