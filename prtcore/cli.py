@@ -93,17 +93,26 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if not path.is_file():
         raise PrtError(f"{bundle}: report.json is missing")
     report = json.loads(path.read_text(encoding="utf-8"))
+    if args.light and not args.reference_spp:
+        raise PrtError("report: --light needs --reference-spp N (the path tracer's samples "
+                       "per texel)")
     print(format_table(report["table"], report.get("stage_seconds")))
     if args.reference_spp:
         from .progress import StageTimer
         from .validate import format_validation, validate_bundle
 
-        report["validation"] = validate_bundle(bundle, args.reference_spp,
-                                               count=args.reference_lights, seed=args.seed,
-                                               timer=StageTimer(quiet=args.quiet))
+        v = validate_bundle(bundle, args.reference_spp, count=args.reference_lights,
+                            seed=args.seed, timer=StageTimer(quiet=args.quiet),
+                            light_file=args.light)
+        if args.light:  # other lights than the held-out ones: kept by their file name
+            report.setdefault("validation_lights", {})[Path(args.light).name] = v
+        else:
+            report["validation"] = v
         path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     if report.get("validation"):
         print(format_validation(report["validation"]))
+    for v in report.get("validation_lights", {}).values():
+        print(format_validation(v))
     return 0
 
 
@@ -150,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "(stored in report.json)")
     sp.add_argument("--reference-lights", type=int, default=None,
                     help="how many held-out lights to path-trace (default: all)")
+    sp.add_argument("--light", default=None,
+                    help="with --reference-spp: validate the lights of this file (DESIGN "
+                         "3.2) instead of the held-out ones, e.g. another light family")
     sp.add_argument("--seed", type=int, default=0)
     common(sp)
     sp.set_defaults(func=_cmd_report)
