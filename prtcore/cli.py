@@ -51,6 +51,18 @@ def _cmd_bake(args: argparse.Namespace) -> int:
 def _cmd_reference(args: argparse.Namespace) -> int:
     from .pipeline import reference_to_exr
 
+    if args.camera:  # camera-space ground truth for `prtcore render`
+        from .camera import reference_view_to_exr
+
+        component = "indirect" if args.indirect_only else "direct" if args.no_indirect \
+            else "full"
+        reference_view_to_exr(args.source, args.light, args.camera, Path(args.out),
+                              spp=args.spp, seed=args.seed, component=component,
+                              quiet=args.quiet)
+        print(f"reference: {args.out} ({component})")
+        return 0
+    if args.indirect_only or args.no_indirect:
+        raise PrtError("reference: --indirect-only/--no-indirect need --camera")
     reference_to_exr(args.source, args.light, Path(args.out), spp=args.spp, seed=args.seed,
                      spec_path=args.spec, quiet=args.quiet)
     print(f"reference: {args.out}")
@@ -81,6 +93,21 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_render(args: argparse.Namespace) -> int:
+    from .render import render_to_file
+
+    if args.indirect_only and args.no_indirect:
+        raise PrtError("render: --indirect-only and --no-indirect exclude each other")
+    mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
+    res, label = render_to_file(args.bundle, args.light, args.camera, args.out,
+                                n=args.basis, mode=mode, exposure=args.exposure,
+                                shadow_resolution=args.shadow_resolution)
+    times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
+    print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, {mode}) on "
+          f"{label}; first frame, wall clock per pass: {times}")
+    return 0
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     import json
 
@@ -96,6 +123,17 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if args.light and not args.reference_spp:
         raise PrtError("report: --light needs --reference-spp N (the path tracer's samples "
                        "per texel)")
+    if args.gpu:
+        from .lights import load_light_file
+        from .render import BundleRenderer, gpu_runtime_table
+        from .report import merge_gpu_columns
+
+        light = load_light_file(bundle / read_manifest(bundle)["validation"]
+                                ["holdout_lights"])[:1]
+        with BundleRenderer(bundle) as r:
+            ns = [row["n"] for row in report["table"]["rows"] if row["n"] <= r.n_basis]
+            merge_gpu_columns(report["table"], gpu_runtime_table(r, light, ns))
+        path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     print(format_table(report["table"], report.get("stage_seconds")))
     if args.reference_spp:
         from .progress import StageTimer
@@ -163,8 +201,26 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --reference-spp: validate the lights of this file (DESIGN "
                          "3.2) instead of the held-out ones, e.g. another light family")
     sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--gpu", action="store_true",
+                    help="also time the GPU runtime (GL timer queries, EGL) for the table's "
+                         "n that the bundle has (stored in report.json)")
     common(sp)
     sp.set_defaults(func=_cmd_report)
+
+    sp = sub.add_parser("render", help="headless OpenGL render of a bundle (EGL)")
+    sp.add_argument("bundle", help="bundle directory")
+    sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
+    sp.add_argument("--camera", required=True, help="camera JSON (prtcore/camera.py)")
+    sp.add_argument("--out", required=True, help="output .png (tone-mapped) or .exr (linear)")
+    sp.add_argument("--basis", type=int, default=None,
+                    help="basis elements to use, mean included (default: all)")
+    sp.add_argument("--indirect-only", action="store_true", help="indirect term only")
+    sp.add_argument("--no-indirect", action="store_true",
+                    help="direct light with shadows only (for comparison)")
+    sp.add_argument("--exposure", type=float, default=1.0, help="PNG only: linear scale")
+    sp.add_argument("--shadow-resolution", type=int, default=1024,
+                    help="side of each shadow-map view")
+    sp.set_defaults(func=_cmd_render)
 
     sp = sub.add_parser("reference", help="indirect lightmap by the independent path tracer")
     sp.add_argument("source", help="asset file or bundle directory")
@@ -173,8 +229,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spp", type=int, default=256)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--spec", default=None, help="spec for an asset (atlas size etc.)")
+    sp.add_argument("--camera", default=None,
+                    help="camera JSON: path-trace this view (direct + indirect, per pixel) "
+                         "instead of the lightmap; --spp is then paths per pixel")
+    sp.add_argument("--indirect-only", action="store_true", help="with --camera")
+    sp.add_argument("--no-indirect", action="store_true", help="with --camera: direct only")
     common(sp)
     sp.set_defaults(func=_cmd_reference)
+
     return p
 
 

@@ -97,10 +97,57 @@ def format_table(table: dict, seconds: dict[str, float] | None = None) -> str:
                      f"{pct(r['heldout_rmse_max']):>8s} {pct(r['projection_bound_mean']):>12s} "
                      f"{r['cpu_coefficients_us']:>10.1f} {r['cpu_blend_ms']:>9.2f} "
                      f"{r['textures']:>5d} {r['storage_bytes'] / 2**20:>8.2f} MiB")
+    lines += _gpu_lines(table)
     if seconds:
         lines.append("bake stages: " + ", ".join(f"{k} {v:.2f} s" for k, v in seconds.items())
                      + f"; total {sum(seconds.values()):.2f} s")
     return "\n".join(lines)
+
+
+#: Optional per-row GPU fields: (key in the gpu table, column title). Each is stored twice
+#: in a row, ``gpu_<key>_ms`` (GL timer query) and ``gpu_<key>_wall_ms`` (wall clock
+#: between glFinish calls).
+GPU_FIELDS = (("points", "points"), ("coefficients", "u=M·x"), ("atlas_blend", "blend"))
+
+
+def merge_gpu_columns(table: dict, gpu: dict) -> dict:
+    """Add GPU columns to the table in place (and return it).
+
+    gpu : :func:`prtcore.render.gpu_runtime_table` output (milliseconds). Rows of the
+    table whose n was measured get ``gpu_points_ms``, ``gpu_coefficients_ms``,
+    ``gpu_atlas_blend_ms`` (the blend over the whole atlas) from GL timer queries and the
+    same names with ``_wall_ms`` from the wall clock; ``table["gpu_renderer"]`` names the
+    GL renderer ("… (software)" for Mesa's CPU rasterisers, so that those figures are not
+    read as GPU timings).
+    """
+    by_n = {int(r["n"]): r for r in gpu["rows"]}
+    for row in table["rows"]:
+        g = by_n.get(int(row["n"]))
+        if g is not None:
+            for key, _ in GPU_FIELDS:
+                row[f"gpu_{key}_ms"] = g.get(key)
+                row[f"gpu_{key}_wall_ms"] = g.get("wall", {}).get(key)
+    table["gpu_renderer"] = gpu["renderer"]
+    return table
+
+
+def _gpu_lines(table: dict) -> list[str]:
+    """The GPU columns as a second block (only when measured): "query / wall" ms."""
+    rows = [r for r in table["rows"] if any(f"gpu_{k}_wall_ms" in r for k, _ in GPU_FIELDS)]
+    if not rows:
+        return []
+
+    def ms(v):
+        return "—" if v is None else f"{v:.3f}"
+
+    lines = [f"runtime ms (GL timer query / wall clock with glFinish) on "
+             f"{table.get('gpu_renderer', 'unknown renderer')}",
+             f"{'n':>4s} " + " ".join(f"{title:>19s}" for _, title in GPU_FIELDS)]
+    for r in rows:
+        cells = [f"{ms(r.get(f'gpu_{k}_ms'))} / {ms(r.get(f'gpu_{k}_wall_ms'))}"
+                 for k, _ in GPU_FIELDS]
+        lines.append(f"{r['n']:>4d} " + " ".join(f"{c:>19s}" for c in cells))
+    return lines
 
 
 def plot(table: dict, path: Path) -> None:
