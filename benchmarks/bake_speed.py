@@ -48,16 +48,18 @@ from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.progress import StageTimer  # noqa: E402
 from prtcore.raytrace import RayTracer  # noqa: E402
 from prtcore.reference import reference_lightmaps  # noqa: E402
-from prtcore.spec import parse_spec  # noqa: E402
+from prtcore.spec import TransportSpec, parse_spec  # noqa: E402
 from prtcore.transport import bake_dataset  # noqa: E402
 
 RAY_CHUNK = 1 << 20
 
 
 def make_spec(resolution: int, lights: int, holdout: int, points: int,
-              padding: int | None = None):
+              padding: int | None = None, gather_rays: int | None = None):
     d = copy.deepcopy(EXAMPLE_SPEC)
     d["atlas"]["resolution"] = resolution
+    if gather_rays is not None:
+        d["transport"]["gather_rays"] = gather_rays
     if padding is not None:
         d["atlas"]["padding"] = padding
     d["lights"]["count"] = lights
@@ -188,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lights", type=int, default=128)
     ap.add_argument("--holdout", type=int, default=16)
     ap.add_argument("--points", type=int, default=256)
+    ap.add_argument("--gather-rays", type=int, default=TransportSpec().gather_rays,
+                    help="M (default: the spec's default, DESIGN 3.5)")
     ap.add_argument("--low-resolution", type=int, default=64)
     ap.add_argument("--configs", type=int, default=3)
     ap.add_argument("--ref-spp-high", type=int, default=4096)
@@ -202,7 +206,9 @@ def main(argv: list[str] | None = None) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    spec = make_spec(args.resolution, args.lights, args.holdout, args.points)
+    spec = make_spec(args.resolution, args.lights, args.holdout, args.points,
+                     gather_rays=args.gather_rays)
+    load_start = os.getloadavg()
     timer = StageTimer(quiet=True)
     t_all = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -212,10 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     train, hold = sample_configurations(spec.lights, scene.center, scene.radius)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     log(f"intake done: {texels.count} texels, {points.count} points; transport …")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     ds = bake_dataset(scene, texels, points, train, hold, spec.transport, timer,
                       tracer=tracer)
     t_dataset = time.perf_counter() - t0
+    cpu_dataset = time.process_time() - c0  # all threads: compare with wall × cores
     t_total = time.perf_counter() - t_all
     sub = ds.stats["seconds"]
     trace_seconds = sub["gather operator"] + sub["direct texels"] + sub["direct points"]
@@ -225,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
                      rays["direct_texels"] + rays["direct_points"], tracer.threads)
     result = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "load_average_at_start": load_start,
                     "load_average_at_end": os.getloadavg()},
         "scene": {"asset": "cornell box", "atlas": args.resolution,
                   "texels": texels.count, "triangles": scene.triangle_count,
@@ -232,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
                   "holdout": len(hold), "points": points.count,
                   "gather_rays": spec.transport.gather_rays},
         "seconds": {**dict(timer.seconds), "dataset": t_dataset, "total": t_total},
+        "cpu_seconds_dataset": cpu_dataset,
         "solve": {"bounces": ds.iterations, "residual": ds.residual,
                   "converged": ds.stats["solve"]["converged"],
                   "method": ds.stats["solve"]["method"]},
@@ -251,6 +260,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{len(hold)} lights, P = {points.count}, M = {spec.transport.gather_rays}")
     for name, sec in result["seconds"].items():
         print(f"  {name:<18s} {sec:8.2f} s")
+    print(f"  dataset CPU time {cpu_dataset:.2f} s (all threads); load average at start "
+          f"{load_start[0]:.2f}, at end {result['machine']['load_average_at_end'][0]:.2f}")
     print(f"  solve: {ds.iterations} products ({ds.stats['solve']['method']}), residual "
           f"{ds.residual:.1e}, converged {ds.stats['solve']['converged']}")
     print(f"  rays: {rays['total']:,} traced, bake {result['rays']['bake_rays_per_s']:,.0f}"
