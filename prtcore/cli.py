@@ -154,6 +154,26 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_serve(args: argparse.Namespace) -> int:
+    """API + workers on this machine (service/, workers/; DESIGN 6)."""
+    from service.server import serve
+
+    return serve(host=args.host, port=args.port, workers=args.workers,
+                 api_workers=args.api_workers)
+
+
+def _cmd_worker(args: argparse.Namespace) -> int:
+    """One queue consumer running bakes (configuration from PRT_* variables)."""
+    import os
+
+    if args.concurrency is not None:
+        os.environ["PRT_CONCURRENCY"] = str(args.concurrency)
+    from workers.main import run_worker
+
+    run_worker()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="prtcore", description=__doc__.splitlines()[0])
     p.add_argument("--version", action="version", version=f"prtcore {_version()}")
@@ -237,6 +257,17 @@ def build_parser() -> argparse.ArgumentParser:
     common(sp)
     sp.set_defaults(func=_cmd_reference)
 
+    sp = sub.add_parser("serve", help="bake service: HTTP API and workers (PRT_* settings)")
+    sp.add_argument("--host", default="127.0.0.1")
+    sp.add_argument("--port", type=int, default=8000)
+    sp.add_argument("--workers", type=int, default=1, help="worker processes to start")
+    sp.add_argument("--api-workers", type=int, default=1, help="uvicorn worker processes")
+    sp.set_defaults(func=_cmd_serve)
+
+    sp = sub.add_parser("worker", help="bake worker: consume the job queue (PRT_* settings)")
+    sp.add_argument("--concurrency", type=int, default=None,
+                    help="bakes at once (default PRT_CONCURRENCY or 1)")
+    sp.set_defaults(func=_cmd_worker)
     return p
 
 

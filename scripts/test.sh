@@ -4,5 +4,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
+bash scripts/services.sh  # PostgreSQL + Redis for the scale-out service tests
 .venv/bin/ruff check .
 exec .venv/bin/python -m pytest -m "" -q "$@"

@@ -1,4 +1,7 @@
-"""prtcore HTTP front (FastAPI). Arrives with the service issue; see DESIGN.md section 6.
+"""prtcore HTTP front (FastAPI; DESIGN 6): bakes as jobs.
 
-Nothing here yet: the library and CLI (``prtcore/``) are the product today.
+``main.py`` assembles the app, ``routers/`` holds one router per resource, ``config.py`` the
+pydantic-settings configuration (``PRT_*``), ``store.py`` the durable job table (SQLite or
+PostgreSQL), ``uploads.py`` the streaming, size-limited multipart intake, ``artifacts.py``
+the on-disk layout of inputs and bundles. Bakes never run here: see :mod:`workers`.
 """

@@ -1,1 +1,3 @@
-"""Job-queue workers running prtcore bakes. Arrive with the service issue (DESIGN.md 6)."""
+"""Queue workers running prtcore bakes (DESIGN 6): ``queue.py`` (the huey queue shared with
+the API), ``main.py`` (``prtcore worker``: consumer + lease reaper), ``runner.py`` (one
+attempt: claim, heartbeat, outcome), ``bake_child.py`` (the bake process itself)."""

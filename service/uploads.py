@@ -1,0 +1,166 @@
+"""Receive ``POST /v1/bakes`` bodies as a stream, enforcing limits while bytes arrive.
+
+The multipart body is parsed incrementally (python-multipart's push parser): the asset part
+is written to a staging file and hashed as it comes, and the request is refused with 413 the
+moment the asset passes ``max_upload_bytes`` (or the spec ``max_spec_bytes``) — before the
+rest is read, never after storing it. A declared ``Content-Length`` that is already too
+large is refused before reading anything. The staging folder is removed on any refusal.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fastapi import Request
+from python_multipart import MultipartParser
+from python_multipart.multipart import parse_options_header
+
+from .config import Settings
+from .errors import ApiError
+
+ASSET_SUFFIXES = (".glb", ".gltf")
+FIELDS = ("asset", "spec")
+_MULTIPART_OVERHEAD = 64 * 1024
+
+
+@dataclass
+class Upload:
+    """What a bake submission carried, staged on disk."""
+
+    folder: Path
+    asset_path: Path | None = None
+    asset_name: str = ""
+    asset_bytes: int = 0
+    asset_sha256: str = ""
+    spec_bytes: bytes = b""
+    spec_seen: bool = False
+    _hash: object = field(default=None, repr=False)
+
+    def discard(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _safe_suffix(filename: str) -> str:
+    suffix = os.path.splitext(filename)[1].lower()
+    if suffix not in ASSET_SUFFIXES:
+        raise ApiError(422, "invalid_asset",
+                       f"asset {_clean(filename)!r}: unsupported file type "
+                       f"{suffix or '(none)'!r} (expected .glb or .gltf)")
+    return suffix
+
+
+def _clean(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._ -]", "_", name)[:120]
+
+
+async def receive(request: Request, settings: Settings) -> Upload:
+    """Stream the request body into an :class:`Upload`; raise :class:`ApiError` on any
+    refusal (the staging folder is gone by then)."""
+    ctype, params = parse_options_header(request.headers.get("content-type", ""))
+    if ctype != b"multipart/form-data" or not params.get(b"boundary"):
+        raise ApiError(415, "unsupported_media_type",
+                       "expected multipart/form-data with parts 'asset' (file) and 'spec' "
+                       "(JSON)")
+    limit = settings.max_upload_bytes
+    declared = request.headers.get("content-length")
+    if declared is not None:
+        try:
+            n = int(declared)
+        except ValueError:
+            raise ApiError(400, "bad_request", "invalid Content-Length") from None
+        if n > limit + settings.max_spec_bytes + _MULTIPART_OVERHEAD:
+            raise ApiError(413, "too_large", f"request of {n} bytes exceeds the upload limit "
+                                             f"max_upload_bytes={limit}")
+    settings.uploads.mkdir(parents=True, exist_ok=True)
+    up = Upload(folder=settings.uploads / uuid.uuid4().hex)
+    up.folder.mkdir()
+    state: dict = {"headers": {}, "field": None, "name": b"", "value": b"", "file": None,
+                   "error": None}
+
+    def on_header_field(data: bytes, start: int, end: int) -> None:
+        state["name"] += data[start:end]
+
+    def on_header_value(data: bytes, start: int, end: int) -> None:
+        state["value"] += data[start:end]
+
+    def on_header_end() -> None:
+        state["headers"][state["name"].lower()] = state["value"]
+        state["name"], state["value"] = b"", b""
+
+    def on_headers_finished() -> None:
+        disp, opts = parse_options_header(state["headers"].get(b"content-disposition", b""))
+        name = opts.get(b"name", b"").decode("utf-8", "replace")
+        if disp != b"form-data" or name not in FIELDS:
+            raise ApiError(422, "unknown_field", f"unexpected form field {_clean(name)!r} "
+                                                 f"(expected: {', '.join(FIELDS)})")
+        state["field"] = name
+        if name == "asset":
+            if up.asset_path is not None:
+                raise ApiError(422, "duplicate_field", "more than one 'asset' part")
+            filename = opts.get(b"filename", b"").decode("utf-8", "replace")
+            suffix = _safe_suffix(filename)
+            up.asset_name = "asset" + suffix
+            up.asset_path = up.folder / up.asset_name
+            state["file"] = open(up.asset_path, "wb")
+            up._hash = hashlib.sha256()
+        else:
+            if up.spec_seen:
+                raise ApiError(422, "duplicate_field", "more than one 'spec' part")
+            up.spec_seen = True
+
+    def on_part_data(data: bytes, start: int, end: int) -> None:
+        chunk = data[start:end]
+        if state["field"] == "asset":
+            up.asset_bytes += len(chunk)
+            if up.asset_bytes > limit:
+                raise ApiError(413, "too_large", f"asset exceeds the upload limit "
+                                                 f"max_upload_bytes={limit}")
+            state["file"].write(chunk)
+            up._hash.update(chunk)  # type: ignore[attr-defined]
+        else:
+            up.spec_bytes += chunk
+            if len(up.spec_bytes) > settings.max_spec_bytes:
+                raise ApiError(413, "too_large", f"spec exceeds the limit "
+                                                 f"max_spec_bytes={settings.max_spec_bytes}")
+
+    def on_part_end() -> None:
+        if state["file"] is not None:
+            state["file"].close()
+            state["file"] = None
+        state["headers"], state["field"] = {}, None
+
+    parser = MultipartParser(params[b"boundary"], callbacks={
+        "on_header_field": on_header_field, "on_header_value": on_header_value,
+        "on_header_end": on_header_end, "on_headers_finished": on_headers_finished,
+        "on_part_data": on_part_data, "on_part_end": on_part_end,
+    })
+    try:
+        async for chunk in request.stream():
+            parser.write(chunk)
+        parser.finalize()
+    except ApiError:
+        _close(state)
+        up.discard()
+        raise
+    except Exception as e:  # malformed multipart, client went away
+        _close(state)
+        up.discard()
+        raise ApiError(400, "bad_request", f"malformed multipart body: {e}"[:300]) from None
+    _close(state)
+    if up.asset_path is None or not up.asset_path.is_file():
+        up.discard()
+        raise ApiError(422, "missing_asset", "the 'asset' file part is required")
+    up.asset_sha256 = up._hash.hexdigest()  # type: ignore[attr-defined]
+    return up
+
+
+def _close(state: dict) -> None:
+    if state["file"] is not None:
+        state["file"].close()
+        state["file"] = None

@@ -1,0 +1,236 @@
+"""The HTTP contract, in process (TestClient, no worker): submission, idempotency, limits,
+hostile uploads, listing, cancel of a queued job, tokens, health, metrics, openapi drift."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import hostile_assets as H
+import pytest
+from service_harness import CORNELL, ROOT
+from test_bundle import TINY_SPEC
+
+
+def post(client, asset: Path | bytes, spec=TINY_SPEC, name: str | None = None,
+         headers: dict | None = None):
+    data = asset.read_bytes() if isinstance(asset, Path) else asset
+    name = name or (asset.name if isinstance(asset, Path) else "asset.glb")
+    spec_text = spec if isinstance(spec, str) else json.dumps(spec)
+    return client.post("/v1/bakes", headers=headers or {},
+                       files={"asset": (name, data, "application/octet-stream"),
+                              "spec": ("spec.json", spec_text, "application/json")})
+
+
+def left_behind(client) -> list[str]:
+    """Everything under the artifact location except the (empty) staging folder."""
+    root = client.settings.artifacts
+    out = [str(p.relative_to(root)) for p in root.rglob("*")]
+    return [p for p in out if p != ".uploads"]
+
+
+def job_count(client) -> int:
+    return len(client.get("/v1/bakes", params={"limit": 100}).json()["items"])
+
+
+def test_openapi_yaml_matches_the_app():
+    """openapi.yaml is generated from the app; regenerate with `python -m service.openapi`."""
+    from service.openapi import PATH, render
+
+    assert PATH.read_text(encoding="utf-8") == render(), \
+        "openapi.yaml drifted from the app: run .venv/bin/python -m service.openapi"
+    assert PATH.parent == ROOT
+
+
+def test_submit_queues_and_identical_submission_returns_the_same_job(app_client):
+    c = app_client()
+    r = post(c, CORNELL)
+    assert r.status_code == 202, r.text
+    body = r.json()
+    assert r.headers["location"] == f"/v1/bakes/{body['id']}"
+    assert body["status"] == "queued" and body["attempts"] == 0
+    job_dir = c.settings.artifacts / body["id"]
+    assert (job_dir / "input" / "asset.glb").read_bytes() == CORNELL.read_bytes()
+    # Same asset + same spec (even written differently: defaults spelt out) → same job.
+    spelt = json.loads(json.dumps(TINY_SPEC))
+    spelt["atlas"]["padding"] = 2
+    spelt["output"]["dtype"] = "float"
+    spelt["prepare"] = {"repair": "auto"}
+    again = post(c, CORNELL, spec=spelt, name="other-name.glb")
+    assert again.status_code == 200 and again.json()["id"] == body["id"]
+    # A different spec is a different job.
+    other = post(c, CORNELL, spec={**TINY_SPEC, "lights": {**TINY_SPEC["lights"], "seed": 9}})
+    assert other.status_code == 202 and other.json()["id"] != body["id"]
+    assert c.get(f"/v1/bakes/{body['id']}").json()["status"] == "queued"
+    assert job_count(c) == 2
+    assert not list(c.settings.uploads.iterdir())
+
+
+def test_idempotency_key(app_client):
+    c = app_client()
+    first = post(c, CORNELL, headers={"Idempotency-Key": "k-1"})
+    same = post(c, CORNELL, headers={"Idempotency-Key": "k-1"})
+    assert first.status_code == 202 and same.status_code == 200
+    assert same.json()["id"] == first.json()["id"]
+    clash = post(c, CORNELL, spec={**TINY_SPEC, "fit": {"basis": 4}},
+                 headers={"Idempotency-Key": "k-1"})
+    assert clash.status_code == 409 and clash.json()["error"]["code"] == "idempotency_conflict"
+    assert job_count(c) == 1
+
+
+def test_spec_with_unknown_keys_is_422_naming_them(app_client):
+    c = app_client()
+    r = post(c, CORNELL, spec={**TINY_SPEC, "colour": 1})
+    assert r.status_code == 422
+    err = r.json()["error"]
+    assert err["code"] == "invalid_spec" and "colour" in err["message"]
+    r = post(c, CORNELL, spec={"atlas": {"resolution": 32, "paddin": 1}})
+    assert r.status_code == 422 and "paddin" in r.json()["error"]["message"]
+    r = post(c, CORNELL, spec="{not json")
+    assert r.status_code == 422 and "JSON" in r.json()["error"]["message"]
+    assert job_count(c) == 0 and left_behind(c) == []
+
+
+HOSTILE = {
+    "path_traversal": lambda d: H.path_traversal_asset(d)[0],
+    "http_uri": lambda d: H.uri_buffer_asset(d, "http://example.com/model.bin"),
+    "file_uri": lambda d: H.uri_buffer_asset(d, "file:///etc/passwd"),
+    "absolute_uri": lambda d: H.uri_buffer_asset(d, "/etc/passwd"),
+    "accessor_overrun": H.accessor_overrun_asset,
+    "giant_data_uri": lambda d: H.data_uri_asset(d, 300_000),
+    "truncated": H.truncated_glb_asset,
+    "wrong_magic": H.wrong_magic_asset,
+    "invalid_json": lambda d: H.json_chunk_asset(d, b"{not json"),
+    "deep_json": lambda d: H.json_chunk_asset(d, b"[" * 100000),
+    "nan_positions": lambda d: H.positions_asset(d, float("nan")),
+    "points_only": H.points_only_asset,
+    "too_many_triangles": lambda d: H.instanced_asset(d, 5),
+    "huge_texture": lambda d: H.textured_asset(d, 64, 32),
+    "draco": lambda d: H.required_extension_asset(d, "KHR_draco_mesh_compression"),
+    "meshopt": lambda d: H.required_extension_asset(d, "EXT_meshopt_compression"),
+    "bad_indices": lambda d: H.indices_asset(d, [0, 1, 7]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE))
+def test_hostile_gltf_is_422_with_the_loader_message(app_client, tmp_path, monkeypatch, case):
+    monkeypatch.setenv("PRT_LIMIT_MAX_DATA_URI_BYTES", "100000")
+    monkeypatch.setenv("PRT_LIMIT_MAX_TRIANGLES", "4")
+    monkeypatch.setenv("PRT_LIMIT_MAX_TEXTURE_PIXELS", "1000")
+    c = app_client()
+    d = tmp_path / "hostile"
+    d.mkdir()
+    path = HOSTILE[case](d)
+    r = post(c, path)
+    assert r.status_code == 422, (case, r.text)
+    err = r.json()["error"]
+    assert err["code"] == "invalid_asset" and err["message"].startswith("asset")
+    assert str(c.settings.data_dir) not in err["message"]  # no server paths leak
+    assert job_count(c) == 0 and left_behind(c) == []
+    assert not list(c.settings.uploads.iterdir())
+
+
+def test_wrong_file_type_missing_asset_unknown_field(app_client):
+    c = app_client()
+    r = post(c, b"solid x\nendsolid x\n", name="model.stl")
+    assert r.status_code == 422 and ".stl" in r.json()["error"]["message"]
+    r = c.post("/v1/bakes", files={"spec": ("s.json", "{}", "application/json")})
+    assert r.status_code == 422 and r.json()["error"]["code"] == "missing_asset"
+    r = c.post("/v1/bakes", files={"asset": ("a.glb", CORNELL.read_bytes()),
+                                   "extra": ("x", b"1")})
+    assert r.status_code == 422 and "extra" in r.json()["error"]["message"]
+    r = c.post("/v1/bakes", content=b"{}", headers={"content-type": "application/json"})
+    assert r.status_code == 415
+    assert job_count(c) == 0 and left_behind(c) == []
+
+
+def test_oversize_upload_is_413_and_leaves_nothing(app_client):
+    c = app_client(max_upload_bytes=4096)
+    r = post(c, CORNELL)  # 7.9 kB
+    assert r.status_code == 413 and "max_upload_bytes=4096" in r.json()["error"]["message"]
+    r = post(c, CORNELL, spec={"x": "y" * 5000})
+    assert r.status_code == 413
+    c2 = app_client(max_spec_bytes=100, data_dir=c.settings.data_dir)
+    r = post(c2, b"x", spec={"pad": "y" * 500})
+    assert r.status_code == 413 and "max_spec_bytes=100" in r.json()["error"]["message"]
+    assert job_count(c) == 0 and left_behind(c) == []
+
+
+def test_get_list_filter_paginate_cancel(app_client):
+    c = app_client()
+    ids = []
+    for seed in range(5):
+        spec = {**TINY_SPEC, "lights": {**TINY_SPEC["lights"], "seed": seed}}
+        ids.append(post(c, CORNELL, spec=spec).json()["id"])
+    assert c.get("/v1/bakes/" + "0" * 32).status_code == 404
+    assert c.get("/v1/bakes/not-an-id").status_code == 422
+    seen, cursor = [], None
+    while True:
+        params = {"limit": 2} | ({"cursor": cursor} if cursor else {})
+        page = c.get("/v1/bakes", params=params).json()
+        seen += [j["id"] for j in page["items"]]
+        cursor = page["next_cursor"]
+        if not cursor:
+            break
+    assert seen == ids[::-1]
+    assert c.get("/v1/bakes", params={"cursor": "garbage"}).status_code == 400
+
+    r = c.delete(f"/v1/bakes/{ids[0]}")
+    assert r.status_code == 202 and r.json()["status"] == "cancelled"
+    assert c.get(f"/v1/bakes/{ids[0]}").json()["status"] == "cancelled"
+    cancelled = c.get("/v1/bakes", params={"status": "cancelled"}).json()["items"]
+    assert [j["id"] for j in cancelled] == [ids[0]]
+    queued = c.get("/v1/bakes", params={"status": "queued"}).json()["items"]
+    assert len(queued) == 4
+    assert c.get("/v1/bakes", params={"status": "bogus"}).status_code == 422
+    # Artifacts and report exist only for succeeded jobs.
+    assert c.get(f"/v1/bakes/{ids[1]}/artifacts").status_code == 409
+    assert c.get(f"/v1/bakes/{ids[1]}/report").status_code == 409
+    # A cancelled job's content can be submitted again as a new job.
+    again = post(c, CORNELL, spec={**TINY_SPEC, "lights": {**TINY_SPEC["lights"], "seed": 0}})
+    assert again.status_code == 202 and again.json()["id"] != ids[0]
+
+
+@pytest.mark.parametrize("name", ["...", "..%2F..%2Fjobs.db", ".hidden", "a%2Fb",
+                                  "%2E%2E"])
+def test_artifact_names_with_traversal_are_refused(app_client, name):
+    c = app_client()
+    job_id = post(c, CORNELL).json()["id"]
+    r = c.get(f"/v1/bakes/{job_id}/artifacts/{name}")
+    assert 400 <= r.status_code < 500, (name, r.status_code)
+    assert b"SQLite" not in r.content
+
+
+def test_bearer_tokens(app_client):
+    c = app_client(api_tokens=["s3cret", "other"])
+    assert c.get("/v1/bakes").status_code == 401
+    assert c.get("/v1/bakes").headers["www-authenticate"] == "Bearer"
+    assert c.get("/v1/bakes", headers={"Authorization": "Bearer nope"}).status_code == 401
+    ok = {"Authorization": "Bearer other"}
+    assert c.get("/v1/bakes", headers=ok).status_code == 200
+    assert post(c, CORNELL).status_code == 401
+    assert post(c, CORNELL, headers=ok).status_code == 202
+    assert c.get("/healthz").status_code == 200  # health stays open for probes
+
+
+def test_health_ready_metrics(app_client):
+    c = app_client()
+    assert c.get("/healthz").json() == {"status": "ok"}
+    r = c.get("/readyz")
+    assert r.status_code == 200 and r.json()["checks"] == {"database": "ok", "queue": "ok"}
+    post(c, CORNELL)
+    m = c.get("/metrics")
+    assert m.status_code == 200 and m.headers["content-type"].startswith("text/plain")
+    assert 'prtcore_jobs{state="queued"} 1.0' in m.text
+    assert "prtcore_queue_depth 1.0" in m.text
+    assert "prtcore_bake_duration_seconds_bucket" in m.text
+
+
+def test_readyz_reports_an_unreachable_database(app_client):
+    c = app_client()
+    c.app.state.store.engine.dispose()
+    import sqlalchemy as sa
+
+    c.app.state.store.engine = sa.create_engine("postgresql+psycopg://nobody@127.0.0.1:1/x")
+    r = c.get("/readyz")
+    assert r.status_code == 503 and r.json()["checks"]["database"].startswith("error")

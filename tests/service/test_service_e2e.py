@@ -1,0 +1,126 @@
+"""Embedded mode end to end with real processes: uvicorn API + ``prtcore worker``, SQLite
+job store and queue, artifacts in a temp folder."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+import zipfile
+
+from service_harness import CORNELL, ROOT, SHELL_SPEC
+
+
+def test_submit_poll_download_relight(make_cluster, shared_assets, tmp_path):
+    """A shared asset (Duck) goes queued → running → succeeded; the zip holds the bundle;
+    `prtcore relight` works on it; every listed artifact downloads with its checksum;
+    an identical resubmission returns the same job and bakes nothing more."""
+    c = make_cluster()
+    c.start_api()
+    c.start_worker()
+    duck = shared_assets / "Duck.glb"
+    r = c.submit(SHELL_SPEC, asset=duck)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    assert r.headers["location"] == f"/v1/bakes/{job_id}"
+    assert r.json()["status"] == "queued"
+    job = c.wait(job_id)
+    assert job["status"] == "succeeded", job
+    assert job["attempts"] == 1 and job["progress"] == 1.0 and job["error"] is None
+    assert {"load", "texels", "fit", "export"} <= set(job["timings"])
+
+    again = c.submit(SHELL_SPEC, asset=duck)
+    assert again.status_code == 200 and again.json()["id"] == job_id
+
+    listing = c.client.get(f"/v1/bakes/{job_id}/artifacts").json()
+    names = {f["name"] for f in listing["files"]}
+    assert {"manifest.json", "asset.glb", "basis_00.exr", "report.json"} <= names
+    import hashlib
+    manifest = c.client.get(f"/v1/bakes/{job_id}/artifacts/manifest.json").json()
+    for name, meta in manifest["checksums"].items():
+        body = c.client.get(f"/v1/bakes/{job_id}/artifacts/{name}").content
+        assert hashlib.sha256(body).hexdigest() == meta["sha256"], name
+
+    z = c.client.get(f"/v1/bakes/{job_id}/artifacts/bundle.zip")
+    assert z.status_code == 200 and z.headers["content-type"] == "application/zip"
+    bundle = tmp_path / "downloaded"
+    zipfile.ZipFile(io.BytesIO(z.content)).extractall(bundle)
+    assert set(p.name for p in bundle.iterdir()) == names
+    report = c.client.get(f"/v1/bakes/{job_id}/report").json()
+    assert report == json.loads((bundle / "report.json").read_text())
+
+    light = tmp_path / "light.json"
+    light.write_text(json.dumps({"type": "point", "color": [1, 1, 1], "intensity": 5.0,
+                                 "position": [0.0, 150.0, 100.0]}))
+    out = tmp_path / "relit.exr"
+    p = subprocess.run([sys.executable, "-m", "prtcore", "relight", str(bundle), "--light",
+                        str(light), "--out", str(out)], cwd=ROOT, capture_output=True,
+                       text=True)
+    assert p.returncode == 0, p.stderr
+    assert out.stat().st_size > 0
+
+    # Exactly one bundle, nothing half-written, the job counted in the metrics.
+    assert sorted(p.name for p in c.job_dir(job_id).iterdir()) == ["bundle", "bundle.zip",
+                                                                   "input"]
+    metrics = c.client.get("/metrics").text
+    assert 'prtcore_jobs{state="succeeded"} 1.0' in metrics
+    assert "prtcore_bake_duration_seconds_count 1.0" in metrics
+    assert CORNELL.exists()
+
+
+def test_prtcore_serve_runs_everything_and_stops_cleanly(tmp_path):
+    """`prtcore serve` alone: API + worker, embedded SQLite store and queue under
+    PRT_DATA_DIR; a bake succeeds; SIGTERM stops the API and every worker process."""
+    import os
+    import signal
+    import time
+
+    import httpx
+    from service_harness import alive, descendants, free_port
+    from test_bundle import TINY_SPEC
+
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PRT_")}
+    env.update(PRT_DATA_DIR=str(tmp_path / "data"), PRT_POLL_MAX_DELAY_S="0.2")
+    log = open(tmp_path / "serve.log", "wb")  # closed below
+    proc = subprocess.Popen([sys.executable, "-m", "prtcore", "serve", "--port", str(port),
+                             "--workers", "1"], cwd=ROOT, env=env, stdout=log,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60) as c:
+            for _ in range(600):
+                try:
+                    if c.get("/readyz").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    time.sleep(0.1)
+            with open(CORNELL, "rb") as f:
+                r = c.post("/v1/bakes", files={"asset": ("cornell.glb", f),
+                                               "spec": ("s.json", json.dumps(TINY_SPEC))})
+            assert r.status_code == 202, r.text
+            job_id = r.json()["id"]
+            for _ in range(2400):
+                job = c.get(f"/v1/bakes/{job_id}").json()
+                if job["status"] in ("succeeded", "failed", "cancelled"):
+                    break
+                time.sleep(0.1)
+            assert job["status"] == "succeeded", job
+        kids = descendants(proc.pid)
+        assert kids, "serve started no worker process"
+        assert (tmp_path / "data" / "jobs.db").is_file()
+        assert (tmp_path / "data" / "queue.db").is_file()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 0
+        for _ in range(300):
+            if not alive(kids):
+                break
+            time.sleep(0.1)
+        assert not alive(kids), f"processes left behind: {alive(kids)}"
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+        log.close()

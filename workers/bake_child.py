@@ -1,0 +1,139 @@
+"""The bake process: one attempt of one job, started by :mod:`workers.runner`.
+
+A separate process (from a forkserver preloaded with prtcore) so that the worker that
+holds the lease keeps heartbeating whatever the bake does, can enforce the job's time
+limit by killing it, and survives a crash of the bake itself. The bake publishes stage and
+progress through the job store and stops at the next stage boundary when the job is
+cancelled or its lease was lost.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import time
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+# Preloaded in the forkserver: the library and what a bake imports lazily.
+import prtcore.pipeline  # noqa: F401
+from prtcore.errors import AssetError, PrtError, SpecError
+from service import artifacts
+from service.config import Settings
+from service.store import JobStore
+
+#: Stages of a full bake in order (DESIGN 2); progress is the share of them started.
+#: Stages the plan skips are simply passed over.
+STAGE_ORDER = ("load", "plan", "repair", "remesh", "uv", "texels", "points", "lights",
+               "gather operator", "direct texels", "direct points", "indirect solve", "fit",
+               "report", "export")
+
+
+class Stop(Exception):
+    """Raised from the progress callback to stop at a stage boundary."""
+
+    def __init__(self, status: str):
+        super().__init__(status)
+        self.status = status
+
+
+def _die_with_parent() -> None:
+    """Linux: SIGKILL this process when its parent dies (no orphaned bakes)."""
+    with contextlib.suppress(Exception):
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+def error_code(e: BaseException) -> tuple[str, bool]:
+    """(code, worth retrying) for an exception raised by a bake."""
+    if isinstance(e, AssetError):
+        return "invalid_asset", False
+    if isinstance(e, SpecError):
+        return "invalid_spec", False
+    if isinstance(e, PrtError):
+        return "bake_error", False
+    if isinstance(e, MemoryError):
+        return "out_of_memory", True
+    if isinstance(e, OSError):
+        return "io_error", True
+    return "internal_error", True
+
+
+def _watch_lifeline(lifeline: Connection) -> None:
+    """Block on the worker's lifeline; when the worker is gone (EOF), die at once — a bake
+    whose lease holder is dead must not go on writing (its job runs again elsewhere)."""
+    try:
+        lifeline.recv()
+    except (EOFError, OSError):
+        pass
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def child_main(settings: Settings, job_id: str, token: str, asset_name: str,
+               spec_json: str, conn: Connection, lifeline: Connection) -> None:
+    """Run the bake; send one result dict through ``conn`` (unless killed)."""
+    import threading
+
+    _die_with_parent()
+    threading.Thread(target=_watch_lifeline, args=(lifeline,), daemon=True,
+                     name="lifeline").start()
+    with contextlib.suppress(OSError):
+        os.nice(settings.bake_nice)
+    result: dict[str, Any]
+    timings: dict[str, float] = {}
+    try:
+        result = _bake(settings, job_id, token, asset_name, spec_json, timings)
+    except Stop as s:
+        result = {"status": s.status}
+    except BaseException as e:  # report everything; the parent decides about retries
+        code, retry = error_code(e)
+        msg = str(e) if isinstance(e, PrtError) else f"{type(e).__name__}: {e}"
+        result = {"status": "error", "code": code, "message": msg[:2000], "retry": retry}
+    result["timings"] = timings
+    conn.send(result)
+    conn.close()
+
+
+def _bake(settings: Settings, job_id: str, token: str, asset_name: str, spec_json: str,
+          timings: dict[str, float]) -> dict[str, Any]:
+    from prtcore.limits import IntakeLimits
+    from prtcore.pipeline import bake
+    from prtcore.spec import parse_spec
+
+    store = JobStore(settings.db_url, create=False)
+    root = settings.artifacts
+    started: dict[str, float] = {}
+    done = [0.0]
+
+    def callback(stage: str, fraction: float) -> None:
+        now = time.perf_counter()
+        if fraction <= 0.0:
+            started[stage] = now
+            if settings.fault_crash_stage and stage == settings.fault_crash_stage:
+                os.kill(os.getpid(), signal.SIGKILL)  # fault injection (tests only)
+            if stage in STAGE_ORDER:
+                done[0] = max(done[0], STAGE_ORDER.index(stage) / len(STAGE_ORDER))
+            ours, cancel = store.progress(job_id, token, stage, done[0], timings)
+            if not ours:
+                raise Stop("lost")
+            if cancel:
+                raise Stop("cancelled")
+        else:
+            timings[stage] = round(timings.get(stage, 0.0) + now - started.get(stage, now), 4)
+
+    spec = parse_spec(json.loads(spec_json))
+    artifacts.clean_partials(root, job_id)
+    asset = artifacts.input_dir(root, job_id) / asset_name
+    out = artifacts.bundle_dir(root, job_id)
+    bake(asset, spec, out, quiet=True, force=True, limits=IntakeLimits.from_env(),
+         callback=callback)
+    ours, _cancel = store.progress(job_id, token, "package", done[0], timings)
+    if not ours:
+        raise Stop("lost")
+    artifacts.write_zip(out, artifacts.zip_path(root, job_id))
+    store.engine.dispose()
+    return {"status": "succeeded", "bundle": str(Path(out))}
