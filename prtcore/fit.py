@@ -100,6 +100,11 @@ AUTO_HOLDOUT_MARGIN = 0.01
 #: basis="auto" never goes beyond this many elements (mean included): 16 RGBA textures,
 #: the top of the DESIGN 5 report table.
 AUTO_BASIS_MAX = 64
+#: Allowed gamma g (values fitted as |v|^(1/g)). g < 1 would expand the dynamic range:
+#: at g = 0.05 a direct radiance of 1e6 becomes 1e120 and the float32 model overflows
+#: (NaN lightmaps). With g ≥ 1, |v|^(1/g) ≤ max(|v|, 1): encoding never overflows.
+#: The upper bound is the spec's (fit.gamma ≤ 10).
+GAMMA_RANGE = (1.0, 10.0)
 #: Memory budget of one block of texel rows in float64 work arrays.
 BLOCK_BYTES = 64 * 2**20
 
@@ -188,7 +193,7 @@ class TransferModel:
     basis : (T, n_b) float32 for "mono" (shared by R, G, B); (T, n_b, 3) float32 for "rgb"
     transfer : (3, n_b, P) float32, or (G, 3, n_b, P) per keyframe group
     offset : (3, n_b) float32, or (G, 3, n_b) — the coefficient offset b, scaled by s
-    gamma : None or g > 0 (values fitted as sign(v)|v|^(1/g))
+    gamma : None or g in GAMMA_RANGE (values fitted as sign(v)|v|^(1/g))
     channels : "mono" | "rgb"
     ridge : λ used
     group_ids : keyframe ids, in the order of the transfer's first axis (None: shared)
@@ -284,7 +289,7 @@ def fit_transfer(
     basis : element count n including the mean (≥ 1), or "auto"
     ridge : λ ≥ 0 (absolute, normalised units) or "auto" (leave-one-out CV)
     channels : "mono" (one basis, per-channel transfer) | "rgb" (basis per channel)
-    gamma : None or g > 0 (paper 5.3; fit on sign(v)|v|^(1/g))
+    gamma : None or 1 ≤ g ≤ 10 (paper 5.3; fit on sign(v)|v|^(1/g); GAMMA_RANGE)
     groups : (K,) int keyframe ids; one basis for all, transfer shared unless ``per_group``
     per_group : one transfer (and offset) per keyframe id
     holdout : (D_h (P, H, 3), I_h (T, H, 3)[, groups_h (H,)]) — held-out configurations for
@@ -577,8 +582,10 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
     if ridge != "auto" and (isinstance(ridge, bool | str) or not np.isfinite(ridge)
                             or ridge < 0):
         raise ValueError(f"fit: ridge must be a float ≥ 0 or 'auto', got {ridge!r}")
-    if gamma is not None and not (np.isfinite(gamma) and gamma > 0):
-        raise ValueError(f"fit: gamma must be None or > 0, got {gamma!r}")
+    if gamma is not None and not (np.isfinite(gamma) and GAMMA_RANGE[0] <= gamma
+                                  <= GAMMA_RANGE[1]):
+        raise ValueError(f"fit: gamma must be None or in [{GAMMA_RANGE[0]:g}, "
+                         f"{GAMMA_RANGE[1]:g}], got {gamma!r}")
     gamma = None if gamma is None else float(gamma)
     if per_group and groups is None:
         raise ValueError("fit: per_group=True needs groups")
@@ -801,6 +808,12 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
                    else 0)
         ok = sa.size and sa[0] > 0 and sa[-1] > DIRECT_SVD_REL_TOL * sa[0]
         cond.append(float(sa[0] / sa[-1]) if ok else None)
+    full_rank = min(P, k_eff)
+    if full_rank and min(eff) < full_rank:
+        warnings.append(f"direct matrix rank-deficient: effective rank {min(eff)} < "
+                        f"{full_rank} (coincident or nearly collinear measurement points, "
+                        f"or near-duplicate lights); transfer is the minimum-norm solution "
+                        f"on the {min(eff)} well-determined directions")
     seconds["total"] = time.perf_counter() - t0
     diag = FitDiagnostics(
         configurations=K,

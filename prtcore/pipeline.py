@@ -110,12 +110,13 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from .report import TABLE_N, error_vs_runtime, format_table, plot, truncate
     from .spec import spec_hash, spec_to_dict
     from .texels import texels_to_image
-    from .transport import bake_dataset
+    from .transport import bake_dataset, check_bake_memory
 
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
     intake = run_intake(asset, spec, timer=timer, limits=limits)
     scene, texels, points = intake.scene, intake.texels, intake.points
+    check_bake_memory(asset, texels, spec, (limits or IntakeLimits.from_env()).max_bake_bytes)
 
     with timer.stage("lights"):
         train, hold = sample_configurations(spec.lights, scene.center, scene.radius,

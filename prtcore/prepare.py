@@ -971,9 +971,15 @@ def generate_uv1(scene: Scene, resolution: int, padding: int, seed: int = 0) -> 
     del seed  # xatlas has no random state of its own to seed (fixed internal RNG)
     spans = _spans(scene)
     meshes, which = [], []
+    # xatlas sees the scene centred and divided by its radius: its charting and packing
+    # have absolute thresholds, so world units made the atlas depend on the scene's scale
+    # (11 % fewer covered texels for the Cornell box in millimetres; tests/stability)
+    centre = np.asarray(scene.center, np.float64) if len(scene.positions) else np.zeros(3)
+    unit = 1.0 / _scale(scene)
     for k, (v0, v1, f0, f1) in enumerate(spans):
         if f1 > f0:
-            meshes.append((np.ascontiguousarray(scene.positions[v0:v1], np.float32),
+            meshes.append((np.ascontiguousarray((scene.positions[v0:v1] - centre) * unit,
+                                                np.float32),
                            np.ascontiguousarray(scene.faces[f0:f1] - v0, np.uint32),
                            np.ascontiguousarray(scene.normals[v0:v1], np.float32)))
             which.append(k)

@@ -16,6 +16,8 @@ import numpy as np
 from .fit import TransferModel, projection_bound, reconstruct, relative_rmse
 
 TABLE_N = (4, 8, 16, 32, 64)
+#: The CPU blend timing runs on at most this many pixels (1024²) and is scaled linearly.
+BLEND_TIMING_PIXELS = 1 << 20
 
 
 def truncate(model: TransferModel, n: int) -> TransferModel:
@@ -24,8 +26,14 @@ def truncate(model: TransferModel, n: int) -> TransferModel:
     import dataclasses
 
     nb = max(0, n - 1)
+    diag = model.diagnostics
+    if n < model.n_basis:  # the diagnostics describe the truncated model, not the larger fit
+        diag = dataclasses.replace(
+            diag, n_basis=nb + 1, n_basis_requested=n, n_basis_method="given",
+            energy_kept=diag.energy_curve[nb],
+            warnings=tuple(w for w in diag.warnings if not w.startswith("basis count ")))
     return dataclasses.replace(model, basis=model.basis[:, :nb], transfer=model.transfer[
-        ..., :nb, :], offset=model.offset[..., :nb])
+        ..., :nb, :], offset=model.offset[..., :nb], diagnostics=diag)
 
 
 def _time(fn, repeat: int) -> float:
@@ -52,6 +60,14 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
     H = holdout_direct.shape[1]
     rows = []
     rng = np.random.default_rng(0)
+    # configurations without direct light at the measurement points (or without indirect
+    # light) have no relative error: skipped, and listed so that the skip is visible
+    skipped = []
+    for h in range(H):
+        if not np.linalg.norm(holdout_direct[:, h, :]) > 0:
+            skipped.append({"index": h, "reason": "zero direct"})
+        elif not np.linalg.norm(holdout_indirect[:, h, :]) > 0:
+            skipped.append({"index": h, "reason": "zero indirect"})
     for n in sorted(ns):
         errs, bounds = [], []
         for h in range(H):
@@ -66,9 +82,12 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         x32 = rng.random((M.shape[-1],)).astype(np.float32)
         u_s = _time(lambda M=M, x32=x32: [M[c] @ x32 for c in range(3)], 200)
         planes = 3 + (n - 1) * (1 if model.channels == "mono" else 3)
-        img = rng.random((atlas_pixels, planes)).astype(np.float32)
+        # timed on at most BLEND_TIMING_PIXELS pixels and scaled to the atlas (linear in
+        # pixels): a 4096² atlas of 64 elements would otherwise allocate 9 GB here
+        px = min(atlas_pixels, BLEND_TIMING_PIXELS)
+        img = rng.random((px, planes), dtype=np.float32)
         w = rng.random((planes, 3)).astype(np.float32)
-        blend_s = _time(lambda img=img, w=w: img @ w, 5)
+        blend_s = _time(lambda img=img, w=w: img @ w, 5) * (atlas_pixels / px)
         files = -(-planes // 4)
         storage = int(files * 4 * planes_bytes_per_element + M.size * 4 * (
             1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
@@ -82,12 +101,16 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             "textures": files,
             "storage_bytes": storage,
         })
-    return {"reference": reference, "heldout_configurations": H, "rows": rows}
+    return {"reference": reference, "heldout_configurations": H, "heldout_skipped": skipped,
+            "rows": rows}
 
 
 def format_table(table: dict, seconds: dict[str, float] | None = None) -> str:
     lines = [f"error against run time — held-out configurations: "
-             f"{table['heldout_configurations']}, reference: {table['reference']}",
+             f"{table['heldout_configurations']}"
+             + (f" ({len(table['heldout_skipped'])} skipped: no direct or indirect light)"
+                if table.get("heldout_skipped") else "")
+             + f", reference: {table['reference']}",
              f"{'n':>4s} {'held-out rRMSE':>15s} {'(max)':>8s} {'proj. bound':>12s} "
              f"{'u=M·x µs':>10s} {'blend ms':>9s} {'EXRs':>5s} {'storage':>10s}"]
     for r in table["rows"]:

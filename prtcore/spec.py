@@ -363,8 +363,9 @@ def _parse(data: Any) -> BakeSpec:
         basis=basis,
         ridge=ridge,
         channels=_choice(f.get("channels", "mono"), "fit.channels", ("mono", "rgb")),
-        gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=0.0, lo_open=True,
-                                              hi=10.0),
+        # gamma < 1 expands the dynamic range (|v|^(1/g) overflows float64 for radiance
+        # ~1e6 at g = 0.05, and the float32 model long before): refused, see fit.py
+        gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=1.0, hi=10.0),
     )
 
     k = _section(KeyframesSpec, root.get("keyframes", {}), "keyframes")

@@ -95,6 +95,16 @@ CHEBYSHEV_DIVERGENCE = 4.0
 SOLVE_BLOCK_BYTES = 2 << 30
 #: Solver methods (see :func:`solve_indirect`).
 SOLVE_METHODS = ("chebyshev", "neumann")
+#: Memory model of a bake (bytes; :func:`estimate_bake_bytes`), measured as peak RSS on the
+#: Cornell box at 512² and 1024² with 4–16 gather rays and 30–96 configurations
+#: (tests/stability) and rounded up, so that it overestimates by 10–30 %: per covered
+#: texel (texel space, gather bookkeeping, interpreter), per texel and gather ray, per
+#: texel and configuration (texel direct and indirect, (T, K, 3) float32 each), plus the
+#: solver's working arrays (five more per configuration, up to SOLVE_BLOCK_BYTES).
+MEM_PER_TEXEL = 1536
+MEM_PER_TEXEL_RAY = 64
+MEM_PER_TEXEL_CONFIG = 24
+MEM_PER_GATHER_RAY_IN_FLIGHT = 150
 
 
 # ---------------------------------------------------------------------------------------
@@ -470,7 +480,12 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         centroid = (origins[mv] * w).sum(axis=1) / w.sum(axis=1)
         dist = np.linalg.norm(origins[mv] - centroid[:, None, :], axis=2)
         dist[~good] = np.inf
-        sample[mv] = origins[mv, dist.argmin(axis=1)]
+        # Symmetric origin sets have exactly tied distances; rounding decided the tie,
+        # differently at another scene scale (tests/stability). Ties within 1e-6 of the
+        # texel's footprint go to the first origin.
+        tie = 1e-6 * np.linalg.norm(texels.footprint[mv], axis=2).mean(axis=1)
+        near = dist <= dist.min(axis=1, keepdims=True) + tie[:, None]
+        sample[mv] = origins[mv, near.argmax(axis=1)]
     stats = {
         "gather_rays": m, "origins_per_texel": s, "rays_traced": n_traced,
         "rays_below_surface": n_below, "back_face_hits": n_back, "misses": n_miss,
@@ -815,6 +830,34 @@ def _chebyshev(product, rho32, b, lo, hi, max_bounces, tolerance):
 
 # ---------------------------------------------------------------------------------------
 # The stage
+
+
+def estimate_bake_bytes(texels: int, configurations: int, gather_rays: int) -> int:
+    """Peak memory of a bake with ``texels`` covered texels and ``configurations`` lights
+    (training + held-out), from the measured model above (transport is the peak stage)."""
+    t, k = int(texels), int(configurations)
+    return int(t * (MEM_PER_TEXEL + MEM_PER_TEXEL_RAY * int(gather_rays))
+               + GATHER_BATCH * MEM_PER_GATHER_RAY_IN_FLIGHT + t * k * MEM_PER_TEXEL_CONFIG
+               + min(5 * t * k * 12, SOLVE_BLOCK_BYTES))
+
+
+def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int) -> int:
+    """Refuse (:class:`~prtcore.errors.LimitExceeded`) a bake whose estimated peak memory
+    exceeds ``limit_bytes`` (``IntakeLimits.max_bake_bytes``), before transport allocates.
+    spec : the :class:`~prtcore.spec.BakeSpec`. Returns the estimate."""
+    from .errors import LimitExceeded
+
+    k = spec.lights.count + spec.lights.holdout
+    need = estimate_bake_bytes(texels.count, k, spec.transport.gather_rays)
+    if need > limit_bytes:
+        gib = 1 << 30
+        raise LimitExceeded(
+            str(source), "", f"the bake would need about {need / gib:.1f} GiB "
+            f"({texels.count} covered texels of a {texels.width}×{texels.height} atlas, {k} "
+            f"lighting configurations, {spec.transport.gather_rays} gather rays); lower "
+            "atlas.resolution, lights.count or transport.gather_rays",
+            limit=f"max_bake_bytes={limit_bytes} ({limit_bytes / gib:.1f} GiB)")
+    return need
 
 
 def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
