@@ -224,6 +224,17 @@ def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
     )
 
 
+def load_keyframe(path: Path, manifest: dict, k: int) -> dict[str, np.ndarray]:
+    """Keyframe k's posed arrays from a keyframe bundle: "vertices" (V', 6) positions +
+    normals in asset.glb vertex order, "clusters" (s, 6), "points" (P, 6) float32."""
+    kf = manifest.get("keyframes") or {}
+    n = len(kf.get("times", ()))
+    if not 0 <= k < n:
+        raise BundleError(f"{path}: keyframe {k} out of range (the bundle has {n})")
+    return {name: _load_raw(Path(path), kf[name])[k]
+            for name in ("vertices", "clusters", "points")}
+
+
 def manifest_base(**fields: Any) -> dict:
     return {"schema": SCHEMA, "version": VERSION, "generator": f"prtcore {__version__}",
             **fields}

@@ -82,6 +82,11 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     data = load_runtime(bundle, manifest)
     lights = load_light_file(args.light)
     scene = load_asset(bundle / manifest["asset"]["file"])
+    key = None
+    if manifest.get("keyframes") or args.time is not None:  # pose at the nearest keyframe
+        from .pose import bundle_at_time
+
+        data, scene, key = bundle_at_time(bundle, manifest, data, scene, args.time)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     if args.basis is not None and not 1 <= args.basis <= data.n_basis:
         raise PrtError(f"--basis {args.basis}: the bundle has {data.n_basis} basis elements "
@@ -89,7 +94,9 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     image = relight(data, lights, tracer, n=args.basis)
     write_exr(args.out, image, dtype="float")
     print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, "
-          f"{args.basis or data.n_basis} basis elements)")
+          f"{args.basis or data.n_basis} basis elements"
+          + ("" if key is None else f", keyframe {key} at "
+             f"{manifest['keyframes']['times'][key]:g} s") + ")")
     return 0
 
 
@@ -101,7 +108,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
     res, label = render_to_file(args.bundle, args.light, args.camera, args.out,
                                 n=args.basis, mode=mode, exposure=args.exposure,
-                                shadow_resolution=args.shadow_resolution)
+                                shadow_resolution=args.shadow_resolution, time=args.time)
     times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
     print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, {mode}) on "
           f"{label}; first frame, wall clock per pass: {times}")
@@ -206,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("bundle", help="bundle directory")
     sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
     sp.add_argument("--out", required=True, help="output .exr (RGBA float, atlas size)")
+    sp.add_argument("--time", type=float, default=None,
+                    help="keyframe bundles: seconds into the animation (nearest keyframe; "
+                         "default the first)")
     sp.add_argument("--basis", type=int, default=None,
                     help="basis elements to use, mean included (default: all)")
     sp.set_defaults(func=_cmd_relight)
@@ -232,6 +242,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
     sp.add_argument("--camera", required=True, help="camera JSON (prtcore/camera.py)")
     sp.add_argument("--out", required=True, help="output .png (tone-mapped) or .exr (linear)")
+    sp.add_argument("--time", type=float, default=None,
+                    help="keyframe bundles: seconds into the animation (nearest keyframe; "
+                         "default the first)")
     sp.add_argument("--basis", type=int, default=None,
                     help="basis elements to use, mean included (default: all)")
     sp.add_argument("--indirect-only", action="store_true", help="indirect term only")

@@ -107,6 +107,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from .imageio import write_exr
     from .lights import sample_configurations, save_light_file
     from .materials import clamp_albedo
+    from .pose import keyframe_files
     from .report import TABLE_N, error_vs_runtime, format_table, plot, truncate
     from .spec import spec_hash, spec_to_dict
     from .texels import texels_to_image
@@ -121,16 +122,27 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     with timer.stage("lights"):
         train, hold = sample_configurations(spec.lights, scene.center, scene.radius,
                                             scene.lights)
-    data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
+    kfs = _keyframe_set(intake, len(train), len(hold), timer)
+    if kfs is None:
+        data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
+    else:
+        from .pose import bake_keyframe_dataset
+
+        data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
     K = len(train)
     D, I = data.direct_points[:, :K], data.indirect[:, :K]
     Dh, Ih = data.direct_points[:, K:], data.indirect[:, K:]
     holdout = (Dh, Ih) if len(hold) else None
+    per_group = kfs is not None and kfs.transfer == "per_keyframe"
+    if per_group and holdout is not None:
+        holdout = (Dh, Ih, kfs.holdout)
 
     with timer.stage("fit"):
         n_table = max(TABLE_N)
         fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
                   "gamma": spec.fit.gamma}
+        if kfs is not None:  # one basis for all keyframes (paper 5.4)
+            fit_kw.update(groups=kfs.train, per_group=per_group)
         if spec.fit.basis == "auto":
             model = fit_transfer(D, I, basis="auto", holdout=holdout, **fit_kw)
             full = model if model.n_basis >= n_table else fit_transfer(
@@ -139,13 +151,18 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             full = fit_transfer(D, I, basis=max(spec.fit.basis, n_table), **fit_kw)
             model = truncate(full, spec.fit.basis)
     diag = model.diagnostics.to_dict()
+    if per_group and model.group_ids != tuple(range(kfs.count)):
+        from .errors import PrtError
+        raise PrtError(f"fit: per-keyframe transfers for keyframes {model.group_ids}, "
+                       f"expected all {kfs.count}")
 
     with timer.stage("report"):
         dtype_bytes = 2 if spec.output.dtype == "half" else 4
         if holdout is not None:
             table = error_vs_runtime(full, Dh, Ih, texels.width * texels.height,
                                      texels.width * texels.height * dtype_bytes,
-                                     reference="fast transport of the held-out lights")
+                                     reference="fast transport of the held-out lights",
+                                     groups=kfs.holdout if per_group else None)
         else:
             table = {"reference": None, "heldout_configurations": 0, "rows": []}
 
@@ -197,7 +214,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
                  "configurations": K, "used": diag.get("used")},
             transfer=transfer,
             points=pts,
-            keyframes=None,
+            keyframes=None if kfs is None else keyframe_files(tmp, kfs, scene),
             runtime={"formula": RUNTIME_FORMULA},
             spec=spec_to_dict(spec), spec_sha256=spec_hash(spec),
             plan=[{"stage": s.name, "action": s.action, "reason": s.reason}
@@ -218,6 +235,16 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     if not quiet:
         print(format_table(table, dict(timer.seconds)))
     return out
+
+
+def _keyframe_set(intake: IntakeResult, n_train: int, n_holdout: int, timer: StageTimer):
+    """The keyframe set when the plan runs the keyframes stage, else None (static bake)."""
+    if not any(s.name == "keyframes" and s.action == "run" for s in intake.plan.stages):
+        return None
+    from .pose import build_keyframes
+
+    with timer.stage("keyframes"):
+        return build_keyframes(intake.scene, intake.points, intake.spec, n_train, n_holdout)
 
 
 def _raw_desc(path: Path, array) -> dict:

@@ -428,11 +428,13 @@ class BundleRenderer:
 
     bundle : bundle directory (DESIGN 3.4); ctx : a moderngl context (created through EGL
     when None; pass one to share it, e.g. a test session's); shadow_resolution : side of
-    each shadow view. Call :meth:`release` (or use as a context manager) to free the GL
-    objects.
+    each shadow view; time : keyframe bundles, seconds into the animation (the nearest
+    keyframe's vertices, points and transfer; default the first keyframe). Call
+    :meth:`release` (or use as a context manager) to free the GL objects.
     """
 
-    def __init__(self, bundle: str | Path, ctx=None, shadow_resolution: int = SHADOW_RESOLUTION):
+    def __init__(self, bundle: str | Path, ctx=None, shadow_resolution: int = SHADOW_RESOLUTION,
+                 time: float | None = None):
         import moderngl
 
         from .bundle import load_runtime, read_manifest
@@ -444,6 +446,12 @@ class BundleRenderer:
         self.manifest = read_manifest(self.bundle)
         self.data = load_runtime(self.bundle, self.manifest)
         self.scene = load_asset(self.bundle / self.manifest["asset"]["file"])
+        self.keyframe = None
+        if self.manifest.get("keyframes") or time is not None:
+            from .pose import bundle_at_time  # vertices and points posed on the CPU
+
+            self.data, self.scene, self.keyframe = bundle_at_time(
+                self.bundle, self.manifest, self.data, self.scene, time)
         if self.scene.uv1 is None:
             raise PrtError(f"{self.bundle}: asset.glb has no TEXCOORD_1")
         self.ctx = ctx if ctx is not None else create_context()
@@ -932,8 +940,8 @@ def write_render(path: str | Path, image: np.ndarray, exposure: float = 1.0) -> 
 
 def render_to_file(bundle: str | Path, light_path: str | Path, camera_path: str | Path,
                    out: str | Path, *, n: int | None = None, mode: str = "full",
-                   exposure: float = 1.0, shadow_resolution: int = SHADOW_RESOLUTION
-                   ) -> tuple[RenderResult, str]:
+                   exposure: float = 1.0, shadow_resolution: int = SHADOW_RESOLUTION,
+                   time: float | None = None) -> tuple[RenderResult, str]:
     """``prtcore render``: one frame of the bundle to a PNG or EXR. Returns the frame and
     the GL renderer's label. (A single frame's timings include shader compilation.)"""
     from .camera import load_camera
@@ -943,7 +951,7 @@ def render_to_file(bundle: str | Path, light_path: str | Path, camera_path: str 
         raise PrtError(f"{out}: output must end in .png or .exr")
     lights = load_light_file(light_path)
     camera = load_camera(camera_path)
-    with BundleRenderer(bundle, shadow_resolution=shadow_resolution) as r:
+    with BundleRenderer(bundle, shadow_resolution=shadow_resolution, time=time) as r:
         res = r.render(lights, camera, n=n, mode=mode)
         label = renderer_label(r.ctx)
     write_render(out, res.image, exposure)

@@ -48,11 +48,13 @@ def _time(fn, repeat: int) -> float:
 
 def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
                      holdout_indirect: np.ndarray, atlas_pixels: int,
-                     planes_bytes_per_element: float, reference: str) -> dict:
+                     planes_bytes_per_element: float, reference: str,
+                     groups: np.ndarray | None = None) -> dict:
     """The table.
 
     holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3) reference indirect radiance.
     atlas_pixels : W·H (the blend runs over the whole atlas, as in a fragment shader).
+    groups : (H,) keyframe of each held-out configuration (per-keyframe transfers only).
     """
     ns = [n for n in TABLE_N if n <= model.n_basis]
     if model.n_basis not in ns:
@@ -75,7 +77,8 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             ref = holdout_indirect[:, h, :].astype(np.float64)
             if not np.linalg.norm(ref) > 0 or not np.linalg.norm(x) > 0:
                 continue
-            errs.append(relative_rmse(reconstruct(model, x, n=n), ref))
+            g = None if groups is None else int(groups[h])
+            errs.append(relative_rmse(reconstruct(model, x, n=n, group=g), ref))
             bounds.append(projection_bound(model, ref, x, n=n))
         M = model.transfer[..., : n - 1, :]
         M = M if M.ndim == 3 else M[0]

@@ -24,11 +24,15 @@ from .texels import image_to_texels
 
 
 def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed: int = 0,
-                    timer: StageTimer | None = None, light_file: str | Path | None = None
-                    ) -> dict:
+                    timer: StageTimer | None = None, light_file: str | Path | None = None,
+                    time: float | None = None) -> dict:
     """Runtime reconstruction vs path-traced reference for the bundle's held-out lights,
     or for the lights of ``light_file`` (DESIGN 3.2: e.g. another family than the one the
     bundle was trained on, paper Figure 8).
+
+    A keyframe bundle is validated posed: each held-out light at the keyframe it was drawn
+    with (``light_file`` lights at the keyframe nearest ``time``, default the first), the
+    reference path-traced on the scene posed at that keyframe.
 
     count : how many of the lights (default all). Returns a JSON-ready dict with per-n
     mean/max relative RMSE, the reference noise (relative standard error) and, per light,
@@ -43,20 +47,37 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     source = Path(light_file) if light_file else bundle / m["validation"]["holdout_lights"]
     lights = load_light_file(source)[:count]
     scene, texels = texel_space_for(bundle, timer=timer)
-    tracer = RayTracer(scene.positions, scene.faces, scene.radius)
-    ref, err = reference_lightmaps(scene, texels, [[lt] for lt in lights], spp, seed=seed,
-                                   tracer=tracer, timer=timer)
+    kf = m.get("keyframes")
+    if kf:
+        from .pose import nearest_keyframe
+
+        k0 = 0 if time is None else nearest_keyframe(kf["times"], time)
+        keys = [kf["holdout_keyframe"][h] if light_file is None else k0
+                for h in range(len(lights))]
+        ref, err, posed = _posed_references(bundle, m, data, scene, texels, lights, keys,
+                                            spp, seed, timer)
+    else:
+        if time is not None:
+            from .errors import PrtError
+            raise PrtError(f"{bundle}: time {time:g}: the bundle was baked without keyframes")
+        tracer = RayTracer(scene.positions, scene.faces, scene.radius)
+        ref, err = reference_lightmaps(scene, texels, [[lt] for lt in lights], spp, seed=seed,
+                                       tracer=tracer, timer=timer)
+        posed = [(data, tracer, None)] * len(lights)
     ns = sorted({n for n in TABLE_N if n <= data.n_basis} | {data.n_basis})
     per_light = []
     for h, light in enumerate(lights):
-        x = shade_points(data, [light], tracer)
+        data_h, tracer_h, key = posed[h]
+        x = shade_points(data_h, [light], tracer_h)
         norm = float(np.sqrt((ref[h] ** 2).mean()))
         row = {"light": h, "reference_noise": float(np.sqrt((err[h] ** 2).mean()) / norm)
                if norm > 0 else None, "rmse": {}}
+        if key is not None:
+            row["keyframe"] = key
         row["rmse_noise_corrected"] = {}
         noise2 = float((err[h] ** 2).mean())
         for n in ns:
-            rec = image_to_texels(texels, blend(data, plane_weights(data, x, n)))[:, :3]
+            rec = image_to_texels(texels, blend(data_h, plane_weights(data_h, x, n)))[:, :3]
             row["rmse"][str(n)] = relative_rmse(rec, ref[h]) if norm > 0 else None
             # E‖rec − ref‖² = ‖rec − truth‖² + Σ stderr²: the reference's own variance
             # removed gives an estimate of the error against the noiseless truth.
@@ -77,6 +98,31 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
             "light_source": "held-out" if light_file is None else str(light_file),
             "seed": seed, "reference_noise_mean": float(np.mean(noise)) if noise else None,
             "rows": rows, "per_light": per_light}
+
+
+def _posed_references(bundle: Path, manifest: dict, data, scene, texels, lights, keys,
+                      spp: int, seed: int, timer: StageTimer):
+    """References of a keyframe bundle: per keyframe, the scene and texels posed there and
+    the lights drawn with it path-traced together. Returns (ref, err) as
+    :func:`reference_lightmaps` for all lights, and per light (posed runtime data, tracer
+    of the posed scene, keyframe)."""
+    from .pose import bundle_at_time, pose_texels
+
+    ref = np.zeros((len(lights), texels.count, 3))
+    err = np.zeros((len(lights), texels.count, 3))
+    posed: list = [None] * len(lights)
+    for k in sorted(set(keys)):
+        idx = [h for h, key in enumerate(keys) if key == k]
+        data_k, scene_k, _ = bundle_at_time(bundle, manifest, data, scene,
+                                            manifest["keyframes"]["times"][k])
+        tracer = RayTracer(scene_k.positions, scene_k.faces, scene_k.radius)
+        r, e = reference_lightmaps(scene_k, pose_texels(texels, scene_k),
+                                   [[lights[h]] for h in idx], spp, seed=seed,
+                                   tracer=tracer, timer=timer)
+        ref[idx], err[idx] = r, e
+        for h in idx:
+            posed[h] = (data_k, tracer, k)
+    return ref, err, posed
 
 
 def format_validation(v: dict) -> str:
