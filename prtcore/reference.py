@@ -36,8 +36,10 @@ light: the path ends with no further contribution. A miss ends the path (no
 environment). A sampled direction below the geometric plane of its vertex (possible with
 interpolated shading normals) ends the path likewise. Path origins are uniform over the
 texel's square mapped onto its triangle's plane (``TexelSpace.footprint`` around the
-texel centre) intersected with the texel's own triangle (points off it are re-drawn), so
-the texel integrates what it covers of its triangle; each origin gets the interpolated
+texel centre) intersected with the texel's own triangle, so the texel integrates what it
+covers of its triangle. The intersection is clipped exactly
+(:func:`~prtcore.texels.texel_regions`) and sampled directly: a texel that covers 1 % of
+its square is sampled as uniformly as a full one. Each origin gets the interpolated
 normal at that point and is offset along the geometric normal by the tracer's offset.
 ρ0 is the texel's albedo (DESIGN 3.1: albedo sampled at the texel). All albedos are
 clamped for transport (:func:`~prtcore.materials.clamp_albedo`). Origins inside other
@@ -66,8 +68,8 @@ from .materials import albedo_at, clamp_albedo
 from .progress import StageTimer
 from .raytrace import RayTracer
 from .scene import Light, Scene
-from .texels import TexelSpace
-from .tolerances import BARY_EPS, NORMAL_EPS
+from .texels import TexelRegions, TexelSpace, sample_texel_regions, texel_regions
+from .tolerances import NORMAL_EPS
 
 #: Paths traced together in one wavefront (fixed, so that results do not depend on how
 #: many light configurations share the paths).
@@ -76,8 +78,6 @@ PATH_CHUNK = 1 << 16
 PATH_BATCH = 1 << 19
 #: Default number of bounces before Russian roulette starts.
 RR_DEPTH = 3
-#: Rounds of re-drawing a jittered origin that fell off its texel's triangle.
-JITTER_TRIES = 8
 #: Probe rays per path origin that decide whether it lies inside other geometry.
 BURIED_PROBES = 4
 
@@ -156,68 +156,6 @@ def reference_direct(scene: Scene, texels: TexelSpace, lights: Sequence[Light],
     e = direct_irradiance(lights, np.asarray(texels.position, np.float64),
                           np.asarray(texels.normal, np.float64), tracer)
     return rho / math.pi * e
-
-
-def texel_centres(scene: Scene, texels: TexelSpace) -> np.ndarray:
-    """World position of each texel's centre on its triangle's plane, (t, 3) float64.
-
-    The texel sample is the centre when the centre lies on the texel's triangle, else the
-    triangle point closest to it; the centre is found by stepping back from the sample
-    with the footprint (the UV→world Jacobian). Without TEXCOORD_1 (hand-built texel
-    spaces) the sample is taken as the centre.
-    """
-    pos = np.asarray(texels.position, dtype=np.float64)
-    if scene.uv1 is None or texels.count == 0:
-        return pos.copy()
-    uv = np.einsum("nk,nkj->nj", texels.barycentric, scene.uv1[scene.faces[texels.triangle]])
-    delta = texels.xy + 0.5 - uv * np.array([texels.width, texels.height], dtype=np.float64)
-    return pos + delta[:, :1] * texels.footprint[:, 0] + delta[:, 1:] * texels.footprint[:, 1]
-
-
-def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Barycentrics of points p (m, 3) in the planes of triangles tri (m, 3, 3); rows of
-    degenerate triangles are NaN (rejected by every inside test)."""
-    a = tri[:, 0]
-    e1, e2, d = tri[:, 1] - a, tri[:, 2] - a, p - a
-    d00 = np.einsum("ij,ij->i", e1, e1)
-    d01 = np.einsum("ij,ij->i", e1, e2)
-    d11 = np.einsum("ij,ij->i", e2, e2)
-    d20 = np.einsum("ij,ij->i", d, e1)
-    d21 = np.einsum("ij,ij->i", d, e2)
-    den = d00 * d11 - d01 * d01
-    inv = np.divide(1.0, den, out=np.full_like(den, np.nan), where=den > 0)
-    v = (d11 * d20 - d01 * d21) * inv
-    w = (d00 * d21 - d01 * d20) * inv
-    return np.stack([1.0 - v - w, v, w], axis=1)
-
-
-def jitter_origins(scene: Scene, texels: TexelSpace, centres: np.ndarray, tex: np.ndarray,
-                   rng: np.random.Generator) -> np.ndarray:
-    """Points uniform over each texel's square ∩ its own triangle.
-
-    centres : (t, 3) from :func:`texel_centres`; tex : (m,) int64 texel of each point.
-    Offsets uniform in the texel square (the footprint spans one texel step in x and y)
-    are re-drawn while they fall off the texel's triangle, up to JITTER_TRIES rounds; then
-    the texel's own sample is used. Returns (m, 3) float64 barycentrics on
-    ``texels.triangle[tex]``.
-    """
-    m = len(tex)
-    tri = scene.positions[scene.faces[texels.triangle[tex]]]
-    fp = texels.footprint[tex]
-    bary = np.empty((m, 3))
-    todo = np.arange(m)
-    for _ in range(JITTER_TRIES + 1):
-        ab = rng.random((len(todo), 2)) - 0.5
-        p = centres[tex[todo]] + ab[:, :1] * fp[todo, 0] + ab[:, 1:] * fp[todo, 1]
-        b = _barycentric(tri[todo], p)
-        inside = (b >= -BARY_EPS).all(axis=1)
-        bary[todo[inside]] = b[inside]
-        todo = todo[~inside]
-        if len(todo) == 0:
-            break
-    bary[todo] = texels.barycentric[tex[todo]]
-    bary = np.clip(bary, 0.0, None)
-    return bary / bary.sum(axis=1, keepdims=True)
 
 
 def _buried(tracer: RayTracer, origin: np.ndarray, normal: np.ndarray, face_normal: np.ndarray,
@@ -358,7 +296,7 @@ def _connect(scene: Scene, tracer: RayTracer, sampler: LightSampler, rng: np.ran
 
 def _trace_paths(scene: Scene, tracer: RayTracer, samplers: Sequence[LightSampler],
                  light_rngs: Sequence[np.random.Generator] | None, texels: TexelSpace,
-                 centres: np.ndarray, tex: np.ndarray, rng: np.random.Generator,
+                 regions: TexelRegions, tex: np.ndarray, rng: np.random.Generator,
                  max_depth: int, rr_depth: int, buried_probes: int
                  ) -> tuple[np.ndarray, np.ndarray]:
     """One wavefront: a path from each texel in ``tex`` ((m,) int64), shared by every
@@ -372,7 +310,7 @@ def _trace_paths(scene: Scene, tracer: RayTracer, samplers: Sequence[LightSample
     m = len(tex)
     value = np.zeros((len(samplers), m, 3))
     tri0 = texels.triangle[tex]
-    bary0 = jitter_origins(scene, texels, centres, tex, rng)
+    bary0 = sample_texel_regions(regions, tex, rng)
     gx = tracer.face_normals[tri0]
     px = tracer.surface_point(tri0, bary0)
     nx = shading_normals(scene, tri0, bary0, gx)
@@ -496,7 +434,7 @@ def reference_lightmaps(scene: Scene, texels: TexelSpace,
     if t == 0 or not samplers:
         return total, total_sq
     rho0, _ = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
-    centres = texel_centres(scene, texels)
+    regions = texel_regions(scene, texels)
     per_batch = max(1, min(spp, PATH_BATCH // t))
     batches = [min(per_batch, spp - s) for s in range(0, spp, per_batch)]
     workers = max(1, int(threads)) if threads is not None else tracer.threads
@@ -507,7 +445,7 @@ def reference_lightmaps(scene: Scene, texels: TexelSpace,
         light_rngs = [np.random.default_rng(np.random.SeedSequence(
             seed, spawn_key=(batch, start, 1, key))) for key in light_keys] \
             if light_sampling else None
-        v, counts = _trace_paths(scene, tracer, samplers, light_rngs, texels, centres, ti,
+        v, counts = _trace_paths(scene, tracer, samplers, light_rngs, texels, regions, ti,
                                  rng, max_depth, rr_depth, buried_probes)
         return v * rho0[ti], counts
 

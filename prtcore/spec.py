@@ -80,6 +80,11 @@ class TransportSpec:
     max_bounces: int = 16
     tolerance: float = 1e-3
     seed: int = 3
+    #: points per texel whose direct light is averaged (stratified over the texel)
+    direct_samples: int = 4
+    #: gather hits closer than this many texel footprints get the direct light of the hit
+    #: point, not of its texel, in the first bounce (0: off)
+    near_field: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -351,6 +356,9 @@ def _parse(data: Any) -> BakeSpec:
         tolerance=_num(t.get("tolerance", 1e-3), "transport.tolerance", lo=0.0, hi=1.0,
                        lo_open=True),
         seed=_int(t.get("seed", 3), "transport.seed", lo=0),
+        direct_samples=_int(t.get("direct_samples", 4), "transport.direct_samples", lo=1,
+                            hi=64),
+        near_field=_num(t.get("near_field", 1.0), "transport.near_field", lo=0.0, hi=16.0),
     )
 
     f = _section(FitSpec, root.get("fit", {}), "fit")

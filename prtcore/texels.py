@@ -79,6 +79,9 @@ class TexelSpace:
 
 #: Smallest coverage stored for a texel that a triangle touches with (almost) no area.
 MIN_COVERAGE = 1.0 / 64.0
+#: A texel region (its square ∩ its triangle, in barycentric units: the triangle has
+#: area 1/2) at or below this area only touches its triangle (:func:`texel_regions`).
+REGION_MIN_AREA = 1e-14
 #: Candidate (triangle, texel) pairs evaluated per vectorised chunk.
 _PAIR_CHUNK = 1 << 18
 #: Covered texels turned into G-buffer samples per block.
@@ -562,6 +565,149 @@ def _build(scene: Scene, width: int, height: int, padding: int,
         width=width, height=height, xy=xy, position=position, normal=normal,
         geometric_normal=gnormal, albedo=albedo, triangle=tri, barycentric=bary,
         coverage=coverage, footprint=footprint, dilate_xy=dilate_xy, dilate_src=dilate_src)
+
+
+def texel_centres(scene: Scene, texels: TexelSpace) -> np.ndarray:
+    """World position of each texel's centre on its triangle's plane, (t, 3) float64.
+
+    The texel sample is the centre when the centre lies on the texel's triangle, else the
+    triangle point closest to it; the centre is found by stepping back from the sample
+    with the footprint (the UV→world Jacobian). Without TEXCOORD_1 (hand-built texel
+    spaces) the sample is taken as the centre.
+    """
+    pos = np.asarray(texels.position, dtype=np.float64)
+    if scene.uv1 is None or texels.count == 0:
+        return pos.copy()
+    uv = np.einsum("nk,nkj->nj", texels.barycentric, scene.uv1[scene.faces[texels.triangle]])
+    delta = texels.xy + 0.5 - uv * np.array([texels.width, texels.height], dtype=np.float64)
+    return pos + delta[:, :1] * texels.footprint[:, 0] + delta[:, 1:] * texels.footprint[:, 1]
+
+
+def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Barycentrics of points p (m, 3) in the planes of triangles tri (m, 3, 3); rows of
+    degenerate triangles are NaN (rejected by every inside test)."""
+    a = tri[:, 0]
+    e1, e2, d = tri[:, 1] - a, tri[:, 2] - a, p - a
+    d00 = np.einsum("ij,ij->i", e1, e1)
+    d01 = np.einsum("ij,ij->i", e1, e2)
+    d11 = np.einsum("ij,ij->i", e2, e2)
+    d20 = np.einsum("ij,ij->i", d, e1)
+    d21 = np.einsum("ij,ij->i", d, e2)
+    den = d00 * d11 - d01 * d01
+    inv = np.divide(1.0, den, out=np.full_like(den, np.nan), where=den > 0)
+    v = (d11 * d20 - d01 * d21) * inv
+    w = (d00 * d21 - d01 * d20) * inv
+    return np.stack([1.0 - v - w, v, w], axis=1)
+
+
+@dataclass(frozen=True)
+class TexelRegions:
+    """Each texel's square intersected with its own triangle, as a fan of triangles in
+    barycentric coordinates of that triangle (the region path origins are drawn from).
+
+    corners : (t, FAN_MAX, 3, 3) float64 — fan triangle f of texel i has corners
+    ``corners[i, f, c]`` (barycentrics on ``texels.triangle[i]``); cdf : (t, FAN_MAX)
+    float64 cumulative area fractions (last column 1); unused fan slots have zero area.
+    A texel whose square only touches its triangle (zero area) has every corner at its
+    own sample (``texels.barycentric``) and is ``empty``.
+    empty : (t,) bool — the square only touches the triangle (zero area)
+    """
+
+    corners: np.ndarray
+    cdf: np.ndarray
+    empty: np.ndarray
+
+
+def _clip_half_plane(poly: np.ndarray, count: np.ndarray, a: np.ndarray, c: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Sutherland–Hodgman step for t convex polygons at once: keep ``a·p + c ≥ 0``.
+    poly : (t, V, 2), count : (t,) vertices in use. Returns (t, V + 1, 2) and counts."""
+    t, v = poly.shape[:2]
+    out = np.zeros((t, v + 1, 2))
+    n_out = np.zeros(t, dtype=np.int64)
+    rows = np.arange(t)
+
+    def emit(mask: np.ndarray, pts: np.ndarray) -> None:
+        r = rows[mask]
+        out[r, n_out[r]] = pts[r]
+        n_out[r] += 1
+
+    for i in range(v):
+        active = i < count
+        j = np.where(i + 1 < count, i + 1, 0)
+        p, q = poly[:, i], poly[rows, j]
+        fp, fq = p @ a + c, q @ a + c
+        emit(active & (fp >= 0), p)
+        crosses = active & ((fp >= 0) != (fq >= 0))
+        s = np.divide(fp, fp - fq, out=np.zeros_like(fp), where=crosses)
+        emit(crosses, p + s[:, None] * (q - p))
+    return out, n_out
+
+
+def texel_regions(scene: Scene, texels: TexelSpace, index: np.ndarray | None = None
+                  ) -> TexelRegions:
+    """:class:`TexelRegions` of every texel (or of the texels ``index``, (t,) int64, in
+    that order): its square (in TEXCOORD_1; without it, the footprint around its centre,
+    :func:`texel_centres`) clipped exactly against its triangle in barycentric space,
+    where uniform area on the triangle is uniform area (the map is affine)."""
+    sel = slice(None) if index is None else np.asarray(index, dtype=np.int64)
+    triangle = texels.triangle[sel]
+    t = len(triangle)
+    signs = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    if scene.uv1 is not None:  # in atlas pixels: exact, and the same at any scene scale
+        tri = scene.uv1[scene.faces[triangle]].astype(np.float64) * np.array(
+            [texels.width, texels.height], dtype=np.float64)
+        centre = texels.xy[sel].astype(np.float64) + 0.5
+        corners = [centre + sign for sign in signs]
+    else:  # hand-built texel spaces: the footprint around the sample
+        tri = scene.positions[scene.faces[triangle]].astype(np.float64)
+        fp = np.asarray(texels.footprint[sel], dtype=np.float64)
+        centres = texel_centres(scene, texels)[sel]
+        corners = [centres + sx * fp[:, 0] + sy * fp[:, 1] for sx, sy in signs]
+    quad = np.stack([_barycentric(tri, c) for c in corners], axis=1)[:, :, 1:]  # (b1, b2)
+    ok = np.isfinite(quad).all(axis=(1, 2))
+    poly, count = np.where(ok[:, None, None], quad, 0.0), np.full(t, 4, dtype=np.int64)
+    for a, c in (((1.0, 0.0), 0.0), ((0.0, 1.0), 0.0), ((-1.0, -1.0), 1.0)):
+        poly, count = _clip_half_plane(poly, count, np.array(a), c)
+    count[~ok] = 0
+    fan = poly.shape[1] - 2
+    k = np.arange(1, fan + 1)
+    valid = k[None, :] < count[:, None] - 1  # fan triangle (P0, Pk, Pk+1)
+    p0 = poly[:, :1]
+    pk = poly[:, 1:fan + 1]
+    pk1 = poly[:, 2:fan + 2]
+    e1, e2 = pk - p0, pk1 - p0
+    area = np.where(valid, 0.5 * np.abs(e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]),
+                    0.0)
+    total = area.sum(axis=1)
+    own = np.asarray(texels.barycentric[sel], dtype=np.float64)[:, 1:]
+    flat = ~(total > REGION_MIN_AREA)
+    corners2 = np.stack([np.broadcast_to(p0, pk.shape), pk, pk1], axis=2)  # (t, F, 3, 2)
+    corners2[flat] = own[flat][:, None, None, :]
+    area[flat] = 0.0
+    area[flat, 0] = 1.0
+    cdf = np.cumsum(area, axis=1) / area.sum(axis=1, keepdims=True)
+    cdf[:, -1] = 1.0
+    corners = np.concatenate([1.0 - corners2.sum(axis=3, keepdims=True), corners2], axis=3)
+    return TexelRegions(corners=corners, cdf=cdf, empty=flat)
+
+
+def sample_texel_regions(regions: TexelRegions, tex: np.ndarray,
+                         rng: np.random.Generator | None = None, u: np.ndarray | None = None
+                         ) -> np.ndarray:
+    """Points uniform over each texel's square ∩ its own triangle (exact: no rejection,
+    no fallback). tex : (m,) int64 texel of each point; u : (m, 3) uniforms in [0, 1)
+    (drawn from ``rng`` when None). Returns (m, 3) float64 barycentrics on
+    ``texels.triangle[tex]``."""
+    if u is None:
+        u = rng.random((len(tex), 3))
+    f = (regions.cdf[tex] <= u[:, :1]).sum(axis=1)
+    f = np.minimum(f, regions.cdf.shape[1] - 1)
+    c = regions.corners[tex, f]  # (m, 3 corners, 3)
+    r = np.sqrt(u[:, 1])
+    w = np.stack([1.0 - r, r * (1.0 - u[:, 2]), r * u[:, 2]], axis=1)
+    bary = np.clip(np.einsum("mc,mcj->mj", w, c), 0.0, None)
+    return bary / bary.sum(axis=1, keepdims=True)
 
 
 def _blocks(n: int):

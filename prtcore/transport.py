@@ -9,8 +9,15 @@ geometry is traced once:
    With cosine sampling ``E(x) ≈ π/M Σ_j L(y_j) = 1/M Σ_j ρ_j E_j``, so
    ``E_ind = G · (ρ ∘ (E_d + E_ind))``.
 2. **Direct light** for every configuration at texels and measurement points with
-   shadow rays (:func:`prtcore.lights.irradiance`, the one light evaluation).
-3. **All bounces for all configurations at once**: ``(I − Gρ)⁻¹ Gρ E_d`` for all K × 3
+   shadow rays (:func:`prtcore.lights.irradiance`, the one light evaluation). A texel's
+   direct light is the mean over J points spread over it (``transport.direct_samples``):
+   one point aliases where a shadow edge runs along a texel column.
+3. **Near field**: a texel's value stands badly for the light at a point closer than
+   about a texel — a contact shadow narrower than a texel under a block's foot — so the
+   first bounce of a gather ray that hits within ``transport.near_field`` footprints of
+   its origin takes the direct light at the hit point itself
+   (:func:`near_field_correction`; one shadow ray per near hit and light).
+4. **All bounces for all configurations at once**: ``(I − Gρ)⁻¹ Gρ E_d`` for all K × 3
    right-hand sides together, one sparse × dense product per step: the Neumann series
    (one bounce per product) or, by default, a Chebyshev iteration on the spectrum of Gρ
    that needs about half the products (:func:`solve_indirect`).
@@ -31,7 +38,8 @@ tracer, :mod:`prtcore.reference`, where they are about the physics):
   the texel's *visible* origins (the lightmap value of a partly buried texel is the average
   over its visible part), and the texel's direct light is evaluated at a visible origin
   (:class:`Gather`). A texel with no visible origin is *buried*: its row is zero.
-* jittered origins stay on the texel's own triangle (re-drawn when they fall off it).
+* origins are uniform over the texel's square ∩ its own triangle, the region the
+  reference integrates (:func:`prtcore.texels.texel_regions`).
 """
 
 from __future__ import annotations
@@ -54,18 +62,18 @@ from .progress import StageTimer
 from .raytrace import RayTracer
 from .scene import Light, Scene
 from .spec import TransportSpec
-from .texels import TexelSpace
+from .texels import TexelSpace, sample_texel_regions, texel_regions
 from .tolerances import BARY_EPS, offset_origins
 
 #: Gather rays that share one jittered origin (S = M / RAYS_PER_ORIGIN origins per texel);
 #: enough rays per origin to tell "inside geometry" (most rays hit back faces) from "sees
 #: the back of some open surface" (a few do).
 RAYS_PER_ORIGIN = 4
-#: Rounds of re-jittering an origin that fell outside its texel's triangle before it
-#: falls back to (a point next to) the texel's own sample.
-JITTER_TRIES = 8
-#: How far (in texels) a fallback origin is moved from the texel sample into its triangle.
+#: How far (in texels) the origins of a texel whose square only touches its triangle are
+#: moved from its sample into the triangle.
 FALLBACK_NUDGE = 0.05
+#: Near hits per chunk in :func:`near_field_correction` (bounds its (chunk, K, 3) array).
+NEAR_CHUNK = 1 << 15
 #: Points per light evaluation in :func:`direct_radiance` (bounds its temporaries).
 DIRECT_CHUNK = 1 << 19
 #: Gather rays traced per batch (bounds memory: ~150 bytes per ray in flight).
@@ -99,11 +107,12 @@ SOLVE_METHODS = ("chebyshev", "neumann")
 #: Cornell box at 512² and 1024² with 4–16 gather rays and 30–96 configurations
 #: (tests/stability) and rounded up, so that it overestimates by 10–30 %: per covered
 #: texel (texel space, gather bookkeeping, interpreter), per texel and gather ray, per
-#: texel and configuration (texel direct and indirect, (T, K, 3) float32 each), plus the
-#: solver's working arrays (five more per configuration, up to SOLVE_BLOCK_BYTES).
+#: texel and configuration (texel direct and indirect, (T, K, 3) float32 each, and at most
+#: as much again for the near field's first-bounce correction), plus the solver's working
+#: arrays (five more per configuration, up to SOLVE_BLOCK_BYTES).
 MEM_PER_TEXEL = 1536
 MEM_PER_TEXEL_RAY = 64
-MEM_PER_TEXEL_CONFIG = 24
+MEM_PER_TEXEL_CONFIG = 36
 MEM_PER_GATHER_RAY_IN_FLIGHT = 150
 
 
@@ -138,6 +147,30 @@ class Dataset:
 
 
 @dataclass(frozen=True)
+class NearField:
+    """Gather rays that hit close to their origin, where a texel's value (its average)
+    stands badly for the light at the hit point: a contact shadow or a lit strip narrower
+    than a texel (a block on a floor, a ledge under a step). Each is also in the gather
+    matrix; :func:`near_field_correction` replaces, for the first bounce only, the
+    texel's direct light by the direct light at the hit point.
+
+    row : (n,) int64 receiving texel, sorted; col : (n,) int64 the texel the hit maps to;
+    triangle : (n,) int64 and barycentric : (n, 3) float64, the hit point;
+    weight : (n,) float32 the ray's weight in the matrix row (1/M_valid).
+    """
+
+    row: np.ndarray
+    col: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    weight: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.row)
+
+
+@dataclass(frozen=True)
 class Gather:
     """The gather operator and what tracing it learnt about the texels.
 
@@ -150,6 +183,10 @@ class Gather:
     valid_rays : (T,) int32 rays from visible origins (the row's 1/M_valid); 0 = buried
     moved : (T,) bool texels whose sample_position is not the texel sample
     stats : counts (rays, back-face hits, misses, re-mapped hits, …)
+    direct_position : (T, J, 3) float64 the points whose direct light, averaged, is the
+        texel's: J visible origins spread over the texel (J = 1: ``sample_position``)
+    near : the rays that hit within ``near_field`` texel footprints of their origin
+        (:class:`NearField`; None when the near field is off)
     """
 
     matrix: sp.csr_matrix
@@ -157,6 +194,8 @@ class Gather:
     valid_rays: np.ndarray
     moved: np.ndarray
     stats: dict
+    direct_position: np.ndarray | None = None
+    near: NearField | None = None
 
     @property
     def buried(self) -> np.ndarray:
@@ -216,13 +255,16 @@ def _uv_frames(tri_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Origins jittered over each texel's square, kept on the texel's own triangle.
+    """Origins jittered over each texel's region: its square ∩ its own triangle
+    (:func:`~prtcore.texels.texel_regions`), the region the reference integrates.
 
     A stratified (shifted Fibonacci) set of ``per_texel`` offsets in the texel square
-    [x, x+1] × [y, y+1]; an offset outside the texel's triangle (in TEXCOORD_1) is
-    re-drawn uniformly up to JITTER_TRIES times, then replaced by the texel's sample moved
-    FALLBACK_NUDGE texels toward the triangle's centroid.
-    Returns positions (T, S, 3) float64 on the triangle, and (T, S) bool "was jittered".
+    [x, x+1] × [y, y+1]; an offset outside the texel's triangle (in TEXCOORD_1) is replaced
+    by a point drawn uniformly over the region, exactly, so the origins are uniform over the
+    region however little of the square it covers. A texel whose square only touches its
+    triangle has no region: its origins are its sample moved FALLBACK_NUDGE texels toward
+    the triangle's centroid.
+    Returns positions (T, S, 3) float64 on the triangle, and (T, S) bool "in the region".
     """
     t = texels.count
     size = np.array([texels.width, texels.height], dtype=np.float64)
@@ -232,16 +274,14 @@ def _jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
     bary = _uv_barycentric(corner[:, None], inv[:, None], q).reshape(-1, 3)  # (T·S, 3)
     owner = np.repeat(np.arange(t), per_texel)
     inside = (bary >= -BARY_EPS).all(axis=1)
-    for _ in range(JITTER_TRIES):
-        redo = np.flatnonzero(~inside)
-        if len(redo) == 0:
-            break
-        tex = owner[redo]
-        b_new = _uv_barycentric(corner[tex], inv[tex],
-                                centre[tex] + rng.random((len(redo), 2)) - 0.5)
-        ok = (b_new >= -BARY_EPS).all(axis=1)
-        bary[redo[ok]] = b_new[ok]
-        inside[redo[ok]] = True
+    part = np.unique(owner[~inside])  # texels with a lattice point off their triangle
+    regions = texel_regions(scene, texels, part)
+    redo = np.flatnonzero(~inside)
+    slot = np.searchsorted(part, owner[redo])
+    redo, slot = redo[~regions.empty[slot]], slot[~regions.empty[slot]]
+    if len(redo):
+        bary[redo] = sample_texel_regions(regions, slot, rng)
+        inside[redo] = True
     # Fallback: the texel sample nudged toward its triangle's centroid by about
     # FALLBACK_NUDGE texels, so that it is strictly inside (a sample on a concave chart
     # border lies on the neighbouring face's plane, where rays hit that face at t ≈ 0).
@@ -340,7 +380,8 @@ class _HitMapper:
 
 
 def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
-                    seed: int, timer: StageTimer | None = None) -> Gather:
+                    seed: int, timer: StageTimer | None = None, near_field: float = 0.0,
+                    direct_samples: int = 1) -> Gather:
     """Trace the texel → texel gather operator G (see the module docstring).
 
     rays : M gather rays per texel (≥ 1); seed : every random choice (same inputs + seed
@@ -356,6 +397,11 @@ def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: i
     that fails or lands more than MAP_SLACK_FOOTPRINTS footprints away goes to the
     nearest same-facing texel in 3-D (counted in ``stats["remapped_hits"]``).
 
+    near_field : rays whose hit lies within this many footprints of their origin texel
+    (|dP/dx| + |dP/dy|)/2 are also listed in ``Gather.near`` (0: none).
+    direct_samples : J, the points per texel in ``Gather.direct_position`` (1: the
+    sample; J > 1: J of the texel's S origins, evenly spaced along its lattice).
+
     Returns a :class:`Gather`; ``matrix`` is (T, T) float32 CSR with duplicate entries
     summed, row sums ≤ 1.
     """
@@ -365,7 +411,8 @@ def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: i
         raise ValueError("gather_operator: the scene has no TEXCOORD_1")
     ctx = timer.stage("gather operator") if timer is not None else nullcontext()
     with ctx:
-        return _gather(scene, texels, tracer, int(rays), int(seed), timer)
+        return _gather(scene, texels, tracer, int(rays), int(seed), timer,
+                       float(near_field), int(direct_samples))
 
 
 def build_gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
@@ -377,7 +424,8 @@ def build_gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, r
 
 
 def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: int,
-            timer: StageTimer | None) -> Gather:
+            timer: StageTimer | None, near_field: float = 0.0, direct_samples: int = 1
+            ) -> Gather:
     t = texels.count
     s = max(1, m // RAYS_PER_ORIGIN)
     rng = np.random.default_rng(seed)
@@ -395,6 +443,9 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     flat = bool((np.abs(up[:, :2]).max(initial=0.0) < 1e-12) and (up[:, 2].min(
         initial=1.0) > 0))
     mapper = _HitMapper(scene, texels, tracer)
+    # near-field reach of each texel: near_field × its footprint, in world units
+    reach = near_field * 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
+    near_parts: list[tuple[np.ndarray, ...]] = []
 
     i = np.arange(m, dtype=np.float64)
     lattice = np.stack([(i + 0.5) / m, np.mod(i * PHI, 1.0)], axis=1).astype(np.float32)
@@ -452,6 +503,13 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
         cols[use] = mapper(hits.triangle[pos], hits.barycentric[pos], use, o, d, hits.t[pos])
         parts.append(_row_counts(cols.reshape(nt, m), b0, t))
+        if near_field > 0:
+            r_use = use // m  # receiving texel - b0
+            close = hits.t[pos] < reach[b0 + r_use]
+            nu, npos, nr = use[close], pos[close], r_use[close]
+            near_parts.append((b0 + nr, cols[nu], hits.triangle[npos],
+                               hits.barycentric[npos],
+                               (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32)))
         del hits, d, o, cols
 
     row = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
@@ -486,6 +544,17 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         tie = 1e-6 * np.linalg.norm(texels.footprint[mv], axis=2).mean(axis=1)
         near = dist <= dist.min(axis=1, keepdims=True) + tie[:, None]
         sample[mv] = origins[mv, near.argmax(axis=1)]
+    # Where the texel's direct light is evaluated and averaged: J origins spread over the
+    # texel (every S/J-th point of its lattice), each buried one replaced by the sample.
+    # One point aliases: a shadow edge along a texel column leaves every centre lit.
+    j = max(1, min(int(direct_samples), s))
+    if j == 1:
+        direct_position = sample[:, None, :].copy()
+    else:
+        pick = (np.arange(j) * s) // j
+        direct_position = origins[:, pick].copy()
+        off = inside_origin[:, pick] | ~jittered[:, pick] | (valid_rays == 0)[:, None]
+        direct_position[off] = np.broadcast_to(sample[:, None, :], direct_position.shape)[off]
     stats = {
         "gather_rays": m, "origins_per_texel": s, "rays_traced": n_traced,
         "rays_below_surface": n_below, "back_face_hits": n_back, "misses": n_miss,
@@ -494,8 +563,13 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         "buried_texels": int((valid_rays == 0).sum()), "moved_texels": int(moved.sum()),
         "nnz": int(matrix.nnz),
     }
+    near = None
+    if near_field > 0:
+        empty = (np.zeros(0, np.int64),) * 3 + (np.zeros((0, 3)), np.zeros(0, np.float32))
+        near = NearField(*(np.concatenate(a) for a in zip(empty, *near_parts, strict=True)))
+        stats["near_field_hits"] = near.count
     return Gather(matrix=matrix, sample_position=sample, valid_rays=valid_rays, moved=moved,
-                  stats=stats)
+                  stats=stats, direct_position=direct_position, near=near)
 
 
 def _row_counts(cols: np.ndarray, row0: int, sentinel: int
@@ -528,8 +602,10 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
                     timer: StageTimer | None = None, desc: str = "direct") -> np.ndarray:
     """Direct outgoing radiance ``L = clamp(ρ)/π · E`` for every light.
 
-    positions, normals : (n, 3) float64 surface points and unit shading normals;
-    albedo : (n, 3) raw albedo (clamped here with :func:`prtcore.materials.clamp_albedo`).
+    positions : (n, 3) float64 surface points, or (n, J, 3): J points per row whose
+    irradiance is averaged (a texel's direct samples, :attr:`Gather.direct_position`);
+    normals : (n, 3) float64 unit shading normals; albedo : (n, 3) raw albedo (clamped
+    here with :func:`prtcore.materials.clamp_albedo`).
     E is :func:`prtcore.lights.irradiance` with shadow rays. Lights are evaluated on
     ``tracer.threads`` threads (embreex and numpy release the GIL), one light per task,
     points in chunks of DIRECT_CHUNK, so memory stays at the (n, K, 3) float32 result
@@ -539,15 +615,24 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
     del scene  # the tracer holds the geometry; kept for a uniform stage signature
     positions = np.asarray(positions, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
+    if positions.ndim == 3 and positions.shape[1] == 1:
+        positions = positions[:, 0]
+    per = 1 if positions.ndim == 2 else positions.shape[1]
     rho, _ = clamp_albedo(np.asarray(albedo, dtype=np.float64))
     scale = rho / math.pi
     out = np.empty((len(positions), len(lights), 3), dtype=np.float32)
+    step = max(1, DIRECT_CHUNK // per)
 
     def one(k: int) -> None:
-        for a in range(0, len(positions), DIRECT_CHUNK):
-            b = a + DIRECT_CHUNK
-            out[a:b, k, :] = irradiance(lights[k], positions[a:b], normals[a:b],
-                                        tracer) * scale[a:b]
+        for a in range(0, len(positions), step):
+            b = a + step
+            if per == 1:
+                e = irradiance(lights[k], positions[a:b], normals[a:b], tracer)
+            else:
+                e = irradiance(lights[k], positions[a:b].reshape(-1, 3),
+                               np.repeat(normals[a:b], per, axis=0), tracer)
+                e = e.reshape(-1, per, 3).mean(axis=1)
+            out[a:b, k, :] = e * scale[a:b]
 
     ks = range(len(lights))
     if tracer.threads > 1 and len(lights) > 1:
@@ -561,6 +646,44 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
         for k in timer.bar(ks, desc, total=len(lights)) if timer is not None else ks:
             one(k)
     return out
+
+
+def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
+                          lights: Sequence[Light], direct_texels: np.ndarray,
+                          timer: StageTimer | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """The first bounce of the near field at the hit points instead of their texels.
+
+    For every near hit (:class:`NearField`) the direct outgoing radiance at the hit point
+    (:func:`direct_radiance`, shadow rays included) replaces the value of the texel it maps
+    to, ``direct_texels`` (T, K, 3): a receiving texel's first bounce changes by
+    ``Σ_hits w · (L_d(hit) − L_d[col])``. Costs one shadow ray per near hit and light.
+    Returns rows (r,) int64, the receiving texels (sorted, unique), and their changes
+    (r, K, 3) float32; :func:`solve_indirect` adds them to the first bounce.
+    """
+    from .materials import albedo_at
+    from .texels import _shading_normals
+
+    k = direct_texels.shape[1]
+    rows = np.unique(near.row)
+    out = np.zeros((len(rows), k, 3), dtype=np.float32)
+    slot = np.searchsorted(rows, near.row)
+    starts = range(0, near.count, NEAR_CHUNK)
+    if timer is not None:
+        starts = timer.bar(starts, "near field", total=len(starts))
+    for a in starts:
+        sl = slice(a, a + NEAR_CHUNK)
+        tri, bary = near.triangle[sl], near.barycentric[sl]
+        point = tracer.surface_point(tri, bary)
+        normal = _shading_normals(scene, tri, bary, tracer.face_normals[tri])
+        ld = direct_radiance(scene, tracer, lights, point, normal, albedo_at(scene, tri, bary))
+        ld -= direct_texels[near.col[sl]]
+        ld *= near.weight[sl, None, None]
+        # rows are sorted: sum each run of equal rows, then add the runs (unique slots)
+        sk = slot[sl]
+        run = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
+        out[sk[run]] += np.add.reduceat(ld, run, axis=0)
+    return rows, out
 
 
 # ---------------------------------------------------------------------------------------
@@ -670,7 +793,8 @@ def spectrum_interval(product: SparseProduct, rho: np.ndarray, steps: int = ARNO
 
 def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray,
                    max_bounces: int, tolerance: float, timer: StageTimer | None = None,
-                   method: str = "chebyshev", threads: int = 2
+                   method: str = "chebyshev", threads: int = 2,
+                   first_bounce: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[np.ndarray, int, float, dict]:
     """All bounces of indirect light for every configuration and channel at once.
 
@@ -699,6 +823,9 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     Configurations are solved in column blocks so that the working arrays (5 of
     T × block × 3 float32) stay within SOLVE_BLOCK_BYTES.
 
+    first_bounce : (rows, values (r, K, 3)) added to ``G L_d`` at those rows — the near
+    field's correction (:func:`near_field_correction`).
+
     Returns the indirect outgoing radiance ρ/π·E_ind (T, K, 3) float32, the number of
     products (bounces), the residual (the largest last relative change; 1.0 after a single
     bounce) and stats.
@@ -709,10 +836,10 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     ctx = timer.stage("indirect solve") if timer is not None else nullcontext()
     with ctx:
         return _solve(matrix, albedo, direct, int(max_bounces), float(tolerance), method,
-                      threads)
+                      threads, first_bounce)
 
 
-def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads):
+def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extra=None):
     t, k = direct.shape[:2]
     rho, _ = clamp_albedo(np.asarray(albedo, dtype=np.float64))
     rho32 = rho.astype(np.float32)
@@ -734,6 +861,9 @@ def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads):
     def first_bounce(k0: int, k1: int) -> np.ndarray:
         ld = np.ascontiguousarray(direct[:, k0:k1], dtype=np.float32)
         b = product(ld.reshape(t, -1)).reshape(t, k1 - k0, 3)
+        if extra is not None:  # ≥ 0 exactly; float32 round-off must not make it negative
+            rows = extra[0]
+            b[rows] = np.maximum(b[rows] + extra[1][:, k0:k1], np.float32(0))
         b *= np.float32(math.pi)
         return b
 
@@ -860,6 +990,55 @@ def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int) -
     return need
 
 
+def spec_gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, spec: TransportSpec,
+                timer: StageTimer | None = None) -> Gather:
+    """:func:`gather_operator` with the spec's rays, seed, near field and direct samples."""
+    return gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
+                           near_field=spec.near_field, direct_samples=spec.direct_samples)
+
+
+@dataclass(frozen=True)
+class TexelLighting:
+    """Direct and indirect outgoing radiance at the texels for K lights.
+
+    direct, indirect : (T, K, 3) float32; iterations, residual : as :class:`Dataset`;
+    stats : "rays" (direct texels, near field), "solve", "direct_samples".
+    """
+
+    direct: np.ndarray
+    indirect: np.ndarray
+    iterations: int
+    residual: float
+    stats: dict
+
+
+def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer, gather: Gather,
+                 lights: Sequence[Light], spec: TransportSpec,
+                 timer: StageTimer | None = None) -> TexelLighting:
+    """Direct light at the texels (averaged over ``gather.direct_position``), the near
+    field's first bounce (:func:`near_field_correction`) and all bounces
+    (:func:`solve_indirect`) for ``lights``, on a gather traced once
+    (:func:`spec_gather`). Sub-stages "direct texels", "near field", "indirect solve"."""
+    timer = timer or StageTimer(quiet=True)
+    rays0 = tracer.rays_traced
+    with timer.stage("direct texels"):
+        direct = direct_radiance(scene, tracer, lights, gather.direct_position,
+                                 texels.normal, texels.albedo, timer, "direct texels")
+    rays1 = tracer.rays_traced
+    first = None
+    if gather.near is not None and gather.near.count:
+        with timer.stage("near field"):
+            first = near_field_correction(scene, tracer, gather.near, lights, direct, timer)
+    rays2 = tracer.rays_traced
+    indirect, bounces, resid, solve_stats = solve_indirect(
+        gather.matrix, texels.albedo, direct, spec.max_bounces, spec.tolerance, timer,
+        threads=tracer.threads, first_bounce=first)
+    stats = {"rays": {"direct_texels": rays1 - rays0, "near_field": rays2 - rays1},
+             "solve": solve_stats, "direct_samples": int(gather.direct_position.shape[1])}
+    return TexelLighting(direct=direct, indirect=indirect, iterations=bounces,
+                         residual=resid, stats=stats)
+
+
 def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
                  lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                  spec: TransportSpec | None = None, timer: StageTimer | None = None,
@@ -869,8 +1048,8 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
     Training and held-out configurations are computed in one pass: ``Dataset.lights`` is
     ``(*lights_train, *lights_holdout)`` and every (…, K, 3) array follows that order;
     ``stats["train"]`` is ``len(lights_train)`` (the caller splits at it).
-    Sub-stages are timed on ``timer`` as "gather operator", "direct texels",
-    "direct points", "indirect solve".
+    Sub-stages are timed on ``timer`` as "gather operator", "direct points",
+    "direct texels", "near field", "indirect solve".
     """
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
@@ -879,12 +1058,8 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
     rays0 = tracer.rays_traced
     before = dict(timer.seconds)
 
-    gather = gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer)
+    gather = spec_gather(scene, texels, tracer, spec, timer)
     rays1 = tracer.rays_traced
-    with timer.stage("direct texels"):
-        direct_t = direct_radiance(scene, tracer, lights, gather.sample_position,
-                                   texels.normal, texels.albedo, timer, "direct texels")
-    rays2 = tracer.rays_traced
     with timer.stage("direct points"):
         cl = direct_radiance(scene, tracer, lights, points.cluster_position,
                              points.cluster_normal, points.cluster_albedo, timer,
@@ -893,21 +1068,21 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
         direct_p = points.average_clusters(cl.reshape(len(cl), 3 * k).astype(np.float64))
         direct_p = direct_p.reshape(points.count, k, 3).astype(np.float32)
         del cl
-    rays3 = tracer.rays_traced
-    indirect, bounces, resid, solve_stats = solve_indirect(
-        gather.matrix, texels.albedo, direct_t, spec.max_bounces, spec.tolerance, timer,
-        threads=tracer.threads)
+    rays2 = tracer.rays_traced
+    lit = light_texels(scene, texels, tracer, gather, lights, spec, timer)
     _, clamped = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
     stats = {
         "train": len(lights_train), "holdout": len(lights_holdout),
         "texels": texels.count, "points": points.count,
-        "rays": {"gather": rays1 - rays0, "direct_texels": rays2 - rays1,
-                 "direct_points": rays3 - rays2, "total": rays3 - rays0},
-        "gather": gather.stats, "solve": solve_stats,
+        "rays": {"gather": rays1 - rays0, "direct_points": rays2 - rays1,
+                 **lit.stats["rays"], "total": tracer.rays_traced - rays0},
+        "direct_samples": lit.stats["direct_samples"],
+        "gather": gather.stats, "solve": lit.stats["solve"],
         "albedo_clamped_values": clamped,
         "seconds": {name: timer.seconds[name] - before.get(name, 0.0)
-                    for name in ("gather operator", "direct texels", "direct points",
-                                 "indirect solve") if name in timer.seconds},
+                    for name in ("gather operator", "direct points", "direct texels",
+                                 "near field", "indirect solve") if name in timer.seconds},
     }
-    return Dataset(lights=lights, direct_points=direct_p, direct_texels=direct_t,
-                   indirect=indirect, iterations=bounces, residual=resid, stats=stats)
+    return Dataset(lights=lights, direct_points=direct_p, direct_texels=lit.direct,
+                   indirect=lit.indirect, iterations=lit.iterations, residual=lit.residual,
+                   stats=stats)

@@ -21,15 +21,13 @@ from prtcore.progress import StageTimer
 from prtcore.reference import (
     cosine_directions,
     default_tracer,
-    jitter_origins,
     reference_direct,
     reference_lightmap,
     reference_lightmap_with_error,
     reference_lightmaps,
-    texel_centres,
 )
 from prtcore.scene import Light, Material, Scene
-from prtcore.texels import TexelSpace
+from prtcore.texels import TexelSpace, sample_texel_regions, texel_centres, texel_regions
 
 # ---------------------------------------------------------------------------------------
 # Hand-built scenes and texel spaces
@@ -172,12 +170,14 @@ def test_cosine_directions_distribution():
         np.testing.assert_allclose(d.mean(axis=0), n * 2 / 3, atol=5e-3)
 
 
-def test_texel_centres_and_jitter_stay_on_the_texel_triangle():
+def test_texel_regions_are_sampled_uniformly_on_the_texel_triangle():
     """One triangle with TEXCOORD_1 on a 4×4 atlas: world = (2u, 0, 2v), so one texel step
-    is 0.5 m. Texel (2, 1) has its centre on the hypotenuse: its jittered origins must be
+    is 0.5 m. Texel (2, 1) has its centre on the hypotenuse: its path origins must be
     uniform over the half of its square that lies on the triangle; texel (3, 1) has its
     centre off the triangle (its sample is the closest triangle point) and the centre is
-    recovered from the sample and the footprint."""
+    recovered from the sample and the footprint. On a 4×5 atlas, texel (3, 1) covers 2.5 %
+    of its square (rejection sampling with a fallback to the sample put most origins on
+    the texel's sample) and is sampled as uniformly as a full one."""
     v = np.array([[0, 0, 0], [0, 0, 2], [2, 0, 0]], float)  # CCW seen from +y
     uv1 = np.array([[0, 0], [0, 1], [1, 0]], float)
     scene = make_scene([(v, np.array([[0, 1, 2]]), np.array([[0, 1.0, 0]] * 3),
@@ -194,23 +194,36 @@ def test_texel_centres_and_jitter_stay_on_the_texel_triangle():
     c = texel_centres(scene, tx)
     np.testing.assert_allclose(c, np.column_stack([2 * centre_uv[:, 0], [0, 0],
                                                    2 * centre_uv[:, 1]]), atol=1e-12)
+    regions = texel_regions(scene, tx)
     rng = np.random.default_rng(0)
     n = 40_000
-    b = jitter_origins(scene, tx, c, np.zeros(n, np.int64), rng)
+    b = sample_texel_regions(regions, np.zeros(n, np.int64), rng)
     assert b.min() >= 0 and np.allclose(b.sum(axis=1), 1.0)
     p = b @ v
     # inside the texel square [1, 1.5] × [0.5, 1] (world x, z) and on the triangle
     assert p[:, 0].min() >= 1.0 - 1e-12 and p[:, 0].max() <= 1.5 + 1e-12
     assert p[:, 2].min() >= 0.5 - 1e-12 and p[:, 2].max() <= 1.0 + 1e-12
     assert (p[:, 0] + p[:, 2]).max() <= 2.0 + 1e-12
-    # uniform over that half square: the mean is its centroid (1+1.5+1, 0.5+0.5+1)/3;
-    # (the ~2⁻⁹ of points that fall back to the sample barely move it)
+    # uniform over that half square: the mean is its centroid (1+1.5+1, 0.5+0.5+1)/3
     np.testing.assert_allclose(p[:, [0, 2]].mean(axis=0), [7 / 6, 2 / 3], atol=4e-3)
     assert abs(np.mean(p[:, 0] < 1.25) - 0.75) < 0.01  # area left of x = 1.25: 3/4
-    # texel (3, 1) touches the triangle in one corner only: every draw falls back to the
-    # texel's own sample
-    b1 = jitter_origins(scene, tx, c, np.ones(50, np.int64), rng)
+    # texel (3, 1) touches the triangle in one corner only: every origin is its sample
+    b1 = sample_texel_regions(regions, np.ones(50, np.int64), rng)
     np.testing.assert_allclose(b1 @ v, np.broadcast_to(tx.position[1], (50, 3)), atol=1e-12)
+    # 4×5 atlas, texel (3, 1): square u ∈ [0.75, 1], v ∈ [0.2, 0.4]; u + v ≤ 1 leaves the
+    # corner triangle uv (0.75, 0.2), (0.8, 0.2), (0.75, 0.25) = world (1.5, 0.4),
+    # (1.6, 0.4), (1.5, 0.5); its sample is the closest point (0.7875, 0.2125)
+    s_uv = np.array([[0.7875, 0.2125]])
+    tx2 = make_texels(scene, np.array([0]), np.stack(
+        [1 - s_uv.sum(1), s_uv[:, 1], s_uv[:, 0]], axis=1), 0.5)
+    tx2 = dataclasses.replace(tx2, width=4, height=5, xy=np.array([[3, 1]], np.int32),
+                              footprint=np.array([[[0.5, 0, 0], [0, 0, 0.4]]]))
+    np.testing.assert_allclose(texel_centres(scene, tx2), [[1.75, 0, 0.6]], atol=1e-12)
+    p2 = sample_texel_regions(texel_regions(scene, tx2), np.zeros(n, np.int64), rng) @ v
+    assert (p2[:, 0] + p2[:, 2]).max() <= 2.0 + 1e-12
+    assert p2[:, 0].min() >= 1.5 - 1e-12 and p2[:, 2].min() >= 0.4 - 1e-12
+    np.testing.assert_allclose(p2[:, [0, 2]].mean(axis=0), [4.6 / 3, 1.3 / 3], atol=1e-3)
+    assert len(np.unique(p2.round(9), axis=0)) == n  # no origin piles up on the sample
 
 
 # ---------------------------------------------------------------------------------------

@@ -151,15 +151,13 @@ class Transport:
     def __init__(self, asset: Path, spec: dict):
         from prtcore.pipeline import run_intake
         from prtcore.raytrace import RayTracer
-        from prtcore.transport import gather_operator
+        from prtcore.transport import spec_gather
 
         self.spec = parse_spec(spec)
         self.intake = run_intake(asset, self.spec, quiet=True)
         sc = self.intake.scene
         self.tracer = RayTracer(sc.positions, sc.faces, sc.radius)
-        t = self.spec.transport
-        self.gather = gather_operator(sc, self.intake.texels, self.tracer, t.gather_rays,
-                                      t.seed)
+        self.gather = spec_gather(sc, self.intake.texels, self.tracer, self.spec.transport)
 
     def configurations(self):
         from prtcore.lights import sample_configurations
@@ -169,17 +167,13 @@ class Transport:
 
     def dataset(self, lights) -> tuple[np.ndarray, np.ndarray]:
         """D (P, K, 3) float32 and I (T, K, 3) float32 for ``lights``."""
-        from prtcore.transport import direct_radiance, solve_indirect
+        from prtcore.transport import direct_radiance, light_texels
 
         sc, tx, pts = self.intake.scene, self.intake.texels, self.intake.points
-        t = self.spec.transport
-        direct_t = direct_radiance(sc, self.tracer, lights, self.gather.sample_position,
-                                   tx.normal, tx.albedo)
         cl = direct_radiance(sc, self.tracer, lights, pts.cluster_position,
                              pts.cluster_normal, pts.cluster_albedo)
         k = len(lights)
         d = pts.average_clusters(cl.reshape(len(cl), 3 * k).astype(np.float64))
         D = d.reshape(pts.count, k, 3).astype(np.float32)
-        I, _, _, _ = solve_indirect(self.gather.matrix, tx.albedo, direct_t, t.max_bounces,
-                                    t.tolerance, threads=self.tracer.threads)
+        I = light_texels(sc, tx, self.tracer, self.gather, lights, self.spec.transport).indirect
         return D, I

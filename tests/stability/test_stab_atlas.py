@@ -86,6 +86,7 @@ def test_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
     assert out["error"] is None, out
     t = json.loads((tmp_path / "b" / "manifest.json").read_text())["atlas"]["covered_texels"]
     est = estimate_bake_bytes(t, 30, 8)
+    print(f"peak {out['peak'] / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
     assert out["peak"] <= est <= ESTIMATE_SLACK * out["peak"], (out["peak"], est)
 
 
