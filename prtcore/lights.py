@@ -92,7 +92,7 @@ def irradiance(light: Light, points: np.ndarray, normals: np.ndarray,
     e, w, _ = unshadowed_irradiance(light, points, normals)
     if tracer is None:
         return e
-    lit = np.nonzero(e.max(axis=1) > 0)[0]
+    lit = np.flatnonzero(e[:, 0] + e[:, 1] + e[:, 2] > 0)  # e ≥ 0: any channel lit
     if len(lit):
         if light.type == "directional":
             vis = tracer.unoccluded_towards(points[lit], normals[lit], w[lit])

@@ -142,7 +142,7 @@ class RayTracer:
         side = np.sign(np.einsum("ij,ij->i", targets - points, normals))[:, None]
         origins = points + normals * side * self.offset
         delta = targets - origins
-        dist = np.linalg.norm(delta, axis=1)
+        dist = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         dirs = np.divide(delta, dist[:, None], out=np.zeros_like(delta),
                          where=dist[:, None] > 0)
         return ~self.occluded(origins, dirs, np.maximum(dist - self.offset, 0.0))
