@@ -163,6 +163,7 @@ def plan_asset(scene: Scene, spec: BakeSpec) -> Plan:
     types = sorted({f.type for f in lt.families})
     fams = f"{len(lt.families)} famil{'y' if len(lt.families) == 1 else 'ies'}"
     gamma = "" if fit.gamma is None else f", gamma {fit.gamma:g}"
+    near = f"within {tr.near_field:g}× the texel footprint" if tr.near_field > 0 else "off"
     stages = [
         repair, remesh, uv, keyframes,
         StagePlan("texels", "run", f"{R}×{R} atlas, padding {pad}"),
@@ -170,8 +171,9 @@ def plan_asset(scene: Scene, spec: BakeSpec) -> Plan:
                   f"supersample {mp.supersample}"),
         StagePlan("lights", "run", f"{lt.count} lights + {lt.holdout} held out, {fams} "
                   f"({', '.join(types)})"),
-        StagePlan("transport", "run", f"{tr.gather_rays} gather rays, ≤ {tr.max_bounces} "
-                  f"bounces, tolerance {tr.tolerance:g}"),
+        StagePlan("transport", "run", f"{tr.gather_rays} gather rays, "
+                  f"{tr.direct_samples} direct samples per texel, near field {near}, "
+                  f"≤ {tr.max_bounces} bounces, tolerance {tr.tolerance:g}"),
         StagePlan("fit", "run", f"basis {fit.basis}, ridge {fit.ridge}, {fit.channels}{gamma}"),
         StagePlan("export", "run", f"bundle with {spec.output.dtype} EXRs"),
     ]
