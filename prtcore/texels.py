@@ -609,8 +609,9 @@ class TexelRegions:
     ``corners[i, f, c]`` (barycentrics on ``texels.triangle[i]``); cdf : (t, FAN_MAX)
     float64 cumulative area fractions (last column 1); unused fan slots have zero area.
     A texel whose square only touches its triangle (zero area) has every corner at its
-    own sample (``texels.barycentric``) and is ``empty``.
-    empty : (t,) bool — the square only touches the triangle (zero area)
+    own sample (``texels.barycentric``) and is ``empty``; so is a texel of zero footprint
+    (a point, e.g. a pixel's hit point in :func:`prtcore.camera.reference_image`).
+    empty : (t,) bool — the square only touches the triangle (zero area), or is a point
     """
 
     corners: np.ndarray
@@ -665,7 +666,9 @@ def texel_regions(scene: Scene, texels: TexelSpace, index: np.ndarray | None = N
         centres = texel_centres(scene, texels)[sel]
         corners = [centres + sx * fp[:, 0] + sy * fp[:, 1] for sx, sy in signs]
     quad = np.stack([_barycentric(tri, c) for c in corners], axis=1)[:, :, 1:]  # (b1, b2)
-    ok = np.isfinite(quad).all(axis=(1, 2))
+    # a texel of zero footprint is a point (a camera reference's pixel hit): no region
+    point = ~(np.abs(np.asarray(texels.footprint[sel])).sum(axis=(1, 2)) > 0)
+    ok = np.isfinite(quad).all(axis=(1, 2)) & ~point
     poly, count = np.where(ok[:, None, None], quad, 0.0), np.full(t, 4, dtype=np.int64)
     for a, c in (((1.0, 0.0), 0.0), ((0.0, 1.0), 0.0), ((-1.0, -1.0), 1.0)):
         poly, count = _clip_half_plane(poly, count, np.array(a), c)

@@ -224,6 +224,11 @@ def test_texel_regions_are_sampled_uniformly_on_the_texel_triangle():
     assert p2[:, 0].min() >= 1.5 - 1e-12 and p2[:, 2].min() >= 0.4 - 1e-12
     np.testing.assert_allclose(p2[:, [0, 2]].mean(axis=0), [4.6 / 3, 1.3 / 3], atol=1e-3)
     assert len(np.unique(p2.round(9), axis=0)) == n  # no origin piles up on the sample
+    # a texel of zero footprint is a point (a camera reference's pixel hit, whose xy are
+    # pixel coordinates, not atlas texels): every origin is its sample, TEXCOORD_1 or not
+    pts = dataclasses.replace(tx, footprint=np.zeros((2, 2, 3)))
+    b3 = sample_texel_regions(texel_regions(scene, pts), np.array([0, 1] * 20), rng)
+    np.testing.assert_allclose(b3 @ v, np.tile(tx.position, (20, 1)), atol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------
