@@ -584,8 +584,9 @@ def texel_centres(scene: Scene, texels: TexelSpace) -> np.ndarray:
 
 
 def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Barycentrics of points p (m, 3) in the planes of triangles tri (m, 3, 3); rows of
-    degenerate triangles are NaN (rejected by every inside test)."""
+    """Barycentrics of points p (m, d) in the planes of triangles tri (m, 3, d), d = 2
+    (UV) or 3 (world); rows of degenerate triangles are NaN (rejected by every inside
+    test)."""
     a = tri[:, 0]
     e1, e2, d = tri[:, 1] - a, tri[:, 2] - a, p - a
     d00 = np.einsum("ij,ij->i", e1, e1)
@@ -605,8 +606,9 @@ class TexelRegions:
     """Each texel's square intersected with its own triangle, as a fan of triangles in
     barycentric coordinates of that triangle (the region path origins are drawn from).
 
-    corners : (t, FAN_MAX, 3, 3) float64 — fan triangle f of texel i has corners
-    ``corners[i, f, c]`` (barycentrics on ``texels.triangle[i]``); cdf : (t, FAN_MAX)
+    corners : (t, 5, 3, 3) float64 — fan triangle f of texel i has corners
+    ``corners[i, f, c]`` (barycentrics on ``texels.triangle[i]``; a square clipped by a
+    triangle has at most 7 corners, so 5 fan triangles); cdf : (t, 5)
     float64 cumulative area fractions (last column 1); unused fan slots have zero area.
     A texel whose square only touches its triangle (zero area) has every corner at its
     own sample (``texels.barycentric``) and is ``empty``; so is a texel of zero footprint

@@ -194,7 +194,7 @@ class Gather:
     valid_rays: np.ndarray
     moved: np.ndarray
     stats: dict
-    direct_position: np.ndarray | None = None
+    direct_position: np.ndarray
     near: NearField | None = None
 
     @property
