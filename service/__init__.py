@@ -1,7 +1,9 @@
-"""prtcore HTTP front (FastAPI; DESIGN 6): bakes as jobs.
+"""prtcore HTTP front (FastAPI): bakes as jobs.
 
-``main.py`` assembles the app, ``routers/`` holds one router per resource, ``config.py`` the
-pydantic-settings configuration (``PRT_*``), ``store.py`` the durable job table (SQLite or
-PostgreSQL), ``uploads.py`` the streaming, size-limited multipart intake, ``artifacts.py``
-the on-disk layout of inputs and bundles. Bakes never run here: see :mod:`workers`.
+``main.py`` assembles the app, ``routers/`` holds one router per resource, ``uploads.py`` the
+streaming, size-limited multipart intake, ``server.py`` ``prtcore serve`` (the API plus
+supervised workers), ``cli.py`` the ``serve`` subcommand (entry-point group
+``prtcore.commands``). Settings, the job store, artifacts and the queue come from
+:mod:`jobs`. Bakes never run here and this package never imports :mod:`workers`: ``serve``
+starts workers as processes (``python -m prtcore worker``).
 """

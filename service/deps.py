@@ -8,9 +8,10 @@ from typing import Annotated, Any
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from .config import Settings
+from jobs.config import Settings
+from jobs.store import JobStore
+
 from .errors import ApiError
-from .store import JobStore
 
 _bearer = HTTPBearer(auto_error=False, description="required when PRT_API_TOKENS is set")
 

@@ -7,7 +7,9 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.exceptions import RequestValidationError
 
-from .config import Settings, get_settings
+from jobs import lifeline
+from jobs.config import Settings, get_settings
+
 from .errors import ApiError, api_error_handler, validation_error_handler
 from .routers import bakes, health
 
@@ -20,9 +22,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        from workers.queue import make_huey
-
-        from .store import JobStore
+        from jobs.queue import make_huey
+        from jobs.store import JobStore
 
         s = app.state.settings
         s.artifacts.mkdir(parents=True, exist_ok=True)
@@ -45,4 +46,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def app_factory() -> FastAPI:  # uvicorn --factory service.main:app_factory
+    # An API process that ``prtcore serve --api-workers N`` started dies with it.
+    lifeline.die_with_supervisor()
     return create_app()

@@ -8,7 +8,8 @@ from typing import Any
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily
 
-from .store import JobStore
+from jobs.queue import queue_depth
+from jobs.store import JobStore
 
 DURATION_BUCKETS = (1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1800.0, 3600.0)
 
@@ -28,8 +29,6 @@ class _JobCollector:
         h.add_metric([], [(repr(b), c) for b, c in zip(DURATION_BUCKETS, counts, strict=True)]
                      + [("+Inf", total)], sum_value=seconds)
         yield h
-        from workers.queue import queue_depth
-
         q = GaugeMetricFamily("prtcore_queue_depth", "Messages waiting in the queue")
         try:
             q.add_metric([], queue_depth(self.huey))

@@ -7,14 +7,16 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
+from jobs.store import Job
+
 from .errors import ErrorBody
-from .store import Job
 
 Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 
 class AssetInfo(BaseModel):
-    name: str
+    name: str = Field(description="the file name it was uploaded under, sanitised: last "
+                      "path segment, characters outside A-Za-z0-9._- replaced by _")
     sha256: str
     bytes: int
 
@@ -77,7 +79,7 @@ def bake_out(job: Job) -> Bake:
         max_attempts=job.max_attempts, cancel_requested=job.cancel_requested,
         created_at=_ts(job.created_at), started_at=_ts(job.started_at),  # type: ignore[arg-type]
         finished_at=_ts(job.finished_at), timings=job.timings, error=error,
-        asset=AssetInfo(name=job.asset_name, sha256=job.asset_sha256, bytes=job.asset_bytes),
+        asset=AssetInfo(name=job.original_name or job.asset_name, sha256=job.asset_sha256, bytes=job.asset_bytes),
         spec_sha256=job.spec_sha256, content_key=job.content_key,
         links=Links(self=base, artifacts=f"{base}/artifacts", report=f"{base}/report"),
     )

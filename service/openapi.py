@@ -16,7 +16,8 @@ HEADER = "# Generated from the FastAPI app by `python -m service.openapi`; do no
 
 
 def render() -> str:
-    from .config import Settings
+    from jobs.config import Settings
+
     from .main import create_app
 
     spec = create_app(Settings()).openapi()

@@ -21,7 +21,8 @@ from fastapi import Request
 from python_multipart import MultipartParser
 from python_multipart.multipart import parse_options_header
 
-from .config import Settings
+from jobs.config import Settings
+
 from .errors import ApiError
 
 ASSET_SUFFIXES = (".glb", ".gltf")
@@ -35,7 +36,8 @@ class Upload:
 
     folder: Path
     asset_path: Path | None = None
-    asset_name: str = ""
+    asset_name: str = ""  # the name it is stored under: ``asset`` + suffix
+    original_name: str = ""  # the name it was uploaded under, sanitised (safe_filename)
     asset_bytes: int = 0
     asset_sha256: str = ""
     spec_bytes: bytes = b""
@@ -57,6 +59,18 @@ def _safe_suffix(filename: str) -> str:
 
 def _clean(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._ -]", "_", name)[:120]
+
+
+def safe_filename(filename: str, suffix: str, limit: int = 120) -> str:
+    """The uploaded file's name, safe to keep, show and use as a file name: the last path
+    segment only, every run of characters outside ``A-Za-z0-9._-`` made one ``_``, no
+    leading dot, at most ``limit`` characters, ending in ``suffix`` (the checked, lowercase
+    type). ``asset`` + suffix when nothing is left."""
+    base = re.split(r"[\\/]", filename)[-1]
+    stem = base[:len(base) - len(os.path.splitext(base)[1])]
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", stem).lstrip(".").rstrip(".")
+    stem = stem[:max(1, limit - len(suffix))].rstrip(".")
+    return (stem or "asset") + suffix
 
 
 async def receive(request: Request, settings: Settings) -> Upload:
@@ -106,6 +120,7 @@ async def receive(request: Request, settings: Settings) -> Upload:
             filename = opts.get(b"filename", b"").decode("utf-8", "replace")
             suffix = _safe_suffix(filename)
             up.asset_name = "asset" + suffix
+            up.original_name = safe_filename(filename, suffix)
             up.asset_path = up.folder / up.asset_name
             state["file"] = open(up.asset_path, "wb")
             up._hash = hashlib.sha256()

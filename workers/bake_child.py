@@ -18,18 +18,14 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-# Preloaded in the forkserver: the library and what a bake imports lazily.
-import prtcore.pipeline  # noqa: F401
-from prtcore.errors import AssetError, PrtError, SpecError
-from service import artifacts
-from service.config import Settings
-from service.store import JobStore
+from jobs import artifacts
+from jobs.config import Settings
+from jobs.lifeline import set_parent_death_signal
+from jobs.store import JobStore
 
-#: Stages of a full bake in order (DESIGN 2); progress is the share of them started.
-#: Stages the plan skips are simply passed over.
-STAGE_ORDER = ("load", "plan", "repair", "remesh", "uv", "texels", "points", "lights",
-               "gather operator", "direct texels", "direct points", "indirect solve", "fit",
-               "report", "export")
+# Preloaded in the forkserver: the library (its public names) and what a bake imports
+# lazily — importing ``bake`` loads the pipeline.
+from prtcore import AssetError, PrtError, SpecError, bake
 
 
 class Stop(Exception):
@@ -38,14 +34,6 @@ class Stop(Exception):
     def __init__(self, status: str):
         super().__init__(status)
         self.status = status
-
-
-def _die_with_parent() -> None:
-    """Linux: SIGKILL this process when its parent dies (no orphaned bakes)."""
-    with contextlib.suppress(Exception):
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
 
 
 def error_code(e: BaseException) -> tuple[str, bool]:
@@ -78,7 +66,9 @@ def child_main(settings: Settings, job_id: str, token: str, asset_name: str,
     """Run the bake; send one result dict through ``conn`` (unless killed)."""
     import threading
 
-    _die_with_parent()
+    # Our parent is the forkserver: if it dies, so do we (no orphaned bakes); if the
+    # worker dies, the lifeline below takes us down.
+    set_parent_death_signal(signal.SIGKILL)
     threading.Thread(target=_watch_lifeline, args=(lifeline,), daemon=True,
                      name="lifeline").start()
     with contextlib.suppress(OSError):
@@ -100,9 +90,7 @@ def child_main(settings: Settings, job_id: str, token: str, asset_name: str,
 
 def _bake(settings: Settings, job_id: str, token: str, asset_name: str, spec_json: str,
           timings: dict[str, float]) -> dict[str, Any]:
-    from prtcore.limits import IntakeLimits
-    from prtcore.pipeline import bake
-    from prtcore.spec import parse_spec
+    from prtcore import STAGES, IntakeLimits, parse_spec
 
     store = JobStore(settings.db_url, create=False)
     root = settings.artifacts
@@ -115,8 +103,8 @@ def _bake(settings: Settings, job_id: str, token: str, asset_name: str, spec_jso
             started[stage] = now
             if settings.fault_crash_stage and stage == settings.fault_crash_stage:
                 os.kill(os.getpid(), signal.SIGKILL)  # fault injection (tests only)
-            if stage in STAGE_ORDER:
-                done[0] = max(done[0], STAGE_ORDER.index(stage) / len(STAGE_ORDER))
+            if stage in STAGES:  # progress: the share of the bake's stages started
+                done[0] = max(done[0], STAGES.index(stage) / len(STAGES))
             ours, cancel = store.progress(job_id, token, stage, done[0], timings)
             if not ours:
                 raise Stop("lost")

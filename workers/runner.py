@@ -17,9 +17,10 @@ import threading
 import time
 from functools import lru_cache
 
-from service import artifacts
-from service.config import Settings, get_settings
-from service.store import JobStore
+from jobs import artifacts
+from jobs.config import Settings, get_settings
+from jobs.queue import enqueue
+from jobs.store import JobStore
 
 log = logging.getLogger("prtcore.worker")
 
@@ -35,10 +36,16 @@ def get_store() -> JobStore:
 def _context() -> mp.context.BaseContext:
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload(_PRELOAD)
+    return ctx
+
+
+def start_forkserver() -> None:
+    """Start the forkserver (prtcore preloaded) now rather than at the first bake. If it
+    dies later, multiprocessing starts a new one at the next bake."""
     from multiprocessing import forkserver
 
+    _context()
     forkserver.ensure_running()
-    return ctx
 
 
 class Heartbeat(threading.Thread):
@@ -88,8 +95,6 @@ def run_job(job_id: str, settings: Settings | None = None, store: JobStore | Non
     finally:
         beat.done.set()
     if outcome == "queued":
-        from .queue import enqueue
-
         enqueue(job_id)
     log.info("job %s: %s", job_id, outcome)
     return outcome

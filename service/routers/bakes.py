@@ -13,11 +13,14 @@ from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, JSONResponse
 
-from .. import artifacts, deps
-from ..config import Settings
+from jobs import artifacts
+from jobs.config import Settings
+from jobs.queue import enqueue
+from jobs.store import Job, JobStore
+
+from .. import deps
 from ..errors import ApiError, responses
 from ..models import ArtifactFile, ArtifactList, Bake, BakeList, Status, bake_out
-from ..store import Job, JobStore
 from ..uploads import Upload, receive
 
 router = APIRouter(prefix="/v1/bakes", tags=["bakes"],
@@ -52,10 +55,15 @@ def _get(store: JobStore, job_id: str) -> Job:
 def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
     """Spec strictly (unknown keys named), asset through the hardened loader.
     Returns (canonical spec json, spec sha256, content key)."""
-    from prtcore.errors import AssetError, SpecError
-    from prtcore.limits import IntakeLimits
-    from prtcore.load import load_asset
-    from prtcore.spec import parse_spec, spec_hash, spec_to_dict
+    from prtcore import (
+        AssetError,
+        IntakeLimits,
+        SpecError,
+        load_asset,
+        parse_spec,
+        spec_hash,
+        spec_to_dict,
+    )
 
     try:
         raw = json.loads(up.spec_bytes.decode("utf-8")) if up.spec_bytes.strip() else {}
@@ -122,7 +130,8 @@ def _register(up: Upload, settings: Settings, store: JobStore, huey: Any,
                 raise conflict
             return prior, False
     job, created = store.create(content_key=key, idempotency_key=idempotency_key,
-                                asset_name=up.asset_name, asset_sha256=up.asset_sha256,
+                                asset_name=up.asset_name, original_name=up.original_name,
+                                asset_sha256=up.asset_sha256,
                                 asset_bytes=up.asset_bytes, spec_json=spec_json,
                                 spec_sha256=s_hash, max_attempts=settings.max_attempts)
     if not created:
@@ -140,8 +149,6 @@ def _register(up: Upload, settings: Settings, store: JobStore, huey: Any,
         raise ApiError(503, "artifacts_unwritable",
                        f"artifact location not writable: {e.strerror or e}") from None
     try:
-        from workers.queue import enqueue
-
         enqueue(job.id, huey)
     except Exception:  # the job is durable; a worker's reaper re-sends it later
         pass

@@ -7,9 +7,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse, PlainTextResponse
 
+from jobs.queue import ping
+from jobs.store import JobStore
+
 from .. import deps
 from ..metrics import render
-from ..store import JobStore
 
 router = APIRouter(tags=["health"])
 
@@ -23,8 +25,6 @@ def healthz() -> dict[str, str]:
             responses={503: {"description": "a dependency is unreachable"}})
 def readyz(store: Annotated[JobStore, Depends(deps.store)],
            huey: Annotated[Any, Depends(deps.queue)]) -> Any:
-    from workers.queue import ping
-
     checks: dict[str, str] = {}
     for name, fn in (("database", store.ping), ("queue", lambda: ping(huey))):
         try:

@@ -49,7 +49,7 @@ def app_client(tmp_path, monkeypatch):
     ``app_client(**settings)`` to override settings."""
     from fastapi.testclient import TestClient
 
-    from service.config import Settings
+    from jobs.config import Settings
     from service.main import create_app
 
     opened = []

@@ -16,7 +16,7 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
 )
 
-from service.config import Settings
+from jobs.config import Settings
 from service.main import create_app
 
 _DATA = Path(tempfile.mkdtemp(prefix="prt-schemathesis-"))

@@ -7,10 +7,10 @@ import time
 
 import pytest
 
-from service.config import Settings
-from service.store import JobStore
-from workers.main import reap_once
-from workers.queue import make_huey
+from jobs.config import Settings
+from jobs.queue import make_huey
+from jobs.reaper import reap_once
+from jobs.store import JobStore
 
 
 @pytest.fixture

@@ -52,6 +52,13 @@ class Settings(BaseSettings):
     requeue_after_s: float = 300.0  # a queued job whose message was lost is re-sent
     poll_max_delay_s: float = 1.0  # SQLite queue: longest sleep between polls
 
+    # Supervision (``prtcore serve``): a worker that dies is restarted after a delay that
+    # doubles from ``restart_backoff_s`` up to ``restart_backoff_max_s``, and goes back to
+    # the start once a worker has stayed up ``restart_reset_after_s``.
+    restart_backoff_s: float = 0.5
+    restart_backoff_max_s: float = 30.0
+    restart_reset_after_s: float = 60.0
+
     # Workers.
     concurrency: int = 1  # bakes run at once by one ``prtcore worker``
     bake_nice: int = 10  # bakes run niced so status calls stay fast

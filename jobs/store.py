@@ -72,7 +72,10 @@ jobs = sa.Table(
     sa.Column("content_key", sa.String(64), nullable=False),
     sa.Column("active_key", sa.String(64), unique=True),
     sa.Column("idempotency_key", sa.String(255), unique=True),
+    # The asset as stored under ARTIFACTS/<id>/input/, and the name it was uploaded under
+    # (sanitised; NULL for jobs created before it was kept).
     sa.Column("asset_name", sa.String(255), nullable=False),
+    sa.Column("original_name", sa.String(255)),
     sa.Column("asset_sha256", sa.String(64), nullable=False),
     sa.Column("asset_bytes", sa.BigInteger, nullable=False),
     sa.Column("spec_json", sa.Text, nullable=False),
@@ -108,6 +111,7 @@ class Job:
     content_key: str
     idempotency_key: str | None
     asset_name: str
+    original_name: str | None
     asset_sha256: str
     asset_bytes: int
     spec_json: str
@@ -181,11 +185,26 @@ class JobStore:
         for attempt in range(5):
             try:
                 metadata.create_all(self.engine)
+                self._add_missing_columns()
                 return
             except (sa.exc.IntegrityError, sa.exc.ProgrammingError, sa.exc.OperationalError):
                 if attempt == 4:
                     raise
                 time.sleep(0.2 * (attempt + 1))
+
+    #: Columns added after the table was first released: a job table created by an older
+    #: version gets them (nullable) when a process of this version opens it.
+    ADDED_COLUMNS = ("original_name",)
+
+    def _add_missing_columns(self) -> None:
+        have = {c["name"] for c in sa.inspect(self.engine).get_columns(jobs.name)}
+        for name in self.ADDED_COLUMNS:
+            if name in have:
+                continue
+            col = jobs.c[name]
+            ddl = col.type.compile(dialect=self.engine.dialect)
+            with self._tx() as conn:  # a concurrent ALTER fails here; create_schema retries
+                conn.execute(sa.text(f"ALTER TABLE {jobs.name} ADD COLUMN {name} {ddl}"))
 
     @contextmanager
     def _tx(self) -> Iterator[Connection]:
@@ -212,7 +231,8 @@ class JobStore:
 
     def create(self, *, content_key: str, idempotency_key: str | None, asset_name: str,
                asset_sha256: str, asset_bytes: int, spec_json: str, spec_sha256: str,
-               max_attempts: int, job_id: str | None = None) -> tuple[Job, bool]:
+               max_attempts: int, job_id: str | None = None,
+               original_name: str | None = None) -> tuple[Job, bool]:
         """Insert a queued job, or return the live job with the same content (or the same
         idempotency key). Returns ``(job, created)``."""
         now = time.time()
@@ -220,9 +240,9 @@ class JobStore:
         values = dict(id=job_id, status="queued", stage=None, progress=0.0, attempts=0,
                       max_attempts=max_attempts, content_key=content_key,
                       active_key=content_key, idempotency_key=idempotency_key,
-                      asset_name=asset_name, asset_sha256=asset_sha256,
-                      asset_bytes=asset_bytes, spec_json=spec_json, spec_sha256=spec_sha256,
-                      cancel_requested=False, created_at=now, enqueued_at=now,
+                      asset_name=asset_name, original_name=original_name,
+                      asset_sha256=asset_sha256, asset_bytes=asset_bytes,
+                      spec_json=spec_json, spec_sha256=spec_sha256, cancel_requested=False, created_at=now, enqueued_at=now,
                       updated_at=now, timings_json="{}")
         try:
             with self._tx() as conn:
@@ -235,7 +255,7 @@ class JobStore:
                                    asset_name=asset_name, asset_sha256=asset_sha256,
                                    asset_bytes=asset_bytes, spec_json=spec_json,
                                    spec_sha256=spec_sha256, max_attempts=max_attempts,
-                                   job_id=job_id)
+                                   job_id=job_id, original_name=original_name)
             return existing, False
         return self.get(job_id), True  # type: ignore[return-value]
 
