@@ -161,24 +161,23 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_serve(args: argparse.Namespace) -> int:
-    """API + workers on this machine (service/, workers/; DESIGN 6)."""
-    from service.server import serve
+def _add_plugin_commands(sub: argparse._SubParsersAction) -> None:
+    """Subcommands provided outside the library (``serve``, ``worker``: the bake service):
+    entry points of the group ``prtcore.commands``, each a callable ``register(subparsers)``
+    that adds its subparser with ``set_defaults(func=...)``. The library never imports
+    them; a plugin that fails to load costs only its own command."""
+    from importlib.metadata import entry_points
 
-    return serve(host=args.host, port=args.port, workers=args.workers,
-                 api_workers=args.api_workers)
-
-
-def _cmd_worker(args: argparse.Namespace) -> int:
-    """One queue consumer running bakes (configuration from PRT_* variables)."""
-    import os
-
-    if args.concurrency is not None:
-        os.environ["PRT_CONCURRENCY"] = str(args.concurrency)
-    from workers.main import run_worker
-
-    run_worker()
-    return 0
+    seen: set[str] = set()
+    for ep in sorted(entry_points(group="prtcore.commands"), key=lambda e: e.name):
+        if ep.name in seen or ep.name in sub.choices:
+            continue
+        seen.add(ep.name)
+        try:
+            ep.load()(sub)
+        except Exception as e:  # a broken plugin must not break the library's commands
+            print(f"prtcore: command {ep.name!r} unavailable ({ep.value}): "
+                  f"{type(e).__name__}: {e}", file=sys.stderr)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -270,17 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(sp)
     sp.set_defaults(func=_cmd_reference)
 
-    sp = sub.add_parser("serve", help="bake service: HTTP API and workers (PRT_* settings)")
-    sp.add_argument("--host", default="127.0.0.1")
-    sp.add_argument("--port", type=int, default=8000)
-    sp.add_argument("--workers", type=int, default=1, help="worker processes to start")
-    sp.add_argument("--api-workers", type=int, default=1, help="uvicorn worker processes")
-    sp.set_defaults(func=_cmd_serve)
-
-    sp = sub.add_parser("worker", help="bake worker: consume the job queue (PRT_* settings)")
-    sp.add_argument("--concurrency", type=int, default=None,
-                    help="bakes at once (default PRT_CONCURRENCY or 1)")
-    sp.set_defaults(func=_cmd_worker)
+    _add_plugin_commands(sub)
     return p
 
 
