@@ -1,6 +1,6 @@
 """Benchmark: how fast the bake's dataset is, and how much faster than path tracing.
 
-Cornell box (prtcore.cornell) at a 512² atlas, K = 128 training + 16 held-out lights from
+Cornell box (prtcore.scenes.cornell) at a 512² atlas, K = 128 training + 16 held-out lights from
 the box's example spec, P = 256 measurement points. One run prints and writes
 (benchmarks/results/bake_speed.json):
 
@@ -42,14 +42,14 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from prtcore.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402
-from prtcore.lights import sample_configurations  # noqa: E402
+from prtcore.core.progress import StageTimer  # noqa: E402
+from prtcore.core.raytrace import RayTracer  # noqa: E402
+from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
+from prtcore.emitters.punctual import sample_configurations  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
-from prtcore.progress import StageTimer  # noqa: E402
-from prtcore.raytrace import RayTracer  # noqa: E402
-from prtcore.reference import reference_lightmaps  # noqa: E402
-from prtcore.spec import TransportSpec, parse_spec  # noqa: E402
-from prtcore.transport import bake_dataset  # noqa: E402
+from prtcore.reference.pathtracer import reference_lightmaps  # noqa: E402
+from prtcore.scenes.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402
+from prtcore.transport.surface import bake_dataset  # noqa: E402
 
 RAY_CHUNK = 1 << 20
 
@@ -133,7 +133,7 @@ def reference_equivalence(args, spec, res_high_texels: int, log) -> dict:
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     train, _ = sample_configurations(spec.lights, scene.center, scene.radius)
     # the first configurations that light the room at all (a light inside a block does not)
-    from prtcore.lights import irradiance
+    from prtcore.emitters.punctual import irradiance
     configs = []
     for light in train:
         if irradiance(light, texels.position, texels.normal, tracer).max() > 0:

@@ -19,10 +19,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from prtcore.cornell import write_cornell_box  # noqa: E402
+from prtcore.core.progress import StageTimer  # noqa: E402
+from prtcore.core.spec import parse_spec  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
-from prtcore.progress import StageTimer  # noqa: E402
-from prtcore.spec import parse_spec  # noqa: E402
+from prtcore.scenes.cornell import write_cornell_box  # noqa: E402
 
 STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
 

@@ -1,8 +1,8 @@
 """Benchmark: the GPU runtime per pass at 1280×720 for n = 4, 16, 64 basis elements.
 
-Bakes the example Cornell box (prtcore.cornell.EXAMPLE_SPEC with 64 basis elements; or
+Bakes the example Cornell box (prtcore.scenes.cornell.EXAMPLE_SPEC with 64 basis elements; or
 uses ``--bundle DIR``), renders it through the example camera at 1280×720 under the
-example point light, and times each pass of a frame (prtcore.render):
+example point light, and times each pass of a frame (prtcore.runtime.gl):
 
 * shadow_maps — six 1024² views of the light;
 * points — fake G-buffer: shade the measurement-point supersamples, average clusters;
@@ -36,11 +36,11 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from prtcore import pipeline  # noqa: E402
-from prtcore.camera import load_camera  # noqa: E402
-from prtcore.cornell import EXAMPLE_SPEC  # noqa: E402
-from prtcore.lights import load_light_file  # noqa: E402
-from prtcore.render import BundleRenderer, gpu_runtime_table  # noqa: E402
-from prtcore.spec import parse_spec  # noqa: E402
+from prtcore.core.spec import parse_spec  # noqa: E402
+from prtcore.emitters.punctual import load_light_file  # noqa: E402
+from prtcore.reference.camera import load_camera  # noqa: E402
+from prtcore.runtime.gl import BundleRenderer, gpu_runtime_table  # noqa: E402
+from prtcore.scenes.cornell import EXAMPLE_SPEC  # noqa: E402
 
 PASSES = ("shadow_maps", "points", "coefficients", "camera", "atlas_blend")
 

@@ -1,6 +1,6 @@
 """The ``prtcore`` command: a thin shell over the library (DESIGN 3.3).
 
-Every :class:`prtcore.errors.PrtError` becomes exit status 2 and one line on stderr.
+Every :class:`prtcore.core.errors.PrtError` becomes exit status 2 and one line on stderr.
 """
 
 from __future__ import annotations
@@ -9,13 +9,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from .errors import PrtError
+from prtcore.core.errors import PrtError
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from .load import load_asset
-    from .plan import plan_asset
-    from .spec import load_spec
+    from prtcore.core.spec import load_spec
+    from prtcore.intake.plan import plan_asset
+    from prtcore.io.gltf.loader import load_asset
 
     spec = load_spec(args.spec)
     scene = load_asset(args.asset)
@@ -28,8 +28,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 def _cmd_intake(args: argparse.Namespace) -> int:
     """Run the intake stages (load → prepare → texels → points) and print a summary."""
-    from .pipeline import run_intake
-    from .spec import load_spec
+    from prtcore.core.spec import load_spec
+    from prtcore.pipeline import run_intake
 
     spec = load_spec(args.spec)
     result = run_intake(args.asset, spec, quiet=args.quiet)
@@ -38,8 +38,8 @@ def _cmd_intake(args: argparse.Namespace) -> int:
 
 
 def _cmd_bake(args: argparse.Namespace) -> int:
-    from .pipeline import bake
-    from .spec import load_spec
+    from prtcore.core.spec import load_spec
+    from prtcore.pipeline import bake
 
     spec = load_spec(args.spec)
     out = bake(args.asset, spec, Path(args.out), quiet=args.quiet, force=args.force)
@@ -49,10 +49,10 @@ def _cmd_bake(args: argparse.Namespace) -> int:
 
 
 def _cmd_reference(args: argparse.Namespace) -> int:
-    from .pipeline import reference_to_exr
+    from prtcore.pipeline import reference_to_exr
 
     if args.camera:  # camera-space ground truth for `prtcore render`
-        from .camera import reference_view_to_exr
+        from prtcore.reference.camera import reference_view_to_exr
 
         component = "indirect" if args.indirect_only else "direct" if args.no_indirect \
             else "full"
@@ -70,12 +70,12 @@ def _cmd_reference(args: argparse.Namespace) -> int:
 
 
 def _cmd_relight(args: argparse.Namespace) -> int:
-    from .bundle import load_runtime, read_manifest
-    from .imageio import write_exr
-    from .lights import load_light_file
-    from .load import load_asset
-    from .raytrace import RayTracer
-    from .runtime import relight
+    from prtcore.core.raytrace import RayTracer
+    from prtcore.emitters.punctual import load_light_file
+    from prtcore.io.bundle import load_runtime, read_manifest
+    from prtcore.io.gltf.loader import load_asset
+    from prtcore.io.imageio import write_exr
+    from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
     manifest = read_manifest(bundle)
@@ -84,7 +84,7 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     scene = load_asset(bundle / manifest["asset"]["file"])
     key = None
     if manifest.get("keyframes") or args.time is not None:  # pose at the nearest keyframe
-        from .pose import bundle_at_time
+        from prtcore.keyframes.pose import bundle_at_time
 
         data, scene, key = bundle_at_time(bundle, manifest, data, scene, args.time)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
@@ -101,7 +101,7 @@ def _cmd_relight(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from .render import render_to_file
+    from prtcore.runtime.gl import render_to_file
 
     if args.indirect_only and args.no_indirect:
         raise PrtError("render: --indirect-only and --no-indirect exclude each other")
@@ -118,8 +118,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     import json
 
-    from .bundle import read_manifest
-    from .report import format_table
+    from prtcore.io.bundle import read_manifest
+    from prtcore.report import format_table
 
     bundle = Path(args.bundle)
     read_manifest(bundle)
@@ -131,9 +131,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise PrtError("report: --light needs --reference-spp N (the path tracer's samples "
                        "per texel)")
     if args.gpu:
-        from .lights import load_light_file
-        from .render import BundleRenderer, gpu_runtime_table
-        from .report import merge_gpu_columns
+        from prtcore.emitters.punctual import load_light_file
+        from prtcore.report import merge_gpu_columns
+        from prtcore.runtime.gl import BundleRenderer, gpu_runtime_table
 
         light = load_light_file(bundle / read_manifest(bundle)["validation"]
                                 ["holdout_lights"])[:1]
@@ -143,8 +143,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     print(format_table(report["table"], report.get("stage_seconds")))
     if args.reference_spp:
-        from .progress import StageTimer
-        from .validate import format_validation, validate_bundle
+        from prtcore.core.progress import StageTimer
+        from prtcore.validate import format_validation, validate_bundle
 
         v = validate_bundle(bundle, args.reference_spp, count=args.reference_lights,
                             seed=args.seed, timer=StageTimer(quiet=args.quiet),
@@ -274,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from . import __version__
+    from prtcore import __version__
     return __version__
 
 

@@ -9,14 +9,14 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from .limits import IntakeLimits
-from .plan import Plan
-from .points import MeasurementPoints
-from .prepare import PrepareReport
-from .progress import ProgressCallback, StageTimer
-from .scene import Scene
-from .spec import BakeSpec
-from .texels import TexelSpace
+from prtcore.core.limits import IntakeLimits
+from prtcore.core.progress import ProgressCallback, StageTimer
+from prtcore.core.scene import Scene
+from prtcore.core.spec import BakeSpec
+from prtcore.intake.plan import Plan
+from prtcore.intake.points import MeasurementPoints
+from prtcore.intake.prepare import PrepareReport
+from prtcore.receivers.texels import TexelSpace
 
 
 @dataclass(frozen=True)
@@ -53,16 +53,16 @@ def run_intake(asset: str | Path, spec: BakeSpec, *, quiet: bool = False,
                callback: ProgressCallback | None = None,
                timer: StageTimer | None = None) -> IntakeResult:
     """load → plan → prepare (repair / remesh / uv) → texel space → measurement points."""
-    from .load import load_asset
-    from .plan import plan_asset
-    from .points import place_measurement_points
-    from .prepare import prepare_scene
-    from .texels import build_texel_space
+    from prtcore.intake.plan import plan_asset
+    from prtcore.intake.points import place_measurement_points
+    from prtcore.intake.prepare import prepare_scene
+    from prtcore.io.gltf.loader import load_asset
+    from prtcore.receivers.texels import build_texel_space
 
     timer = timer or StageTimer(quiet=quiet, callback=callback)
     limits = limits or IntakeLimits.from_env()
     if spec.atlas.resolution > limits.max_atlas_resolution:
-        from .errors import SpecError
+        from prtcore.core.errors import SpecError
         raise SpecError("atlas.resolution", f"{spec.atlas.resolution} exceeds the configured "
                         f"limit max_atlas_resolution={limits.max_atlas_resolution}")
     with timer.stage("load"):
@@ -93,7 +93,11 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     """asset + spec → bundle directory ``out`` (DESIGN 3.4). Returns ``out``."""
     import time
 
-    from .bundle import (
+    from prtcore.core.materials import clamp_albedo
+    from prtcore.core.spec import spec_hash, spec_to_dict
+    from prtcore.emitters.punctual import sample_configurations, save_light_file
+    from prtcore.fit.transfer import fit_transfer
+    from prtcore.io.bundle import (
         RUNTIME_FORMULA,
         basis_planes,
         manifest_base,
@@ -102,16 +106,12 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         write_basis_files,
         write_bundle,
     )
-    from .fit import fit_transfer
-    from .gltf_export import write_glb
-    from .imageio import write_exr
-    from .lights import sample_configurations, save_light_file
-    from .materials import clamp_albedo
-    from .pose import keyframe_files
-    from .report import TABLE_N, error_vs_runtime, format_table, plot, truncate
-    from .spec import spec_hash, spec_to_dict
-    from .texels import texels_to_image
-    from .transport import bake_dataset, check_bake_memory
+    from prtcore.io.gltf.export import write_glb
+    from prtcore.io.imageio import write_exr
+    from prtcore.keyframes.pose import keyframe_files
+    from prtcore.receivers.texels import texels_to_image
+    from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
+    from prtcore.transport.surface import bake_dataset, check_bake_memory
 
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
@@ -126,7 +126,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     if kfs is None:
         data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
     else:
-        from .pose import bake_keyframe_dataset
+        from prtcore.keyframes.pose import bake_keyframe_dataset
 
         data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
     K = len(train)
@@ -152,7 +152,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             model = truncate(full, spec.fit.basis)
     diag = model.diagnostics.to_dict()
     if per_group and model.group_ids != tuple(range(kfs.count)):
-        from .errors import PrtError
+        from prtcore.core.errors import PrtError
         raise PrtError(f"fit: per-keyframe transfers for keyframes {model.group_ids}, "
                        f"expected all {kfs.count}")
 
@@ -241,7 +241,7 @@ def _keyframe_set(intake: IntakeResult, n_train: int, n_holdout: int, timer: Sta
     """The keyframe set when the plan runs the keyframes stage, else None (static bake)."""
     if not any(s.name == "keyframes" and s.action == "run" for s in intake.plan.stages):
         return None
-    from .pose import build_keyframes
+    from prtcore.keyframes.pose import build_keyframes
 
     with timer.stage("keyframes"):
         return build_keyframes(intake.scene, intake.points, intake.spec, n_train, n_holdout)
@@ -292,15 +292,15 @@ def texel_space_for(source: str | Path, spec_path: str | Path | None = None, *,
                     ) -> tuple[Scene, TexelSpace]:
     """The scene and texel space of an asset (prepared with the spec) or of a bundle
     (its asset.glb at the bundle's atlas size), so that outputs line up texel for texel."""
-    from .load import load_asset
-    from .prepare import prepare_scene
-    from .spec import load_spec
-    from .texels import build_texel_space
+    from prtcore.core.spec import load_spec
+    from prtcore.intake.prepare import prepare_scene
+    from prtcore.io.gltf.loader import load_asset
+    from prtcore.receivers.texels import build_texel_space
 
     timer = timer or StageTimer(quiet=quiet)
     source = Path(source)
     if source.is_dir():
-        from .bundle import read_manifest
+        from prtcore.io.bundle import read_manifest
 
         m = read_manifest(source)
         with timer.stage("load"):
@@ -322,11 +322,11 @@ def reference_to_exr(source: str | Path, light_path: str | Path, out: Path, *, s
                      seed: int = 0, spec_path: str | Path | None = None,
                      quiet: bool = False) -> Path:
     """``prtcore reference``: the path-traced indirect lightmap as an RGBA EXR."""
-    from .errors import PrtError
-    from .imageio import write_exr
-    from .lights import load_light_file
-    from .reference import reference_lightmap
-    from .texels import texels_to_image
+    from prtcore.core.errors import PrtError
+    from prtcore.emitters.punctual import load_light_file
+    from prtcore.io.imageio import write_exr
+    from prtcore.receivers.texels import texels_to_image
+    from prtcore.reference.pathtracer import reference_lightmap
 
     if spp < 1:
         raise PrtError(f"--spp must be ≥ 1, got {spp}")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fit import TransferModel, projection_bound, reconstruct, relative_rmse
+from prtcore.fit.transfer import TransferModel, projection_bound, reconstruct, relative_rmse
 
 TABLE_N = (4, 8, 16, 32, 64)
 #: The CPU blend timing runs on at most this many pixels (1024²) and is scaled linearly.
@@ -139,7 +139,7 @@ GPU_FIELDS = (("points", "points"), ("coefficients", "u=M·x"), ("atlas_blend", 
 def merge_gpu_columns(table: dict, gpu: dict) -> dict:
     """Add GPU columns to the table in place (and return it).
 
-    gpu : :func:`prtcore.render.gpu_runtime_table` output (milliseconds). Rows of the
+    gpu : :func:`prtcore.runtime.gl.gpu_runtime_table` output (milliseconds). Rows of the
     table whose n was measured get ``gpu_points_ms``, ``gpu_coefficients_ms``,
     ``gpu_atlas_blend_ms`` (the blend over the whole atlas) from GL timer queries and the
     same names with ``_wall_ms`` from the wall clock; ``table["gpu_renderer"]`` names the

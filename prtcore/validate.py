@@ -12,15 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .bundle import load_runtime, read_manifest
-from .fit import relative_rmse
-from .lights import load_light_file
-from .progress import StageTimer
-from .raytrace import RayTracer
-from .reference import reference_lightmaps
-from .report import TABLE_N
-from .runtime import blend, plane_weights, shade_points
-from .texels import image_to_texels
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.emitters.punctual import load_light_file
+from prtcore.fit.transfer import relative_rmse
+from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.receivers.texels import image_to_texels
+from prtcore.reference.pathtracer import reference_lightmaps
+from prtcore.report import TABLE_N
+from prtcore.runtime.cpu import blend, plane_weights, shade_points
 
 
 def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed: int = 0,
@@ -38,7 +38,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     mean/max relative RMSE, the reference noise (relative standard error) and, per light,
     the errors.
     """
-    from .pipeline import texel_space_for
+    from prtcore.pipeline import texel_space_for
 
     bundle = Path(bundle)
     timer = timer or StageTimer(quiet=True)
@@ -49,7 +49,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     scene, texels = texel_space_for(bundle, timer=timer)
     kf = m.get("keyframes")
     if kf:
-        from .pose import nearest_keyframe
+        from prtcore.keyframes.pose import nearest_keyframe
 
         k0 = 0 if time is None else nearest_keyframe(kf["times"], time)
         keys = [kf["holdout_keyframe"][h] if light_file is None else k0
@@ -58,7 +58,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
                                             spp, seed, timer)
     else:
         if time is not None:
-            from .errors import PrtError
+            from prtcore.core.errors import PrtError
             raise PrtError(f"{bundle}: time {time:g}: the bundle was baked without keyframes")
         tracer = RayTracer(scene.positions, scene.faces, scene.radius)
         ref, err = reference_lightmaps(scene, texels, [[lt] for lt in lights], spp, seed=seed,
@@ -106,7 +106,7 @@ def _posed_references(bundle: Path, manifest: dict, data, scene, texels, lights,
     the lights drawn with it path-traced together. Returns (ref, err) as
     :func:`reference_lightmaps` for all lights, and per light (posed runtime data, tracer
     of the posed scene, keyframe)."""
-    from .pose import bundle_at_time, pose_texels
+    from prtcore.keyframes.pose import bundle_at_time, pose_texels
 
     ref = np.zeros((len(lights), texels.count, 3))
     err = np.zeros((len(lights), texels.count, 3))

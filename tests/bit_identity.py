@@ -42,9 +42,9 @@ def cases() -> dict[str, tuple[Path, dict]]:
 
 
 def bake_checksums(name: str, out: Path) -> dict[str, str]:
-    from prtcore.bundle import read_manifest
+    from prtcore.core.spec import parse_spec
+    from prtcore.io.bundle import read_manifest
     from prtcore.pipeline import bake
-    from prtcore.spec import parse_spec
 
     asset, spec = cases()[name]
     bundle = bake(asset, parse_spec(spec), out / name, quiet=True)

@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from prtcore import pipeline
-from prtcore.bundle import (
+from prtcore.core.errors import BundleError, PrtError
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import load_light_file
+from prtcore.fit.transfer import fit_transfer, reconstruct
+from prtcore.io.bundle import (
     basis_planes,
     load_runtime,
     planes_layout,
@@ -18,13 +23,8 @@ from prtcore.bundle import (
     write_basis_files,
     write_bundle,
 )
-from prtcore.errors import BundleError, PrtError
-from prtcore.fit import fit_transfer, reconstruct
-from prtcore.lights import load_light_file
-from prtcore.load import load_asset
-from prtcore.raytrace import RayTracer
-from prtcore.runtime import RuntimeData, blend, plane_weights, relight
-from prtcore.spec import parse_spec
+from prtcore.io.gltf.loader import load_asset
+from prtcore.runtime.cpu import RuntimeData, blend, plane_weights, relight
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "examples" / "cornell_box.glb"
@@ -61,7 +61,7 @@ def test_packed_planes_reproduce_the_fit(tmp_path, channels, gamma):
     model = fit_transfer(D, I, basis=6, ridge=1e-6, channels=channels, gamma=gamma)
     planes = basis_planes(model.mean, model.basis, model.channels)
     files = write_basis_files(tmp_path, planes.reshape(side, side, -1), "float")
-    from prtcore.imageio import read_image
+    from prtcore.io.imageio import read_image
     img = np.concatenate([read_image(tmp_path / f) for f in files], axis=2)
     el, ch = planes_layout(model.channels, model.basis.shape[1])
     data = RuntimeData(planes=img[:, :, :planes.shape[1]], plane_element=el,
@@ -121,12 +121,12 @@ def test_same_spec_same_bundle(tiny_bundle, tmp_path):
 
 
 def test_failed_bake_leaves_nothing(tmp_path, monkeypatch):
-    import prtcore.transport
+    import prtcore.transport.surface
 
     def boom(*args, **kwargs):
         raise PrtError("transport exploded")
 
-    monkeypatch.setattr(prtcore.transport, "bake_dataset", boom)
+    monkeypatch.setattr(prtcore.transport.surface, "bake_dataset", boom)
     out = tmp_path / "b"
     with pytest.raises(PrtError, match="exploded"):
         pipeline.bake(CORNELL, parse_spec(TINY_SPEC), out, quiet=True)

@@ -87,7 +87,7 @@ def test_bake_relight_report_through_the_installed_command(tmp_path):
                         ROOT / "examples" / "lights" / "point_center.json", "--out", exr,
                         "--basis", "3"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    from prtcore.imageio import read_image
+    from prtcore.io.imageio import read_image
     img = read_image(exr)
     assert img.shape == (32, 32, 4) and np.isfinite(img).all()
     assert img[:, :, :3].max() > 0

@@ -1,6 +1,6 @@
 """Fit stage: closed-form checks against synthetic linear transport operators.
 
-Every expected value is computed independently of prtcore.fit (normal equations with
+Every expected value is computed independently of prtcore.fit.transfer (normal equations with
 np.linalg.solve, np.linalg.pinv, brute-force refits, np.linalg.svd), never copied from it.
 """
 
@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from prtcore.errors import PrtError
-from prtcore.fit import (
+from prtcore.core.errors import PrtError
+from prtcore.fit.transfer import (
     AUTO_ENERGY,
     AUTO_HOLDOUT_MARGIN,
     UNDERDETERMINED_WARNING,

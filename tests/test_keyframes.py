@@ -15,13 +15,16 @@ from keyframe_assets import bending_column_asset
 from scipy.spatial.transform import Rotation
 
 from prtcore import pipeline
-from prtcore.bundle import load_keyframe, load_runtime, read_manifest, verify_bundle
 from prtcore.cli import main
-from prtcore.errors import PrtError, SpecError
-from prtcore.imageio import read_image
-from prtcore.lights import load_light_file
-from prtcore.load import load_asset
-from prtcore.pose import (
+from prtcore.core.errors import PrtError, SpecError
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Animation, AnimationChannel
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import load_light_file
+from prtcore.io.bundle import load_keyframe, load_runtime, read_manifest, verify_bundle
+from prtcore.io.gltf.loader import load_asset
+from prtcore.io.imageio import read_image
+from prtcore.keyframes.pose import (
     assign_keyframes,
     bundle_at_time,
     export_vertex_order,
@@ -33,11 +36,8 @@ from prtcore.pose import (
     pose_texels,
     sample_channel,
 )
-from prtcore.raytrace import RayTracer
-from prtcore.runtime import relight
-from prtcore.scene import Animation, AnimationChannel
-from prtcore.spec import parse_spec
-from prtcore.texels import build_texel_space
+from prtcore.receivers.texels import build_texel_space
+from prtcore.runtime.cpu import relight
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = json.loads((ROOT / "prtcore" / "data" / "manifest.schema.json").read_text())
@@ -355,7 +355,7 @@ def test_relight_at_a_time(per_key_bundle, shared_bundle, tmp_path, capsys):
 def test_render_at_a_time(per_key_bundle, tmp_path, capsys):
     """`prtcore render --time T` poses the asset: the atlas relight equals the CPU relight
     at that keyframe and the camera images of two keyframes differ where the column is."""
-    from prtcore.render import BundleRenderer
+    from prtcore.runtime.gl import BundleRenderer
 
     m = read_manifest(per_key_bundle)
     t0, t1 = m["keyframes"]["times"][0], m["keyframes"]["times"][-1]
@@ -391,7 +391,7 @@ def test_validate_poses_the_reference(per_key_bundle):
     assert [r["keyframe"] for r in v["per_light"]] == m["keyframes"]["holdout_keyframe"][:3]
     assert all(np.isfinite(r["rmse_mean"]) for r in v["rows"])
     with pytest.raises(PrtError, match="without keyframes"):
-        from prtcore.pose import bundle_at_time as at
+        from prtcore.keyframes.pose import bundle_at_time as at
 
         at(per_key_bundle, {**m, "keyframes": None}, load_runtime(per_key_bundle, m), None,
            0.5)

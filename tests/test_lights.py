@@ -1,4 +1,4 @@
-"""prtcore.lights against the KHR_lights_punctual closed forms, the light-file contract
+"""prtcore.emitters.punctual against the KHR_lights_punctual closed forms, the light-file contract
 (DESIGN 3.2) and the random light families of the bake spec."""
 
 from __future__ import annotations
@@ -9,8 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from prtcore.errors import LightFileError
-from prtcore.lights import (
+from prtcore.core.errors import LightFileError
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import (
     irradiance,
     load_light_file,
     range_window,
@@ -19,9 +22,6 @@ from prtcore.lights import (
     spot_factor,
     unshadowed_irradiance,
 )
-from prtcore.raytrace import RayTracer
-from prtcore.scene import Light
-from prtcore.spec import parse_spec
 
 UP = np.array([0.0, 1.0, 0.0])
 
@@ -333,8 +333,8 @@ def test_box_points_and_random_colour():
 def test_directional_lights_have_no_range(tmp_path):
     import json
 
-    from prtcore.errors import LightFileError
-    from prtcore.lights import load_light_file
+    from prtcore.core.errors import LightFileError
+    from prtcore.emitters.punctual import load_light_file
 
     p = tmp_path / "sun.json"
     p.write_text(json.dumps({"type": "directional", "direction": [0, -1, 0], "range": 5}))

@@ -1,5 +1,5 @@
-"""Tests for prtcore.load: real assets against trimesh, constructed scenes against hand-computed
-transforms and spec formulas, and one test per hostile input."""
+"""Tests for prtcore.io.gltf.loader: real assets against trimesh, constructed scenes against
+hand-computed transforms and spec formulas, and one test per hostile input."""
 
 from __future__ import annotations
 
@@ -35,11 +35,11 @@ from hostile_assets import (
     wrong_magic_asset,
 )
 
-import prtcore.load as load_mod
-from prtcore.errors import AssetError, LimitExceeded, UnsupportedAsset
-from prtcore.limits import IntakeLimits
-from prtcore.load import load_asset, texture_transform_matrix
-from prtcore.materials import albedo_at, srgb_to_linear
+import prtcore.io.gltf.loader as load_mod
+from prtcore.core.errors import AssetError, LimitExceeded, UnsupportedAsset
+from prtcore.core.limits import IntakeLimits
+from prtcore.core.materials import albedo_at, srgb_to_linear
+from prtcore.io.gltf.loader import load_asset, texture_transform_matrix
 
 REAL_ASSETS = ["Duck", "BoxTextured", "CesiumMilkTruck", "CesiumMan", "monkey"]
 

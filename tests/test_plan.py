@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from prtcore.errors import AssetError, SpecError
-from prtcore.plan import Plan, StagePlan, plan_asset
-from prtcore.prepare import prepare_scene
-from prtcore.scene import Animation, AnimationChannel, Material, PrimitiveInstance, Scene
-from prtcore.spec import parse_spec
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.scene import Animation, AnimationChannel, Material, PrimitiveInstance, Scene
+from prtcore.core.spec import parse_spec
+from prtcore.intake.plan import Plan, StagePlan, plan_asset
+from prtcore.intake.prepare import prepare_scene
 
 ASSETS = "/work/shared/assets"
 
@@ -180,7 +180,7 @@ def test_prepare_follows_the_plan(make):
 @pytest.mark.skipif(not os.path.exists(f"{ASSETS}/CesiumMilkTruck.glb"),
                     reason="shared test assets not available")
 def test_truck_plan_is_cheap():
-    from prtcore.load import load_asset
+    from prtcore.io.gltf.loader import load_asset
     s = load_asset(f"{ASSETS}/CesiumMilkTruck.glb")
     t0 = time.perf_counter()
     plan = plan_asset(s, parse_spec({}))

@@ -11,9 +11,12 @@ import trimesh
 from scipy import stats
 from scipy.spatial import ConvexHull, cKDTree
 
-from prtcore.errors import AssetError, PrtError
-from prtcore.materials import albedo_at
-from prtcore.points import (
+from prtcore.core.errors import AssetError, PrtError
+from prtcore.core.materials import albedo_at
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Material, PrimitiveInstance, Scene
+from prtcore.core.spec import PointsSpec
+from prtcore.intake.points import (
     MeasurementPoints,
     closest_points,
     eliminate_samples,
@@ -21,9 +24,6 @@ from prtcore.points import (
     place_measurement_points,
     sample_surface,
 )
-from prtcore.progress import StageTimer
-from prtcore.scene import Material, PrimitiveInstance, Scene
-from prtcore.spec import PointsSpec
 
 GREY = Material("default", np.array([0.8, 0.8, 0.8, 1.0]))
 

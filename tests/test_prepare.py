@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from prtcore.errors import AssetError, SpecError
-from prtcore.prepare import (
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Material, PrimitiveInstance, Scene
+from prtcore.core.spec import parse_spec
+from prtcore.intake.prepare import (
     PrepareReport,
     check_uv1,
     generate_uv1,
@@ -20,15 +23,12 @@ from prtcore.prepare import (
     remesh_scene,
     repair_scene,
 )
-from prtcore.progress import StageTimer
-from prtcore.scene import Material, PrimitiveInstance, Scene
-from prtcore.spec import parse_spec
 
 ASSETS = "/work/shared/assets"
 
 
 # ---------------------------------------------------------------------------------------
-# Scene builders and invariant checks (independent of prtcore.load)
+# Scene builders and invariant checks (independent of prtcore.io.gltf.loader)
 
 
 def make_scene(parts, source="test") -> Scene:
@@ -140,7 +140,7 @@ def test_clean_icosphere_needs_no_repair():
     assert not h.needs_repair and h.describe() == "mesh clean"
     out, counts = repair_scene(s)
     assert out is s and counts["faces_after"] == len(m.faces)
-    from prtcore.plan import plan_asset
+    from prtcore.intake.plan import plan_asset
     assert "repair    skip — mesh clean" in plan_asset(s, spec()).format()
 
 
@@ -242,7 +242,7 @@ def _clip_nonempty(tri: np.ndarray, x0, y0, x1, y1) -> bool:
 
 @pytest.mark.parametrize("half", [0.5, 1.0])
 def test_rasterise_matches_polygon_clipping(half):
-    from prtcore.tolerances import UV_TEXEL_EPS
+    from prtcore.core.tolerances import UV_TEXEL_EPS
     rng = np.random.default_rng(7)
     W = H = 12
     tris = rng.uniform(-2, 14, size=(25, 3, 2))
@@ -539,7 +539,7 @@ def test_prepare_with_remesh_generates_uv1():
 @pytest.mark.skipif(not os.path.exists(f"{ASSETS}/CesiumMilkTruck.glb"),
                     reason="shared test assets not available")
 def test_cesium_milk_truck_at_512():
-    from prtcore.load import load_asset
+    from prtcore.io.gltf.loader import load_asset
     s = load_asset(f"{ASSETS}/CesiumMilkTruck.glb")
     t0 = time.perf_counter()
     out, rep = prepare_scene(s, spec(resolution=512, padding=4))
@@ -560,7 +560,7 @@ def test_cesium_milk_truck_at_512():
 
 
 def test_trimesh_loaded_duck_uv1():
-    """Extra geometry check with an asset loaded by trimesh (no prtcore.load)."""
+    """Extra geometry check with an asset loaded by trimesh (no prtcore.io.gltf.loader)."""
     path = f"{ASSETS}/Duck.glb"
     if not os.path.exists(path):
         pytest.skip("shared test assets not available")

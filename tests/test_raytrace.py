@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from prtcore.raytrace import CHUNK, RayTracer
-from prtcore.tolerances import ray_offset
+from prtcore.core.raytrace import CHUNK, RayTracer
+from prtcore.core.tolerances import ray_offset
 
 
 def _tri_tracer(scale=1.0):

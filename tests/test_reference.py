@@ -14,11 +14,12 @@ import pytest
 import trimesh
 from scipy import integrate
 
-from prtcore import cornell
-from prtcore.lights import unshadowed_irradiance
-from prtcore.materials import albedo_at
-from prtcore.progress import StageTimer
-from prtcore.reference import (
+from prtcore.core.materials import albedo_at
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Light, Material, Scene
+from prtcore.emitters.punctual import unshadowed_irradiance
+from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_centres, texel_regions
+from prtcore.reference.pathtracer import (
     cosine_directions,
     default_tracer,
     reference_direct,
@@ -26,8 +27,7 @@ from prtcore.reference import (
     reference_lightmap_with_error,
     reference_lightmaps,
 )
-from prtcore.scene import Light, Material, Scene
-from prtcore.texels import TexelSpace, sample_texel_regions, texel_centres, texel_regions
+from prtcore.scenes import cornell
 
 # ---------------------------------------------------------------------------------------
 # Hand-built scenes and texel spaces
@@ -351,7 +351,7 @@ def _first_bounce_grid(w: np.ndarray, light: Light, rho_floor: float, panels: in
                       order: int = 8, plate=None) -> np.ndarray:
     """E_ind at wall points w (n, 3) (normal +x) from the unit floor lit by any light, by a
     fixed composite Gauss–Legendre rule over the floor. The floor's direct irradiance comes
-    from :func:`prtcore.lights.unshadowed_irradiance` (tested against closed forms in
+    from :func:`prtcore.emitters.punctual.unshadowed_irradiance` (tested against closed forms in
     test_lights.py); an optional black ``plate`` (see :func:`_crosses_plate`) blocks both
     the light and the view between wall and floor. Returns (n,)."""
     g, gw = np.polynomial.legendre.leggauss(order)

@@ -1,4 +1,4 @@
-"""Headless OpenGL runtime (prtcore.render) against the CPU runtime, the light formulas,
+"""Headless OpenGL runtime (prtcore.runtime.gl) against the CPU runtime, the light formulas,
 the camera-space path tracer, and stored golden images.
 
 One EGL context for the whole session (``gl_ctx``); every test here leaves it without a
@@ -24,22 +24,27 @@ import numpy as np
 import pytest
 
 from prtcore import pipeline
-from prtcore.camera import Camera, CameraFileError, camera_from_dict, load_camera
 from prtcore.cli import main
-from prtcore.cornell import EXAMPLE_SPEC
-from prtcore.imageio import read_image, write_png
-from prtcore.lights import irradiance, light_from_dict, load_light_file, unshadowed_irradiance
-from prtcore.raytrace import RayTracer
-from prtcore.render import (
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import (
+    irradiance,
+    light_from_dict,
+    load_light_file,
+    unshadowed_irradiance,
+)
+from prtcore.io.imageio import read_image, write_png
+from prtcore.reference.camera import Camera, CameraFileError, camera_from_dict, load_camera
+from prtcore.report import format_table, merge_gpu_columns
+from prtcore.runtime.cpu import blend, plane_weights, relight, shade_points
+from prtcore.runtime.gl import (
     BundleRenderer,
     create_context,
     gpu_runtime_table,
     make_current,
     tone_map,
 )
-from prtcore.report import format_table, merge_gpu_columns
-from prtcore.runtime import blend, plane_weights, relight, shade_points
-from prtcore.spec import parse_spec
+from prtcore.scenes.cornell import EXAMPLE_SPEC
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "examples" / "cornell_box.glb"
@@ -192,7 +197,7 @@ def test_camera_file(tmp_path):
 @pytest.mark.parametrize("name", ["point_center", "spot_front", "directional_window"])
 def test_points_unshadowed_match_the_light_formulas(cornell, name):
     """Without shadows the compute shader's irradiance at every supersample equals
-    prtcore.lights.unshadowed_irradiance (float32 against float64)."""
+    prtcore.emitters.punctual.unshadowed_irradiance (float32 against float64)."""
     lights = _light(name)
     d = cornell.data
     pos, nrm = d.cluster_position.astype(np.float64), d.cluster_normal.astype(np.float64)
@@ -322,7 +327,7 @@ def test_modes_add_up_and_back_faces_are_black(cornell):
 
 
 def test_render_timings_and_basis_bounds(cornell):
-    from prtcore.errors import PrtError
+    from prtcore.core.errors import PrtError
 
     res = cornell.render(_light("point_center"), _camera((32, 32)), n=2)
     assert set(res.wall_milliseconds) == {"shadow_maps", "points", "coefficients", "camera"}
@@ -395,7 +400,7 @@ def test_direct_view_matches_ray_traced_direct(cornell, name):
     (silhouettes may differ by the rasteriser's tie rules) and the images agree pixel for
     pixel to 1e-3 of the peak except at ≤ 1% of the pixels (shadow-map edges); relative
     RMSE ≤ 2%. Checks camera matrices, pixel-centre conventions and shadow-map lookups."""
-    from prtcore.camera import reference_image
+    from prtcore.reference.camera import reference_image
 
     lights = _light(name)
     cam = _camera((48, 48))
@@ -505,7 +510,7 @@ def test_render_matches_the_camera_space_reference(gl_ctx, tmp_path_factory):
     ray-traced shadows + indirect, 256 paths per pixel): relative RMSE over the pixels that
     see geometry ≤ 8% for each. Measured on llvmpipe over all 16 held-out lights: 2.5–3.8%
     (mean 3.0%), of which ~2.2% is the reference's own noise."""
-    from prtcore.camera import reference_image
+    from prtcore.reference.camera import reference_image
 
     bundle = _bake(tmp_path_factory, CORNELL, EXAMPLE_SPEC, "example")
     cam = _camera((64, 64))

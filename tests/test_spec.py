@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from prtcore.errors import SpecError
-from prtcore.spec import BakeSpec, load_spec, parse_spec, spec_hash, spec_to_dict
+from prtcore.core.errors import SpecError
+from prtcore.core.spec import BakeSpec, load_spec, parse_spec, spec_hash, spec_to_dict
 
 DESIGN_EXAMPLE = {
     "atlas": {"resolution": 512, "padding": 4},

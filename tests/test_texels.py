@@ -1,6 +1,6 @@
 """Texel space: rasterisation of TEXCOORD_1, samples, coverage, dilation, ordering.
 
-Every expectation is computed independently of prtcore.texels: closed-form maps of
+Every expectation is computed independently of prtcore.receivers.texels: closed-form maps of
 parallelograms, an exact scalar Sutherland–Hodgman clipper for coverage, brute-force
 nearest points and nearest covered texels, integer-exact containment for centres on edges.
 """
@@ -13,12 +13,12 @@ import time
 import numpy as np
 import pytest
 
-from prtcore import texels as tx
-from prtcore.errors import AssetError, SpecError
-from prtcore.materials import srgb_to_linear
-from prtcore.progress import StageTimer
-from prtcore.scene import Material, PrimitiveInstance, Scene, Texture
-from prtcore.texels import (
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.materials import srgb_to_linear
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Material, PrimitiveInstance, Scene, Texture
+from prtcore.receivers import texels as tx
+from prtcore.receivers.texels import (
     MIN_COVERAGE,
     build_texel_space,
     image_to_texels,

@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from prtcore import transport
-from prtcore.lights import sample_configurations
-from prtcore.materials import clamp_albedo
-from prtcore.points import MeasurementPoints
-from prtcore.progress import StageTimer
-from prtcore.raytrace import RayTracer
-from prtcore.scene import Light, Material, Scene
-from prtcore.spec import LightFamily, LightsSpec, TransportSpec
-from prtcore.texels import TexelSpace, build_texel_space
-from prtcore.transport import (
+from prtcore.core.materials import clamp_albedo
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Material, Scene
+from prtcore.core.spec import LightFamily, LightsSpec, TransportSpec
+from prtcore.emitters.punctual import sample_configurations
+from prtcore.intake.points import MeasurementPoints
+from prtcore.receivers.texels import TexelSpace, build_texel_space
+from prtcore.transport import surface as transport
+from prtcore.transport.surface import (
     bake_dataset,
     build_gather_operator,
     direct_radiance,
@@ -469,7 +469,7 @@ def test_timer_records_sub_stages(block_on_floor):
 
 
 # ---------------------------------------------------------------------------------------
-# (7) Against the reference path tracer (prtcore.reference), real pipeline
+# (7) Against the reference path tracer (prtcore.reference.pathtracer), real pipeline
 
 
 CORNELL_LIGHTS = [spot_light([0.0, 1.8, 0.3], [0.2, 0.0, -0.2], 0.6, 3.0),
@@ -478,8 +478,8 @@ CORNELL_LIGHTS = [spot_light([0.0, 1.8, 0.3], [0.2, 0.0, -0.2], 0.6, 3.0),
 
 
 def asset_texels(path, resolution: int, padding: int = 2):
-    from prtcore.load import load_asset
-    from prtcore.prepare import generate_uv1
+    from prtcore.intake.prepare import generate_uv1
+    from prtcore.io.gltf.loader import load_asset
 
     scene = generate_uv1(load_asset(path), resolution, padding)
     return scene, build_texel_space(scene, resolution, padding=padding), None
@@ -487,7 +487,7 @@ def asset_texels(path, resolution: int, padding: int = 2):
 
 @pytest.fixture(scope="module")
 def cornell64(tmp_path_factory):
-    from prtcore.cornell import write_cornell_box
+    from prtcore.scenes.cornell import write_cornell_box
 
     scene, texels, _ = asset_texels(
         write_cornell_box(tmp_path_factory.mktemp("cornell") / "cornell.glb"), 64)
@@ -506,7 +506,7 @@ def compare(fast: np.ndarray, ref: np.ndarray, err: np.ndarray) -> tuple[float, 
 def fast_and_reference(scene, texels, tracer, lights, rays, spp, seed=0):
     """The bake's transport (default TransportSpec but ``rays`` gather rays) and the
     reference, for one light per configuration."""
-    from prtcore.reference import reference_lightmaps
+    from prtcore.reference.pathtracer import reference_lightmaps
 
     spec = TransportSpec(gather_rays=rays, seed=seed, max_bounces=64, tolerance=1e-4)
     gather = spec_gather(scene, texels, tracer, spec)
@@ -535,7 +535,7 @@ def test_matches_reference_cornell(tmp_path):
     # point light), reference at 2048 spp: per configuration relative RMSE ≤ 5 % and mean
     # bias ≤ 1 % (measured 2.9 %, 3.2 %, 2.3 % and ≤ 0.35 %; without the near field and
     # the stratified direct samples 6.0 %, 3.2 %, 2.6 % and +1.1 %). ~2 min.
-    from prtcore.cornell import write_cornell_box
+    from prtcore.scenes.cornell import write_cornell_box
 
     scene, texels, _ = asset_texels(write_cornell_box(tmp_path / "cornell.glb"), 128)
     fast, ref, err = fast_and_reference(scene, texels, tracer_of(scene), CORNELL_LIGHTS,

@@ -11,8 +11,8 @@ import pytest
 
 from prtcore import pipeline
 from prtcore.cli import main
-from prtcore.cornell import EXAMPLE_SPEC
-from prtcore.spec import parse_spec
+from prtcore.core.spec import parse_spec
+from prtcore.scenes.cornell import EXAMPLE_SPEC
 from prtcore.validate import format_validation, validate_bundle
 
 ROOT = Path(__file__).resolve().parents[1]

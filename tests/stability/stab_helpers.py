@@ -16,10 +16,10 @@ import numpy as np
 import trimesh
 
 from prtcore import pipeline
-from prtcore.bundle import load_runtime, read_manifest, verify_bundle
-from prtcore.cornell import cornell_box
-from prtcore.imageio import read_image
-from prtcore.spec import parse_spec
+from prtcore.core.spec import parse_spec
+from prtcore.io.bundle import load_runtime, read_manifest, verify_bundle
+from prtcore.io.imageio import read_image
+from prtcore.scenes.cornell import cornell_box
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -146,12 +146,12 @@ def result_files(bundle: Path) -> dict[str, bytes]:
 class Transport:
     """The pipeline's intake and transport for one asset + spec, with the gather operator
     traced once, so that any set of lights can be turned into (D, I) cheaply — the same
-    steps as :func:`prtcore.transport.bake_dataset`."""
+    steps as :func:`prtcore.transport.surface.bake_dataset`."""
 
     def __init__(self, asset: Path, spec: dict):
+        from prtcore.core.raytrace import RayTracer
         from prtcore.pipeline import run_intake
-        from prtcore.raytrace import RayTracer
-        from prtcore.transport import spec_gather
+        from prtcore.transport.surface import spec_gather
 
         self.spec = parse_spec(spec)
         self.intake = run_intake(asset, self.spec, quiet=True)
@@ -160,14 +160,14 @@ class Transport:
         self.gather = spec_gather(sc, self.intake.texels, self.tracer, self.spec.transport)
 
     def configurations(self):
-        from prtcore.lights import sample_configurations
+        from prtcore.emitters.punctual import sample_configurations
 
         sc = self.intake.scene
         return sample_configurations(self.spec.lights, sc.center, sc.radius, sc.lights)
 
     def dataset(self, lights) -> tuple[np.ndarray, np.ndarray]:
         """D (P, K, 3) float32 and I (T, K, 3) float32 for ``lights``."""
-        from prtcore.transport import direct_radiance, light_texels
+        from prtcore.transport.surface import direct_radiance, light_texels
 
         sc, tx, pts = self.intake.scene, self.intake.texels, self.intake.points
         cl = direct_radiance(sc, self.tracer, lights, pts.cluster_position,

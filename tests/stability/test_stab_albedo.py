@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from stab_helpers import TINY, assert_bundle_finite, bake, cornell_with, result_files
 
-from prtcore.bundle import load_runtime
-from prtcore.errors import PrtError
-from prtcore.tolerances import ALBEDO_MAX
+from prtcore.core.errors import PrtError
+from prtcore.core.tolerances import ALBEDO_MAX
+from prtcore.io.bundle import load_runtime
 
 
 @pytest.fixture(scope="module")

@@ -12,11 +12,11 @@ import sys
 import pytest
 from stab_helpers import CORNELL, HERE, assert_bundle_finite, bake, spec_with
 
-from prtcore.errors import LimitExceeded, SpecError
-from prtcore.limits import IntakeLimits
+from prtcore.core.errors import LimitExceeded, SpecError
+from prtcore.core.limits import IntakeLimits
+from prtcore.core.spec import parse_spec
 from prtcore.pipeline import run_intake
-from prtcore.spec import parse_spec
-from prtcore.transport import estimate_bake_bytes
+from prtcore.transport.surface import estimate_bake_bytes
 
 #: The memory model may overestimate the measured peak by at most this factor.
 ESTIMATE_SLACK = 1.6
@@ -64,7 +64,7 @@ def _bake_in_child(tmp_path, spec: dict) -> dict:
 import json, resource, sys
 sys.path.insert(0, {str(HERE)!r})
 from stab_helpers import CORNELL, bake
-from prtcore.errors import PrtError
+from prtcore.core.errors import PrtError
 out = {{"error": None}}
 try:
     bake(CORNELL, {spec!r}, __import__("pathlib").Path({str(tmp_path / "b")!r}))
@@ -116,7 +116,7 @@ def test_report_timing_memory_does_not_grow_with_the_atlas():
 
     import numpy as np
 
-    from prtcore.fit import fit_transfer
+    from prtcore.fit.transfer import fit_transfer
     from prtcore.report import error_vs_runtime
 
     rng = np.random.default_rng(0)

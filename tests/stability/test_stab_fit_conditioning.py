@@ -13,7 +13,8 @@ import itertools
 import numpy as np
 import pytest
 
-from prtcore.fit import (
+from prtcore.core.tolerances import DIRECT_SVD_REL_TOL
+from prtcore.fit.transfer import (
     UNDERDETERMINED_WARNING,
     _fit_transfer64,
     _reconstruct64,
@@ -21,7 +22,6 @@ from prtcore.fit import (
     reconstruct,
     relative_rmse,
 )
-from prtcore.tolerances import DIRECT_SVD_REL_TOL
 
 #: float32 model (what a bundle stores) vs float64 model, relative over the lightmap.
 F32_RTOL = 1e-5

@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 from stab_helpers import CORNELL, ROOM_BOX, assert_bundle_finite, bake, spec_with
 
-from prtcore.bundle import load_runtime
-from prtcore.errors import SpecError
-from prtcore.fit import GAMMA_RANGE, fit_transfer, reconstruct
-from prtcore.lights import load_light_file
-from prtcore.load import load_asset
-from prtcore.raytrace import RayTracer
-from prtcore.runtime import plane_weights, relight, shade_points
-from prtcore.scene import Light
-from prtcore.spec import parse_spec
+from prtcore.core.errors import SpecError
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import load_light_file
+from prtcore.fit.transfer import GAMMA_RANGE, fit_transfer, reconstruct
+from prtcore.io.bundle import load_runtime
+from prtcore.io.gltf.loader import load_asset
+from prtcore.runtime.cpu import plane_weights, relight, shade_points
 
 LINEAR_RTOL = 1e-5
 

@@ -19,9 +19,9 @@ from stab_helpers import (
 )
 from trimesh.visual.material import PBRMaterial
 
-from prtcore.bundle import load_runtime, read_manifest
-from prtcore.cornell import cornell_box
-from prtcore.transport import direct_radiance
+from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.scenes.cornell import cornell_box
+from prtcore.transport.surface import direct_radiance
 
 #: Bakes of the same room in other units (light boxes scaled, intensities × scale²).
 SCALE_RTOL = 1e-5
@@ -63,7 +63,7 @@ def _white(mesh: trimesh.Trimesh, name: str, color=(0.8, 0.8, 0.8)) -> trimesh.T
 
 
 def _floor(half: float = 2.0, y: float = 0.0) -> trimesh.Trimesh:
-    from prtcore.cornell import _quad
+    from prtcore.scenes.cornell import _quad
 
     c = np.array([[-half, y, half], [half, y, half], [half, y, -half], [-half, y, -half]])
     return _quad(c, subdiv=4)

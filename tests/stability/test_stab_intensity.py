@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from stab_helpers import CORNELL, ROOM_BOX, assert_bundle_finite, bake, spec_with
 
-from prtcore.bundle import load_runtime, read_manifest
-from prtcore.lights import load_light_file, sample_configurations
-from prtcore.load import load_asset
-from prtcore.raytrace import RayTracer
-from prtcore.runtime import relight
-from prtcore.spec import parse_spec
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import load_light_file, sample_configurations
+from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.io.gltf.loader import load_asset
+from prtcore.runtime.cpu import relight
 
 WIDE = {"log_uniform": [1e-6, 1e6]}
 #: relight(a·L) = a·relight(L), Frobenius relative over the atlas.

@@ -21,10 +21,10 @@ from stab_helpers import (
     spec_with,
 )
 
-from prtcore.bundle import load_runtime, read_manifest
-from prtcore.fit import _fit_transfer64, _reconstruct64, fit_transfer, reconstruct
-from prtcore.fit import relative_rmse as rrmse
-from prtcore.runtime import blend, plane_weights
+from prtcore.fit.transfer import _fit_transfer64, _reconstruct64, fit_transfer, reconstruct
+from prtcore.fit.transfer import relative_rmse as rrmse
+from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.runtime.cpu import blend, plane_weights
 
 F32_RTOL = 1e-5
 RUNTIME_RTOL = 1e-5
@@ -59,7 +59,7 @@ def test_float32_model_agrees_with_float64(transport, channels, gamma, ridge):
 
 def test_helper_transport_is_the_pipelines(transport, tmp_path):
     """The suite's Transport helper computes the same D as the bake (guards the helper)."""
-    from prtcore.transport import bake_dataset
+    from prtcore.transport.surface import bake_dataset
 
     train, hold = transport.configurations()
     ds = bake_dataset(transport.intake.scene, transport.intake.texels,

@@ -21,8 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from stab_helpers import CORNELL, ROOM_BOX, Transport, spec_with
 
-from prtcore.fit import fit_transfer, reconstruct, relative_rmse
-from prtcore.scene import Light
+from prtcore.core.scene import Light
+from prtcore.fit.transfer import fit_transfer, reconstruct, relative_rmse
 
 PER_LIGHT_FACTOR = 5.0
 MEAN_FACTOR = 1.25

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from stab_helpers import CORNELL, ROOM_BOX, assert_bundle_finite, bake, spec_with
 
-from prtcore.bundle import load_runtime
-from prtcore.errors import PrtError
-from prtcore.lights import irradiance, sample_configurations
-from prtcore.load import load_asset
-from prtcore.raytrace import RayTracer
-from prtcore.runtime import relight
-from prtcore.spec import parse_spec
+from prtcore.core.errors import PrtError
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.spec import parse_spec
+from prtcore.emitters.punctual import irradiance, sample_configurations
+from prtcore.io.bundle import load_runtime
+from prtcore.io.gltf.loader import load_asset
+from prtcore.runtime.cpu import relight
 
 ROOM = {"type": "point", "weight": 3.0, "position": {"box": ROOM_BOX},
         "intensity": {"uniform": [0.5, 3.0]}}

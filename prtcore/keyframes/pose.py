@@ -28,17 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PrtError, SpecError
-from .points import MeasurementPoints
-from .progress import StageTimer
-from .scene import Animation, AnimationChannel, Light, Scene
-from .spec import BakeSpec, TransportSpec
-from .texels import TexelSpace
+from prtcore.core.errors import PrtError, SpecError
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Animation, AnimationChannel, Light, Scene
+from prtcore.core.spec import BakeSpec, TransportSpec
+from prtcore.intake.points import MeasurementPoints
+from prtcore.receivers.texels import TexelSpace
 
 
 def animation_index(scene: Scene, spec: BakeSpec) -> int | None:
     """The spec's animation as an index into ``scene.animations`` (None: static bake)."""
-    from .plan import _animation_index
+    from prtcore.intake.plan import _animation_index
 
     return _animation_index(scene, spec)
 
@@ -120,7 +120,7 @@ def node_matrices(scene: Scene, animation: Animation | None, t: float) -> np.nda
     Animated nodes use their rest TRS with the animated components replaced; the others
     keep their rest local matrix (so ``animation=None`` gives the rest pose exactly).
     """
-    from .load import trs_matrix
+    from prtcore.io.gltf.loader import trs_matrix
 
     nodes = scene.nodes
     local = [n.matrix.astype(np.float64) for n in nodes]
@@ -166,7 +166,7 @@ def pose_scene(scene: Scene, world: np.ndarray) -> Scene:
     Faces, UVs and materials are unchanged. Raises :class:`PrtError` for a scene without
     instance records (nothing to re-pose from).
     """
-    from .load import _normalize_rows, normal_matrix
+    from prtcore.io.gltf.loader import _normalize_rows, normal_matrix
 
     if not scene.instances:
         raise PrtError(f"{scene.source}: no primitive instances recorded, cannot pose it")
@@ -201,7 +201,7 @@ def pose_texels(texels: TexelSpace, posed: Scene) -> TexelSpace:
     """The rest pose's texels on the posed scene: same texels, triangles, barycentrics,
     albedo and coverage; positions, shading / geometric normals and footprints recomputed
     (the posed scene must keep the rest pose's faces and TEXCOORD_1)."""
-    from .texels import _face_frames, _shading_normals
+    from prtcore.receivers.texels import _face_frames, _shading_normals
 
     tri = texels.triangle
     position = np.einsum("nk,nkj->nj", texels.barycentric, posed.positions[posed.faces[tri]])
@@ -220,7 +220,7 @@ def pose_points(points: MeasurementPoints, rest: Scene, posed: Scene) -> Measure
     (not on the surface) move by the displacement of their closest surface point and keep
     their normal, as the placement documents.
     """
-    from .points import _shading_normals
+    from prtcore.intake.points import _shading_normals
 
     def move(p, n, tri, bary):
         at_posed = np.einsum("nk,nkj->nj", bary, posed.positions[posed.faces[tri]])
@@ -295,13 +295,13 @@ def bake_keyframe_dataset(kfs: KeyframeSet, texels: TexelSpace,
                           lights_train: Sequence[Light], lights_holdout: Sequence[Light],
                           spec: TransportSpec | None = None,
                           timer: StageTimer | None = None):
-    """:func:`prtcore.transport.bake_dataset` per keyframe on the posed scene, texels and
+    """:func:`prtcore.transport.surface.bake_dataset` per keyframe on the posed scene, texels and
     points, for that keyframe's share of the configurations; the columns are reassembled
     in the order of ``(*lights_train, *lights_holdout)``. ``stats["keyframes"]`` holds each
     keyframe's own transport stats; iterations and residual are the maxima over keyframes.
-    Returns a :class:`~prtcore.transport.Dataset`.
+    Returns a :class:`~prtcore.transport.surface.Dataset`.
     """
-    from .transport import Dataset, bake_dataset
+    from prtcore.transport.surface import Dataset, bake_dataset
 
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     K = len(lights_train)
@@ -334,7 +334,7 @@ def bake_keyframe_dataset(kfs: KeyframeSet, texels: TexelSpace,
 def keyframe_files(directory: Path, kfs: KeyframeSet, rest: Scene) -> dict:
     """Write the per-keyframe posed arrays of a bundle and return the manifest's
     ``keyframes`` section (everything an engine needs to pick and pose a keyframe)."""
-    from .bundle import _raw
+    from prtcore.io.bundle import _raw
 
     order = export_vertex_order(rest)
     verts = np.stack([np.concatenate([s.positions[order], s.normals[order]], 1)
@@ -366,7 +366,7 @@ def keyframe_files(directory: Path, kfs: KeyframeSet, rest: Scene) -> dict:
 def export_vertex_order(scene: Scene) -> np.ndarray:
     """(V',) int64 scene vertex of each vertex of the exported asset.glb, in file order.
 
-    Mirrors :func:`prtcore.gltf_export.scene_to_glb`: one primitive per used material in
+    Mirrors :func:`prtcore.io.gltf.export.scene_to_glb`: one primitive per used material in
     material order, each with the sorted unique vertices its faces use.
     """
     order = []
@@ -389,13 +389,13 @@ def bundle_at_time(path: str | Path, manifest: dict, data, scene: Scene | None,
                    time: float | None):
     """The runtime data (and the bundle's asset scene) posed at keyframe nearest ``time``.
 
-    data : :class:`~prtcore.runtime.RuntimeData` of the bundle; scene : its asset.glb as
+    data : :class:`~prtcore.runtime.cpu.RuntimeData` of the bundle; scene : its asset.glb as
     loaded (or None). For a static bundle, ``time`` must be None and everything is returned
     unchanged. For a keyframe bundle, ``time=None`` means the first keyframe. The returned
     data has the keyframe's cluster positions/normals and a single (3, n_b, P) transfer
     (that keyframe's, or the shared one). Returns (data, scene, keyframe index or None).
     """
-    from .bundle import load_keyframe
+    from prtcore.io.bundle import load_keyframe
 
     kf = manifest.get("keyframes")
     if not kf:

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .errors import AssetError, SpecError
-from .materials import albedo_at
-from .progress import StageTimer
-from .scene import Scene
-from .tolerances import BARY_EPS, DEGENERATE_AREA_REL, NORMAL_EPS, UV_TEXEL_EPS
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.materials import albedo_at
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Scene
+from prtcore.core.tolerances import BARY_EPS, DEGENERATE_AREA_REL, NORMAL_EPS, UV_TEXEL_EPS
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class TexelSpace:
     normal : (t, 3) float64 unit shading normal (interpolated vertex normals)
     geometric_normal : (t, 3) float64 unit face normal
     albedo : (t, 3) float64 raw linear albedo (clamp for transport with
-        :func:`prtcore.materials.clamp_albedo`)
+        :func:`prtcore.core.materials.clamp_albedo`)
     triangle : (t,) int64 face index into the scene
     barycentric : (t, 3) float64 weights of the face's vertices at the sample
     coverage : (t,) float32 fraction of the texel's area covered by geometry, in (0, 1]
@@ -463,7 +463,7 @@ def build_texel_space(scene: Scene, width: int, height: int | None = None, paddi
     Samples: position = Σ bary × vertex positions; geometric_normal = face normal;
     normal = normalised interpolated vertex normal (the geometric normal where it vanishes),
     negated when it points into the geometric normal's opposite hemisphere; albedo =
-    :func:`prtcore.materials.albedo_at` (raw, through the material's TEXCOORD_n);
+    :func:`prtcore.core.materials.albedo_at` (raw, through the material's TEXCOORD_n);
     footprint = (dP/dx, dP/dy) for one texel step, from the face's UV→world Jacobian.
 
     Dilation: uncovered texels within Chebyshev distance ``padding`` of a covered texel copy
@@ -612,7 +612,7 @@ class TexelRegions:
     float64 cumulative area fractions (last column 1); unused fan slots have zero area.
     A texel whose square only touches its triangle (zero area) has every corner at its
     own sample (``texels.barycentric``) and is ``empty``; so is a texel of zero footprint
-    (a point, e.g. a pixel's hit point in :func:`prtcore.camera.reference_image`).
+    (a point, e.g. a pixel's hit point in :func:`prtcore.reference.camera.reference_image`).
     empty : (t,) bool — the square only touches the triangle (zero area), or is a point
     """
 

@@ -30,7 +30,7 @@ class IntakeLimits:
     max_animations: int = 1_000
     max_accessor_elements: int = 32_000_000
     max_atlas_resolution: int = 4096
-    #: estimated peak memory of the bake (prtcore.transport.estimate_bake_bytes), checked
+    #: estimated peak memory of the bake (prtcore.transport.surface.estimate_bake_bytes), checked
     #: once the texel space is built, before transport allocates
     max_bake_bytes: int = 16 * 1024 * MiB
 

@@ -8,11 +8,11 @@ Per frame, all on the GPU (paper 4.3, 5.1, 5.2):
    direction); MIN blending keeps the nearest surface exactly, with no depth-buffer
    precision involved;
 2. **fake G-buffer** — a compute shader shades every measurement-point supersample
-   (``albedo/π · E``, the KHR_lights_punctual formulas of :mod:`prtcore.lights`, shadows
+   (``albedo/π · E``, the KHR_lights_punctual formulas of :mod:`prtcore.emitters.punctual`, shadows
    from the shadow maps) and averages each cluster → x (P, 3), gamma applied;
 3. **coefficients** — a compute shader (one work group): ``s = ‖x'‖``,
    ``u_c = M_c x'_c + s·b_c`` per channel, then the RGB weight of every basis plane
-   (:func:`prtcore.runtime.plane_weights`);
+   (:func:`prtcore.runtime.cpu.plane_weights`);
 4. **camera pass** — direct light with shadow-map shadows plus the indirect term: the
    basis planes, packed four per RGBA layer of a texture array, are blended in the
    fragment shader, one 4×3 coefficient matrix per layer (paper 5.2), then gamma undone.
@@ -39,9 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Camera, look_at, orthographic, perspective
-from .errors import PrtError
-from .scene import Light
+from prtcore.core.errors import PrtError
+from prtcore.core.scene import Light
+from prtcore.reference.camera import Camera, look_at, orthographic, perspective
 
 #: Lights drawn at once (each gets a row of the shadow atlas).
 MAX_LIGHTS = 16
@@ -107,7 +107,7 @@ float visibility(int l, vec3 p, vec3 ng) {
     return dq <= stored + bias_const * texel ? 1.0 : 0.0;
 }
 
-// KHR_lights_punctual irradiance (prtcore.lights.unshadowed_irradiance) times visibility
+// KHR_lights_punctual irradiance (prtcore.emitters.punctual.unshadowed_irradiance) times visibility
 vec3 irradiance(int l, vec3 p, vec3 n, vec3 ng) {
     Light L = lights[l];
     int type = int(L.pos_type.w);
@@ -220,7 +220,7 @@ void main() {
     vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
     if (dot(ng, eye - v_pos) < 0.0) ng = -ng;
     vec3 n = normalize(v_nrm);
-    if (!(dot(n, ng) > 0.0)) n = ng;  // as prtcore.reference.shading_normals
+    if (!(dot(n, ng) > 0.0)) n = ng;  // as prtcore.reference.pathtracer.shading_normals
     vec3 col = vec3(0.0);
     if ((mode & 1) != 0) {
         vec3 albedo = base_color.rgb;
@@ -437,8 +437,8 @@ class BundleRenderer:
                  time: float | None = None):
         import moderngl
 
-        from .bundle import load_runtime, read_manifest
-        from .load import load_asset
+        from prtcore.io.bundle import load_runtime, read_manifest
+        from prtcore.io.gltf.loader import load_asset
 
         if not 16 <= int(shadow_resolution) <= 8192:
             raise PrtError(f"render: shadow resolution {shadow_resolution}: expected 16..8192")
@@ -448,7 +448,9 @@ class BundleRenderer:
         self.scene = load_asset(self.bundle / self.manifest["asset"]["file"])
         self.keyframe = None
         if self.manifest.get("keyframes") or time is not None:
-            from .pose import bundle_at_time  # vertices and points posed on the CPU
+            from prtcore.keyframes.pose import (
+                bundle_at_time,  # vertices and points posed on the CPU
+            )
 
             self.data, self.scene, self.keyframe = bundle_at_time(
                 self.bundle, self.manifest, self.data, self.scene, time)
@@ -919,7 +921,7 @@ def _mat3(m: np.ndarray) -> bytes:
 def tone_map(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     """Linear RGB(A) (h, w, c) → (h, w, 3) uint8 sRGB: scale by ``exposure``, clip to
     [0, 1], sRGB-encode (no filmic curve: what is bright clips)."""
-    from .materials import linear_to_srgb
+    from prtcore.core.materials import linear_to_srgb
 
     rgb = np.clip(np.asarray(image, np.float64)[:, :, :3] * exposure, 0.0, 1.0)
     return np.round(linear_to_srgb(rgb) * 255.0).astype(np.uint8)
@@ -927,7 +929,7 @@ def tone_map(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
 
 def write_render(path: str | Path, image: np.ndarray, exposure: float = 1.0) -> None:
     """``.exr``: linear RGBA float; ``.png``: tone-mapped sRGB (see :func:`tone_map`)."""
-    from .imageio import write_exr, write_png
+    from prtcore.io.imageio import write_exr, write_png
 
     suffix = Path(path).suffix.lower()
     if suffix == ".exr":
@@ -944,8 +946,8 @@ def render_to_file(bundle: str | Path, light_path: str | Path, camera_path: str 
                    time: float | None = None) -> tuple[RenderResult, str]:
     """``prtcore render``: one frame of the bundle to a PNG or EXR. Returns the frame and
     the GL renderer's label. (A single frame's timings include shader compilation.)"""
-    from .camera import load_camera
-    from .lights import load_light_file
+    from prtcore.emitters.punctual import load_light_file
+    from prtcore.reference.camera import load_camera
 
     if Path(out).suffix.lower() not in (".png", ".exr"):
         raise PrtError(f"{out}: output must end in .png or .exr")

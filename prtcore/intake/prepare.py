@@ -1,6 +1,6 @@
 """Prepare stage: mesh health, repair, optional remeshing, lightmap UVs (TEXCOORD_1).
 
-Every function takes and returns a :class:`prtcore.scene.Scene` and keeps its invariants:
+Every function takes and returns a :class:`prtcore.core.scene.Scene` and keeps its invariants:
 per-vertex arrays stay aligned, faces index them, ``face_material``/``face_instance`` stay
 aligned with faces, and every :class:`PrimitiveInstance` keeps a contiguous vertex range and
 face range with ``object_positions``/``object_normals``/``joints``/``weights`` aligned with
@@ -26,14 +26,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import AssetError, SpecError
-from .scene import PrimitiveInstance, Scene
-from .tolerances import DEGENERATE_AREA_REL, NORMAL_EPS, UV_TEXEL_EPS, WELD_DISTANCE_REL
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.scene import PrimitiveInstance, Scene
+from prtcore.core.tolerances import DEGENERATE_AREA_REL, NORMAL_EPS, UV_TEXEL_EPS, WELD_DISTANCE_REL
 
 if TYPE_CHECKING:  # the xatlas child process imports this module: keep its imports light
-    from .plan import Plan
-    from .progress import StageTimer
-    from .spec import BakeSpec
+    from prtcore.core.progress import StageTimer
+    from prtcore.core.spec import BakeSpec
+    from prtcore.intake.plan import Plan
 
 # ---------------------------------------------------------------------------------------
 # Instance layout and small helpers
@@ -941,7 +941,8 @@ def _run_xatlas(source: str, meshes, resolution: int, padding: int) -> dict:
         env = dict(os.environ)
         env["PYTHONPATH"] = pkg_root + (os.pathsep + env["PYTHONPATH"]
                                         if env.get("PYTHONPATH") else "")
-        proc = subprocess.run([sys.executable, "-m", "prtcore.prepare", "--xatlas", inp, outp],
+        proc = subprocess.run([sys.executable, "-m", "prtcore.intake.prepare", "--xatlas",
+                               inp, outp],
                               capture_output=True, env=env, check=False)
         if proc.returncode != 0 or not os.path.exists(outp):
             tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()
@@ -1037,7 +1038,7 @@ class PrepareReport:
 
 def prepare_scene(scene: Scene, spec: BakeSpec, timer: StageTimer | None = None, *,
                   plan: Plan | None = None) -> tuple[Scene, PrepareReport]:
-    """Repair, remesh and lay out TEXCOORD_1 as :func:`prtcore.plan.plan_asset` decides.
+    """Repair, remesh and lay out TEXCOORD_1 as :func:`prtcore.intake.plan.plan_asset` decides.
 
     Each sub-step is timed with ``timer.stage("repair" | "remesh" | "uv")`` or recorded as
     ``timer.skip(name, why)``; the mesh inspection is timed as "inspect". UV decisions are
@@ -1047,8 +1048,8 @@ def prepare_scene(scene: Scene, spec: BakeSpec, timer: StageTimer | None = None,
     Raises :class:`AssetError` naming TEXCOORD_1 when ``prepare.uv`` is "keep" and the UVs
     are missing or invalid.
     """
-    from .plan import decide_remesh, decide_repair, decide_uv
-    from .progress import StageTimer
+    from prtcore.core.progress import StageTimer
+    from prtcore.intake.plan import decide_remesh, decide_repair, decide_uv
 
     timer = timer if timer is not None else StageTimer(quiet=True)
     seconds: dict[str, float] = {}
@@ -1131,4 +1132,4 @@ if __name__ == "__main__":  # the xatlas child process (see _run_xatlas)
     if len(sys.argv) == 4 and sys.argv[1] == "--xatlas":
         _xatlas_child(sys.argv[2], sys.argv[3])
     else:
-        sys.exit("usage: python -m prtcore.prepare --xatlas IN.npz OUT.npz")
+        sys.exit("usage: python -m prtcore.intake.prepare --xatlas IN.npz OUT.npz")

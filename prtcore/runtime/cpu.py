@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lights import irradiance
-from .raytrace import RayTracer
-from .scene import Light
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+from prtcore.emitters.punctual import irradiance
 
 
 @dataclass(frozen=True)

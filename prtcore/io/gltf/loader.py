@@ -15,8 +15,8 @@ buffer before the checks below have passed. Order of work for glTF:
    accessors decoded, images decoded (header dimensions checked before pixels), and the
    geometry flattened to world space.
 
-Every refusal is a :class:`~prtcore.errors.AssetError` (or its subclasses
-:class:`~prtcore.errors.LimitExceeded`, :class:`~prtcore.errors.UnsupportedAsset`) whose
+Every refusal is a :class:`~prtcore.core.errors.AssetError` (or its subclasses
+:class:`~prtcore.core.errors.LimitExceeded`, :class:`~prtcore.core.errors.UnsupportedAsset`) whose
 one-line message names the file, the glTF path and, where one applies, the limit. Any other
 exception raised while parsing malformed data is turned into an ``AssetError`` naming the
 best glTF path known at that point; ``MemoryError`` passes through unchanged.
@@ -38,10 +38,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import AssetError, LimitExceeded, PrtError, UnsupportedAsset
-from .limits import IntakeLimits
-from .materials import srgb_to_linear
-from .scene import (
+from prtcore.core.errors import AssetError, LimitExceeded, PrtError, UnsupportedAsset
+from prtcore.core.limits import IntakeLimits
+from prtcore.core.materials import srgb_to_linear
+from prtcore.core.scene import (
     Animation,
     AnimationChannel,
     Light,
@@ -52,7 +52,7 @@ from .scene import (
     Skin,
     Texture,
 )
-from .tolerances import NORMAL_EPS
+from prtcore.core.tolerances import NORMAL_EPS
 
 __all__ = ["load_asset", "texture_transform_matrix"]
 

@@ -82,9 +82,9 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from .errors import PrtError
-from .progress import StageTimer
-from .tolerances import DIRECT_SVD_REL_TOL, EIG_REL_TOL, LOO_LEVERAGE_TOL
+from prtcore.core.errors import PrtError
+from prtcore.core.progress import StageTimer
+from prtcore.core.tolerances import DIRECT_SVD_REL_TOL, EIG_REL_TOL, LOO_LEVERAGE_TOL
 
 # ---------------------------------------------------------------------------------------
 # Constants (numerical tolerances live in prtcore/tolerances.py)

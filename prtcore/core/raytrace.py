@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
-from .tolerances import RAY_TFAR_REL, ray_offset
+from prtcore.core.tolerances import RAY_TFAR_REL, ray_offset
 
 #: Rays per embreex call; large enough to amortise the call, small enough to bound memory.
 CHUNK = 1 << 17
@@ -49,7 +49,7 @@ class RayTracer:
     """Closest-hit and occlusion queries against one triangle mesh.
 
     positions : (v, 3) float (world), faces : (f, 3) int, scale : scene radius (sets the
-    ray offset and the "infinite" distance, see :mod:`prtcore.tolerances`).
+    ray offset and the "infinite" distance, see :mod:`prtcore.core.tolerances`).
     """
 
     def __init__(self, positions: np.ndarray, faces: np.ndarray, scale: float,

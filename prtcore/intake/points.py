@@ -9,12 +9,12 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from .errors import AssetError, SpecError
-from .materials import albedo_at
-from .progress import StageTimer
-from .scene import Scene
-from .spec import PointsSpec
-from .tolerances import DEGENERATE_AREA_REL, NORMAL_EPS
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.materials import albedo_at
+from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Scene
+from prtcore.core.spec import PointsSpec
+from prtcore.core.tolerances import DEGENERATE_AREA_REL, NORMAL_EPS
 
 
 @dataclass(frozen=True)
@@ -222,7 +222,7 @@ def place_measurement_points(scene: Scene, spec: PointsSpec,
 
     placement "surface": DENSE_RATIO_POINTS·P area-uniform samples on the scene → elimination → P.
     Normals are the interpolated vertex normals (the face normal where they cancel),
-    albedo :func:`prtcore.materials.albedo_at` (raw, unclamped).
+    albedo :func:`prtcore.core.materials.albedo_at` (raw, unclamped).
 
     placement "hull" (hair, paper 4.1): the same on the convex hull of the scene's
     vertices; position and normal (outward) are the hull's, while triangle / barycentric

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from .errors import PrtError
+from prtcore.core.errors import PrtError
 
 #: The EXR DateTime attribute written on every file (see write_exr).
 REPRODUCIBLE_DATETIME = "1980:01:01 00:00:00"

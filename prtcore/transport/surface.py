@@ -9,7 +9,7 @@ geometry is traced once:
    With cosine sampling ``E(x) ≈ π/M Σ_j L(y_j) = 1/M Σ_j ρ_j E_j``, so
    ``E_ind = G · (ρ ∘ (E_d + E_ind))``.
 2. **Direct light** for every configuration at texels and measurement points with
-   shadow rays (:func:`prtcore.lights.irradiance`, the one light evaluation). A texel's
+   shadow rays (:func:`prtcore.emitters.punctual.irradiance`, the one light evaluation). A texel's
    direct light is the mean over J points spread over it (``transport.direct_samples``):
    one point aliases where a shadow edge runs along a texel column.
 3. **Near field**: a texel's value stands badly for the light at a point closer than
@@ -26,7 +26,7 @@ Radiometry (DESIGN 3.1): every stored value is outgoing radiance ``L = ρ/π · 
 the indirect counts light that bounced at least once (all bounces).
 
 Sampling conventions of the gather (kept identical in spirit to the reference path
-tracer, :mod:`prtcore.reference`, where they are about the physics):
+tracer, :mod:`prtcore.reference.pathtracer`, where they are about the physics):
 
 * a ray that hits the *back* of a face is inside geometry: it brings no light;
 * a ray that misses brings nothing (no environment light);
@@ -39,7 +39,7 @@ tracer, :mod:`prtcore.reference`, where they are about the physics):
   over its visible part), and the texel's direct light is evaluated at a visible origin
   (:class:`Gather`). A texel with no visible origin is *buried*: its row is zero.
 * origins are uniform over the texel's square ∩ its own triangle, the region the
-  reference integrates (:func:`prtcore.texels.texel_regions`).
+  reference integrates (:func:`prtcore.receivers.texels.texel_regions`).
 """
 
 from __future__ import annotations
@@ -55,15 +55,15 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .lights import irradiance
-from .materials import clamp_albedo
-from .points import MeasurementPoints
-from .progress import StageTimer
-from .raytrace import RayTracer
-from .scene import Light, Scene
-from .spec import TransportSpec
-from .texels import TexelSpace, sample_texel_regions, texel_regions
-from .tolerances import BARY_EPS, offset_origins
+from prtcore.core.materials import clamp_albedo
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.core.spec import TransportSpec
+from prtcore.core.tolerances import BARY_EPS, offset_origins
+from prtcore.emitters.punctual import irradiance
+from prtcore.intake.points import MeasurementPoints
+from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
 
 #: Gather rays that share one jittered origin (S = M / RAYS_PER_ORIGIN origins per texel);
 #: enough rays per origin to tell "inside geometry" (most rays hit back faces) from "sees
@@ -256,7 +256,7 @@ def _uv_frames(tri_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Origins jittered over each texel's region: its square ∩ its own triangle
-    (:func:`~prtcore.texels.texel_regions`), the region the reference integrates.
+    (:func:`~prtcore.receivers.texels.texel_regions`), the region the reference integrates.
 
     A stratified (shifted Fibonacci) set of ``per_texel`` offsets in the texel square
     [x, x+1] × [y, y+1]; an offset outside the texel's triangle (in TEXCOORD_1) is replaced
@@ -390,7 +390,7 @@ def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: i
     Per texel: S = max(1, M // RAYS_PER_ORIGIN) origins on a shifted Fibonacci lattice
     over the texel square, kept on the texel's triangle (:func:`_jittered_origins`),
     offset along the geometric normal turned to the shading side
-    (:func:`prtcore.tolerances.offset_origins`); ray i leaves origin i mod S along point i
+    (:func:`prtcore.core.tolerances.offset_origins`); ray i leaves origin i mod S along point i
     of a shifted Fibonacci lattice mapped to the cosine hemisphere about the shading
     normal. A front-face hit at (triangle, barycentric) → TEXCOORD_1 → texel
     (⌊u·W⌋, ⌊v·H⌋) → covered texel, or the dilation source of a padding texel; a lookup
@@ -605,8 +605,8 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
     positions : (n, 3) float64 surface points, or (n, J, 3): J points per row whose
     irradiance is averaged (a texel's direct samples, :attr:`Gather.direct_position`);
     normals : (n, 3) float64 unit shading normals; albedo : (n, 3) raw albedo (clamped
-    here with :func:`prtcore.materials.clamp_albedo`).
-    E is :func:`prtcore.lights.irradiance` with shadow rays. Lights are evaluated on
+    here with :func:`prtcore.core.materials.clamp_albedo`).
+    E is :func:`prtcore.emitters.punctual.irradiance` with shadow rays. Lights are evaluated on
     ``tracer.threads`` threads (embreex and numpy release the GIL), one light per task,
     points in chunks of DIRECT_CHUNK, so memory stays at the (n, K, 3) float32 result
     plus O(DIRECT_CHUNK) per thread.
@@ -667,8 +667,8 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
     Returns rows (r,) int64, the receiving texels (sorted, unique), and their changes
     (r, K, 3) float32; :func:`solve_indirect` adds them to the first bounce.
     """
-    from .materials import albedo_at
-    from .texels import _shading_normals
+    from prtcore.core.materials import albedo_at
+    from prtcore.receivers.texels import _shading_normals
 
     k = direct_texels.shape[1]
     rows = np.unique(near.row)
@@ -978,10 +978,10 @@ def estimate_bake_bytes(texels: int, configurations: int, gather_rays: int) -> i
 
 
 def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int) -> int:
-    """Refuse (:class:`~prtcore.errors.LimitExceeded`) a bake whose estimated peak memory
+    """Refuse (:class:`~prtcore.core.errors.LimitExceeded`) a bake whose estimated peak memory
     exceeds ``limit_bytes`` (``IntakeLimits.max_bake_bytes``), before transport allocates.
-    spec : the :class:`~prtcore.spec.BakeSpec`. Returns the estimate."""
-    from .errors import LimitExceeded
+    spec : the :class:`~prtcore.core.spec.BakeSpec`. Returns the estimate."""
+    from prtcore.core.errors import LimitExceeded
 
     k = spec.lights.count + spec.lights.holdout
     need = estimate_bake_bytes(texels.count, k, spec.transport.gather_rays)

@@ -1,6 +1,6 @@
 """Plain data for a loaded, flattened scene (world space, metres, +Y up).
 
-Produced by :mod:`prtcore.load`, consumed by every later stage. All arrays are numpy;
+Produced by :mod:`prtcore.io.gltf.loader`, consumed by every later stage. All arrays are numpy;
 all dataclasses are frozen. Vertices are *not* welded across primitives: each glTF
 primitive instance (a mesh primitive under a node) contributes its own vertex range.
 """

@@ -2,9 +2,9 @@
 
 The ground truth the fast transport is checked against, so it shares none of the fast
 path's shortcuts: no gather operator, no texel→texel mapping, no iteration to a fixed
-point. It shares only the scene, the texel G-buffer (:class:`~prtcore.texels.TexelSpace`),
-light evaluation (:func:`prtcore.lights.irradiance`, shadow rays included), the ray
-tracer and albedo evaluation (:func:`prtcore.materials.albedo_at`, at each hit point).
+point. It shares only the scene, the texel G-buffer (:class:`~prtcore.receivers.texels.TexelSpace`),
+light evaluation (:func:`prtcore.emitters.punctual.irradiance`, shadow rays included), the ray
+tracer and albedo evaluation (:func:`prtcore.core.materials.albedo_at`, at each hit point).
 
 Estimator
 ---------
@@ -17,7 +17,7 @@ that bounced at least once on the asset: ``L_ind(x0) = ρ0/π · E_ind(x0)``. Wi
 
 for a path x0 → x1 → x2 … whose directions are cosine-distributed about the shading
 normal at each vertex. ``E_d`` (next-event estimation) is the sum over the lights of
-:func:`~prtcore.lights.irradiance` with shadow rays. After ``rr_depth`` bounces a path
+:func:`~prtcore.emitters.punctual.irradiance` with shadow rays. After ``rr_depth`` bounces a path
 survives Russian roulette with probability ``q = min(1, max_c β_c)`` (β the throughput)
 and is divided by ``q``, which keeps the estimator unbiased.
 
@@ -38,11 +38,11 @@ interpolated shading normals) ends the path likewise. Path origins are uniform o
 texel's square mapped onto its triangle's plane (``TexelSpace.footprint`` around the
 texel centre) intersected with the texel's own triangle, so the texel integrates what it
 covers of its triangle. The intersection is clipped exactly
-(:func:`~prtcore.texels.texel_regions`) and sampled directly: a texel that covers 1 % of
+(:func:`~prtcore.receivers.texels.texel_regions`) and sampled directly: a texel that covers 1 % of
 its square is sampled as uniformly as a full one. Each origin gets the interpolated
 normal at that point and is offset along the geometric normal by the tracer's offset.
 ρ0 is the texel's albedo (DESIGN 3.1: albedo sampled at the texel). All albedos are
-clamped for transport (:func:`~prtcore.materials.clamp_albedo`). Origins inside other
+clamped for transport (:func:`~prtcore.core.materials.clamp_albedo`). Origins inside other
 geometry (a floor texel under a block: most probe rays from it hit back faces) are left
 out of the texel's mean, which is then the mean over the texel's visible part
 (``buried_probes``; DESIGN 4).
@@ -63,13 +63,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lights import irradiance, unshadowed_irradiance
-from .materials import albedo_at, clamp_albedo
-from .progress import StageTimer
-from .raytrace import RayTracer
-from .scene import Light, Scene
-from .texels import TexelRegions, TexelSpace, sample_texel_regions, texel_regions
-from .tolerances import NORMAL_EPS
+from prtcore.core.materials import albedo_at, clamp_albedo
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.core.tolerances import NORMAL_EPS
+from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
+from prtcore.receivers.texels import TexelRegions, TexelSpace, sample_texel_regions, texel_regions
 
 #: Paths traced together in one wavefront (fixed, so that results do not depend on how
 #: many light configurations share the paths).

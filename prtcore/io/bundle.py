@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
-from .errors import BundleError, PrtError
-from .imageio import read_image, write_exr
-from .runtime import RuntimeData
+from prtcore import __version__
+from prtcore.core.errors import BundleError, PrtError
+from prtcore.io.imageio import read_image, write_exr
+from prtcore.runtime.cpu import RuntimeData
 
 SCHEMA = "prtcore.bundle"
 VERSION = 1

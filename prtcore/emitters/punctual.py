@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import LightFileError
-from .raytrace import RayTracer
-from .scene import Light
-from .spec import LightFamily, LightsSpec
+from prtcore.core.errors import LightFileError
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+from prtcore.core.spec import LightFamily, LightsSpec
 
 # ---------------------------------------------------------------------------------------
 # Evaluation

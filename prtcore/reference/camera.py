@@ -13,8 +13,8 @@ surface point in each pixel.
 
 :func:`reference_image` is the ground truth for ``prtcore render``: a primary ray per
 pixel centre; at a front-facing hit x, direct ``ρ/π · E_d(x)`` with ray-traced shadows
-(:func:`prtcore.reference.reference_direct`) plus indirect by the independent path tracer
-(:func:`prtcore.reference.reference_lightmaps`, the same estimator as the lightmap
+(:func:`prtcore.reference.pathtracer.reference_direct`) plus indirect by the independent path tracer
+(:func:`prtcore.reference.pathtracer.reference_lightmaps`, the same estimator as the lightmap
 reference, started at x instead of at a texel). Back-face hits (inside geometry) and
 misses are black with A = 0.
 """
@@ -29,12 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import PrtError
-from .materials import albedo_at
-from .progress import StageTimer
-from .raytrace import RayTracer
-from .scene import Light, Scene
-from .texels import TexelSpace
+from prtcore.core.errors import PrtError
+from prtcore.core.materials import albedo_at
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.receivers.texels import TexelSpace
 
 #: Largest image side a camera file may ask for.
 MAX_SIDE = 8192
@@ -205,12 +205,12 @@ def reference_image(scene: Scene, lights: Sequence[Light], camera: Camera, spp: 
     """Ground truth for a render: direct (ray-traced shadows) and path-traced indirect
     outgoing radiance at the surface seen through each pixel centre.
 
-    The visible points are handed to :func:`prtcore.reference.reference_lightmaps` as a
+    The visible points are handed to :func:`prtcore.reference.pathtracer.reference_lightmaps` as a
     texel space of zero footprint (each "texel" is one pixel's hit point, so path origins
     are exactly that point). No buried-origin probes: a point the camera sees is outside
     geometry. spp : paths per pixel.
     """
-    from .reference import (
+    from prtcore.reference.pathtracer import (
         default_tracer,
         reference_direct,
         reference_lightmaps,
@@ -253,9 +253,9 @@ def reference_view_to_exr(source: str | Path, light_path: str | Path, camera_pat
     """``prtcore reference SRC --camera CAM``: the path-traced view as an RGBA float EXR
     (component "full" = direct + indirect, "direct" or "indirect"). SRC: a bundle
     directory (its asset.glb, the scene a render of that bundle draws) or an asset file."""
-    from .imageio import write_exr
-    from .lights import load_light_file
-    from .load import load_asset
+    from prtcore.emitters.punctual import load_light_file
+    from prtcore.io.gltf.loader import load_asset
+    from prtcore.io.imageio import write_exr
 
     if spp < 1:
         raise PrtError(f"--spp must be ≥ 1, got {spp}")
@@ -263,7 +263,7 @@ def reference_view_to_exr(source: str | Path, light_path: str | Path, camera_pat
     camera = load_camera(camera_path)
     source = Path(source)
     if source.is_dir():
-        from .bundle import read_manifest
+        from prtcore.io.bundle import read_manifest
 
         source = source / read_manifest(source)["asset"]["file"]
     timer = StageTimer(quiet=quiet)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene import Scene, Texture
-from .tolerances import ALBEDO_MAX
+from prtcore.core.scene import Scene, Texture
+from prtcore.core.tolerances import ALBEDO_MAX
 
 REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
 

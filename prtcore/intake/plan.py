@@ -1,9 +1,9 @@
 """The planner: which stages an asset needs under a spec, and why (DESIGN 2).
 
-Cheap: it inspects the mesh (:func:`prtcore.prepare.inspect_mesh`), checks TEXCOORD_1
-(:func:`prtcore.prepare.check_uv1`, on the repaired mesh when repair will run) and looks at
+Cheap: it inspects the mesh (:func:`prtcore.intake.prepare.inspect_mesh`), checks TEXCOORD_1
+(:func:`prtcore.intake.prepare.check_uv1`, on the repaired mesh when repair will run) and looks at
 animations. The ``decide_*`` functions are the single place where prepare decisions are
-made; :func:`prtcore.prepare.prepare_scene` calls the same ones.
+made; :func:`prtcore.intake.prepare.prepare_scene` calls the same ones.
 
 >>> print(plan.format())                                    # doctest: +SKIP
 repair    skip — mesh clean
@@ -18,10 +18,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .errors import AssetError, SpecError
-from .prepare import MeshHealth, UVCheck, check_uv1, inspect_mesh, repair_scene
-from .scene import Scene
-from .spec import BakeSpec
+from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.scene import Scene
+from prtcore.core.spec import BakeSpec
+from prtcore.intake.prepare import MeshHealth, UVCheck, check_uv1, inspect_mesh, repair_scene
 
 
 @dataclass(frozen=True)

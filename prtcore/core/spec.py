@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import SpecError
+from prtcore.core.errors import SpecError
 
 # ---------------------------------------------------------------------------------------
 # Sections

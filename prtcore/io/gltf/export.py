@@ -1,4 +1,4 @@
-"""Write a flattened :class:`~prtcore.scene.Scene` as a glTF binary (the bundle's asset.glb).
+"""Write a flattened :class:`~prtcore.core.scene.Scene` as a glTF binary (the bundle's asset.glb).
 
 One node, one mesh, one primitive per material; attributes POSITION, NORMAL, TEXCOORD_0
 (with any KHR_texture_transform already applied) and TEXCOORD_1 (the lightmap UVs);
@@ -14,8 +14,8 @@ import numpy as np
 import pygltflib as gl
 from PIL import Image
 
-from .materials import linear_to_srgb
-from .scene import Scene
+from prtcore.core.materials import linear_to_srgb
+from prtcore.core.scene import Scene
 
 _FLOAT, _UINT = 5126, 5125
 _ARRAY, _ELEMENT_ARRAY = 34962, 34963
