@@ -242,8 +242,8 @@ class JobStore:
                       active_key=content_key, idempotency_key=idempotency_key,
                       asset_name=asset_name, original_name=original_name,
                       asset_sha256=asset_sha256, asset_bytes=asset_bytes,
-                      spec_json=spec_json, spec_sha256=spec_sha256, cancel_requested=False, created_at=now, enqueued_at=now,
-                      updated_at=now, timings_json="{}")
+                      spec_json=spec_json, spec_sha256=spec_sha256, cancel_requested=False,
+                      created_at=now, enqueued_at=now, updated_at=now, timings_json="{}")
         try:
             with self._tx() as conn:
                 conn.execute(jobs.insert().values(**values))

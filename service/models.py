@@ -79,7 +79,8 @@ def bake_out(job: Job) -> Bake:
         max_attempts=job.max_attempts, cancel_requested=job.cancel_requested,
         created_at=_ts(job.created_at), started_at=_ts(job.started_at),  # type: ignore[arg-type]
         finished_at=_ts(job.finished_at), timings=job.timings, error=error,
-        asset=AssetInfo(name=job.original_name or job.asset_name, sha256=job.asset_sha256, bytes=job.asset_bytes),
+        asset=AssetInfo(name=job.original_name or job.asset_name, sha256=job.asset_sha256,
+                        bytes=job.asset_bytes),
         spec_sha256=job.spec_sha256, content_key=job.content_key,
         links=Links(self=base, artifacts=f"{base}/artifacts", report=f"{base}/report"),
     )
