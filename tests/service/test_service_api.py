@@ -66,6 +66,26 @@ def test_submit_queues_and_identical_submission_returns_the_same_job(app_client)
     assert not list(c.settings.uploads.iterdir())
 
 
+def test_the_uploaded_file_name_is_kept_sanitised(app_client):
+    """Issue 14: the job keeps the name the asset was uploaded under (sanitised), and says
+    it in its JSON; the stored input keeps its fixed name."""
+    c = app_client()
+    r = post(c, CORNELL, name="../models/My Model (v2).GLB")
+    assert r.status_code == 202, r.text
+    body = r.json()
+    assert body["asset"]["name"] == "My_Model_v2_.glb"
+    assert c.get(f"/v1/bakes/{body['id']}").json()["asset"]["name"] == "My_Model_v2_.glb"
+    listed = c.get("/v1/bakes").json()["items"]
+    assert [j["asset"]["name"] for j in listed] == ["My_Model_v2_.glb"]
+    assert [p.name for p in (c.settings.artifacts / body["id"] / "input").iterdir()
+            if p.suffix == ".glb"] == ["asset.glb"]
+    from service.uploads import safe_filename
+
+    assert safe_filename("C:\\x\\..\\.hidden model.glb", ".glb") == "hidden_model.glb"
+    assert safe_filename("\x00\n.glb", ".glb") == "_.glb"
+    assert safe_filename("a" * 300 + ".gltf", ".gltf") == "a" * 115 + ".gltf"
+
+
 def test_idempotency_key(app_client):
     c = app_client()
     first = post(c, CORNELL, headers={"Idempotency-Key": "k-1"})

@@ -101,3 +101,26 @@ def test_cancel_requested_on_a_dead_workers_job_ends_cancelled(env):
     assert j.status == "cancelled" and j.error_code == "cancelled"
     again, created = new_job(store)  # its content may be baked again
     assert created and again.id != job.id
+
+
+def test_a_job_table_of_the_previous_version_gets_the_new_columns(tmp_path):
+    """original_name (issue 14) is added, nullable, to a table created without it; the
+    rows already there read back with None."""
+    import sqlalchemy as sa
+
+    from jobs.store import jobs
+
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    engine = sa.create_engine(url)
+    old = sa.MetaData()
+    sa.Table(jobs.name, old, *[sa.Column(c.name, c.type, primary_key=c.primary_key)
+                               for c in jobs.columns if c.name != "original_name"])
+    old.create_all(engine)
+    engine.dispose()
+    store = JobStore(url)
+    job, created = store.create(content_key="k", idempotency_key=None, asset_name="asset.glb",
+                                asset_sha256="a" * 64, asset_bytes=1, spec_json="{}",
+                                spec_sha256="s" * 64, max_attempts=2, original_name="duck.glb")
+    assert created and store.get(job.id).original_name == "duck.glb"
+    JobStore(url)  # opening again is a no-op
+    store.engine.dispose()
