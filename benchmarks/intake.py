@@ -21,10 +21,9 @@ sys.path.insert(0, str(ROOT))
 
 from prtcore.core.progress import StageTimer  # noqa: E402
 from prtcore.core.spec import parse_spec  # noqa: E402
+from prtcore.pipeline import INTAKE_STAGES as STAGES  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.scenes.cornell import write_cornell_box  # noqa: E402
-
-STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
 
 
 def main() -> int:

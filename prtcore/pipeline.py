@@ -17,6 +17,15 @@ from prtcore.intake.plan import Plan
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
 from prtcore.receivers.texels import TexelSpace
+from prtcore.transport.surface import STAGES as TRANSPORT_STAGES
+
+#: timed stages of :func:`run_intake`, in the order they run (repair, remesh and uv are
+#: the plan's prepare steps; each is run or recorded as skipped)
+INTAKE_STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
+
+#: every timed stage of :func:`bake`, in the order they run: the one list progress reports
+#: (the service's workers) and benchmarks use
+STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "fit", "report", "export")
 
 
 @dataclass(frozen=True)

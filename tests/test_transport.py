@@ -478,7 +478,7 @@ CORNELL_LIGHTS = [spot_light([0.0, 1.8, 0.3], [0.2, 0.0, -0.2], 0.6, 3.0),
 
 
 def asset_texels(path, resolution: int, padding: int = 2):
-    from prtcore.intake.prepare import generate_uv1
+    from prtcore.intake.uv import generate_uv1
     from prtcore.io.gltf.loader import load_asset
 
     scene = generate_uv1(load_asset(path), resolution, padding)

@@ -1,9 +1,9 @@
 """The planner: which stages an asset needs under a spec, and why (DESIGN 2).
 
-Cheap: it inspects the mesh (:func:`prtcore.intake.prepare.inspect_mesh`), checks TEXCOORD_1
-(:func:`prtcore.intake.prepare.check_uv1`, on the repaired mesh when repair will run) and looks at
-animations. The ``decide_*`` functions are the single place where prepare decisions are
-made; :func:`prtcore.intake.prepare.prepare_scene` calls the same ones.
+Cheap: it inspects the mesh (:func:`prtcore.intake.mesh.inspect_mesh`), checks TEXCOORD_1
+(:func:`prtcore.intake.uv.check_uv1`, on the repaired mesh when repair will run) and looks at
+animations. This is the single place where decisions are made;
+:func:`prtcore.intake.prepare.prepare_scene` executes the plan.
 
 >>> print(plan.format())                                    # doctest: +SKIP
 repair    skip — mesh clean
@@ -21,7 +21,8 @@ from dataclasses import dataclass
 from prtcore.core.errors import AssetError, SpecError
 from prtcore.core.scene import Scene
 from prtcore.core.spec import BakeSpec
-from prtcore.intake.prepare import MeshHealth, UVCheck, check_uv1, inspect_mesh, repair_scene
+from prtcore.intake.mesh import MeshHealth, inspect_mesh, repair_scene
+from prtcore.intake.uv import UVCheck, check_uv1
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,9 @@ from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_reg
 #: Gather rays that share one jittered origin (S = M / RAYS_PER_ORIGIN origins per texel);
 #: enough rays per origin to tell "inside geometry" (most rays hit back faces) from "sees
 #: the back of some open surface" (a few do).
+#: the timed stages of :func:`bake_dataset`, in the order they run
+STAGES = ("gather operator", "direct points", "direct texels", "near field", "indirect solve")
+
 RAYS_PER_ORIGIN = 4
 #: How far (in texels) the origins of a texel whose square only touches its triangle are
 #: moved from its sample into the triangle.

@@ -1,0 +1,34 @@
+"""The pipeline's stage list is the one a bake actually times (workers report progress by it)."""
+
+from __future__ import annotations
+
+from prtcore import STAGES
+from prtcore.core.progress import StageTimer
+from prtcore.core.spec import parse_spec
+from prtcore.pipeline import run_intake
+from prtcore.scenes.cornell import write_cornell_box
+
+
+def test_intake_times_its_stages_in_the_listed_order(tmp_path):
+    asset = write_cornell_box(tmp_path / "box.glb")
+    timer = StageTimer(quiet=True)
+    run_intake(asset, parse_spec({"atlas": {"resolution": 32, "padding": 2},
+                                  "measurement_points": {"count": 16}}), timer=timer)
+    seen = [s for s in timer.seconds if s in STAGES]
+    assert seen == sorted(seen, key=STAGES.index)
+    assert set(timer.seconds) <= set(STAGES), set(timer.seconds) - set(STAGES)
+
+
+def test_bake_times_its_stages_in_the_listed_order(tmp_path):
+    from prtcore import bake, read_manifest
+
+    asset = write_cornell_box(tmp_path / "box.glb")
+    spec = parse_spec({"atlas": {"resolution": 32, "padding": 2},
+                       "measurement_points": {"count": 16, "supersample": 2},
+                       "lights": {"count": 12, "holdout": 4, "families": [
+                           {"type": "point", "position": {"box": [[-0.5, 1.3, -0.5],
+                                                                  [0.5, 1.7, 0.5]]}}]},
+                       "transport": {"gather_rays": 8}, "fit": {"basis": 4}})
+    timings = read_manifest(bake(asset, spec, tmp_path / "b", quiet=True))["timings"]
+    assert list(timings) == sorted(timings, key=STAGES.index)
+    assert {"gather operator", "indirect solve", "fit", "report"} <= set(timings)
