@@ -200,3 +200,23 @@ class Cluster:
     def job_dir(self, job_id: str) -> Path:
         root = Path(self.env.get("PRT_ARTIFACTS_DIR") or self.data / "artifacts")
         return root / job_id
+
+
+def mark_succeeded(db_url: str, artifacts_root: Path, job_id: str) -> Path:
+    """Make a queued job ``succeeded`` with a small bundle on disk (manifest, one basis
+    file, the zip), without running a bake: routes that only serve finished jobs (the
+    artifact downloads and their name guard) can then be reached. Returns the bundle dir."""
+    from jobs import artifacts
+    from jobs.store import JobStore
+
+    store = JobStore(db_url)
+    claim = store.claim(job_id, "test", 60)
+    assert claim is not None, f"job {job_id} could not be claimed"
+    assert store.finish(job_id, claim.token, "succeeded")
+    bundle = artifacts.bundle_dir(artifacts_root, job_id)
+    bundle.mkdir(parents=True)
+    (bundle / "manifest.json").write_text('{"format": "test"}', encoding="utf-8")
+    (bundle / "basis_00.exr").write_bytes(b"\0" * 16)
+    artifacts.write_zip(bundle, artifacts.zip_path(artifacts_root, job_id))
+    store.engine.dispose()
+    return bundle

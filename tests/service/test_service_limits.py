@@ -4,10 +4,11 @@ sent verbatim on the wire never reach a file."""
 
 from __future__ import annotations
 
+import json
 import socket
 
 import pytest
-from service_harness import CORNELL, Cluster
+from service_harness import CORNELL, Cluster, mark_succeeded
 from test_bundle import TINY_SPEC
 
 
@@ -63,19 +64,50 @@ def test_declared_oversize_is_refused_before_reading(api_only):
         assert _recv_status(s).startswith("HTTP/1.1 413")
 
 
-@pytest.mark.parametrize("raw", ["../../jobs.db", "..%2F..%2Fjobs.db", "../input/asset.glb",
-                                 "%2e%2e/%2e%2e/queue.db", "..\\..\\jobs.db"])
-def test_raw_traversal_paths_never_serve_a_file(api_only, raw):
+@pytest.fixture(scope="module")
+def succeeded_job(api_only):
+    """A job of the running API marked succeeded with a bundle on disk: the artifact route
+    answers 409 ``not_ready`` for every name of an unfinished job, so only a finished one
+    reaches the name guard."""
+    from jobs.config import Settings
+
     c = api_only
-    r = c.submit(TINY_SPEC, asset=CORNELL)
-    job_id = r.json()["id"]
+    job_id = c.submit(TINY_SPEC, asset=CORNELL).json()["id"]
+    settings = Settings(data_dir=c.data)
+    mark_succeeded(settings.db_url, settings.artifacts, job_id)
+    assert c.client.get(f"/v1/bakes/{job_id}/artifacts/manifest.json").status_code == 200
+    return job_id
+
+
+def _raw_get(c: Cluster, path: str) -> tuple[int, bytes]:
+    """``GET path`` sent verbatim on the wire (no client normalisation of ``..``)."""
     with socket.create_connection(("127.0.0.1", c.port), timeout=30) as s:
-        s.sendall(f"GET /v1/bakes/{job_id}/artifacts/{raw} HTTP/1.1\r\nHost: x\r\n"
-                  f"Connection: close\r\n\r\n".encode())
+        s.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n".encode())
         data = b""
         while chunk := s.recv(65536):
             data += chunk
-    status = data.split(b"\r\n", 1)[0].decode()
-    code = int(status.split()[1])
-    assert 400 <= code < 500, status
-    assert b"SQLite format" not in data and b"glTF" not in data
+    head, _, body = data.partition(b"\r\n\r\n")
+    return int(head.split(b"\r\n", 1)[0].split()[1]), body
+
+
+#: Reach the route (no decoded "/"): the guard must answer exactly 400 bad_name.
+GUARDED = ["..", "...", "%2e%2e", "%2E%2E", ".%2e", "..\\..\\jobs.db", "..%5c..%5cjobs.db",
+           "%5cetc%5cpasswd", "C:%5Cjobs.db", "%00", "manifest.json%00", "a%00b",
+           "..%252f..%252fjobs.db", ".hidden"]
+#: Carry a "/" once decoded (raw, %2f, absolute): no route matches, the router's 404.
+UNROUTED = ["../../jobs.db", "..%2F..%2Fjobs.db", "..%2fmanifest.json",
+            "%2e%2e/%2e%2e/queue.db", "%2e%2e%2f%2e%2e%2finput%2fasset.glb", "/etc/passwd",
+            "%2Fetc%2Fpasswd", "%2F%2Fjobs.db", "a%2Fb"]
+
+
+@pytest.mark.parametrize("raw", GUARDED)
+def test_raw_traversal_names_meet_the_guard(api_only, succeeded_job, raw):
+    code, body = _raw_get(api_only, f"/v1/bakes/{succeeded_job}/artifacts/{raw}")
+    assert code == 400, (raw, code, body[:200])
+    assert json.loads(body)["error"]["code"] == "bad_name"
+
+
+@pytest.mark.parametrize("raw", UNROUTED)
+def test_raw_traversal_paths_match_no_route(api_only, succeeded_job, raw):
+    code, body = _raw_get(api_only, f"/v1/bakes/{succeeded_job}/artifacts/{raw}")
+    assert (code, json.loads(body)) == (404, {"detail": "Not Found"}), (raw, code, body[:200])
