@@ -8,9 +8,12 @@ Goldens: ``tests/goldens/*.png``, tone-mapped 8-bit renders ≤ 256×256. A gold
 when at most GOLDEN_OUTLIERS of the pixels differ from the golden by more than
 GOLDEN_TOLERANCE (8-bit levels, any channel) — room for driver differences in float
 rounding, bilinear weights and shadow-map edges, far below what a broken pass changes.
-A failure writes ``tests/_failures/<name>_{output,golden,diff}.png``. Regenerate with
-``PRT_REGEN_GOLDENS=1 pytest tests/test_render.py`` (and look at the images before
-committing them).
+A failure writes ``tests/_failures/<name>_{output,golden,diff}.png``. The tests always
+compare; no environment variable turns that off. Regeneration is a separate command,
+``.venv/bin/python scripts/regen_goldens.py``: it renders every golden view (the renders
+reach it through ``PRT_GOLDEN_RENDERS=DIR``, which only adds a copy of each output), writes
+the new goldens and a before/after/difference report under ``tests/_golden_report/`` —
+look at it, and commit the report's images' verdict with the goldens.
 """
 
 from __future__ import annotations
@@ -419,15 +422,15 @@ def test_direct_view_matches_ray_traced_direct(cornell, name):
 # Golden images
 
 
-def _golden(name: str, rgb8: np.ndarray) -> None:
-    """Compare with tests/goldens/<name>.png (see the module docstring)."""
+def _golden(name: str, rgb8: np.ndarray, goldens: Path = GOLDENS) -> None:
+    """Compare with tests/goldens/<name>.png (see the module docstring). Always compares;
+    ``PRT_GOLDEN_RENDERS=DIR`` (scripts/regen_goldens.py) also saves the output there."""
     assert rgb8.dtype == np.uint8 and max(rgb8.shape[:2]) <= 256
-    path = GOLDENS / f"{name}.png"
-    if os.environ.get("PRT_REGEN_GOLDENS") == "1":
-        GOLDENS.mkdir(exist_ok=True)
-        write_png(path, rgb8)
-        return
-    assert path.is_file(), f"{path} missing: regenerate with PRT_REGEN_GOLDENS=1"
+    if renders := os.environ.get("PRT_GOLDEN_RENDERS"):
+        Path(renders).mkdir(parents=True, exist_ok=True)
+        write_png(Path(renders) / f"{name}.png", rgb8)
+    path = goldens / f"{name}.png"
+    assert path.is_file(), f"{path} missing: create it with scripts/regen_goldens.py"
     ok, message, diff = compare_to_golden(rgb8, np.round(read_image(path) * 255).astype(
         np.uint8))
     if not ok:
@@ -438,6 +441,25 @@ def _golden(name: str, rgb8: np.ndarray) -> None:
         if diff is not None:
             write_png(FAILURES / f"{name}_diff.png", diff)
         pytest.fail(f"{name}: {message} (images in {FAILURES})")
+
+
+@pytest.mark.parametrize("env", [{}, {"PRT_REGEN_GOLDENS": "1"}, {"PRT_UPDATE_GOLDENS": "1"},
+                                 {"PRT_GOLDEN_RENDERS": "renders"}])
+def test_golden_check_always_compares(tmp_path, monkeypatch, env):
+    """No environment turns the golden comparison into a pass or overwrites a golden: a
+    render unlike the golden fails, and the golden file is left as it was."""
+    for k, v in env.items():
+        monkeypatch.setenv(k, str(tmp_path / v) if k == "PRT_GOLDEN_RENDERS" else v)
+    rng = np.random.default_rng(1)
+    golden = rng.integers(0, 256, (16, 16, 3)).astype(np.uint8)
+    write_png(tmp_path / "g.png", golden)
+    before = (tmp_path / "g.png").read_bytes()
+    with pytest.raises(pytest.fail.Exception, match="pixels differ"):
+        _golden("g", 255 - golden, goldens=tmp_path)
+    assert (tmp_path / "g.png").read_bytes() == before
+    _golden("g", golden, goldens=tmp_path)  # and an equal render passes
+    with pytest.raises(AssertionError, match="missing"):
+        _golden("absent", golden, goldens=tmp_path)
 
 
 def compare_to_golden(out: np.ndarray, golden: np.ndarray) -> tuple[bool, str, np.ndarray | None]:
