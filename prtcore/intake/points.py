@@ -10,11 +10,12 @@ import trimesh
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at
 from prtcore.core.progress import StageTimer
 from prtcore.core.scene import Scene
 from prtcore.core.spec import PointsSpec
-from prtcore.core.tolerances import DEGENERATE_AREA_REL, NORMAL_EPS
+from prtcore.core.tolerances import DEGENERATE_AREA_REL
 
 
 @dataclass(frozen=True)
@@ -346,7 +347,7 @@ class _SurfaceSampler:
                    pos: np.ndarray) -> dict[str, np.ndarray]:
         """Per-sample arrays keyed like MeasurementPoints' fields (tri indexes ``faces``)."""
         scene = self.scene
-        return {"position": pos, "normal": _shading_normals(scene, tri, bary),
+        return {"position": pos, "normal": shading_normals(scene, tri, bary),
                 "albedo": albedo_at(scene, tri, bary), "triangle": tri, "barycentric": bary}
 
 
@@ -453,15 +454,3 @@ class _Proximity:
         order = np.lexsort((fi, d, qi))
         first = order[np.searchsorted(qi[order], np.arange(n), side="left")]
         return pts[first], fi[first]
-
-
-def _shading_normals(scene: Scene, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """(n, 3) unit interpolated vertex normals; the geometric face normal where they cancel."""
-    n = np.einsum("nk,nkj->nj", bary, scene.normals[scene.faces[tri]])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    good = length[:, 0] > NORMAL_EPS
-    v = scene.positions[scene.faces[tri]]
-    out = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])  # non-degenerate faces only
-    out /= np.linalg.norm(out, axis=1, keepdims=True)
-    out[good] = n[good] / length[good]
-    return out

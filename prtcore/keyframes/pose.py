@@ -166,7 +166,7 @@ def pose_scene(scene: Scene, world: np.ndarray) -> Scene:
     Faces, UVs and materials are unchanged. Raises :class:`PrtError` for a scene without
     instance records (nothing to re-pose from).
     """
-    from prtcore.io.gltf.loader import _normalize_rows, normal_matrix
+    from prtcore.io.gltf.nodes import normal_matrix, normalize_rows
 
     if not scene.instances:
         raise PrtError(f"{scene.source}: no primitive instances recorded, cannot pose it")
@@ -193,7 +193,7 @@ def pose_scene(scene: Scene, world: np.ndarray) -> Scene:
             m = world[inst.node]
             pos[v0:v1] = op @ m[:3, :3].T + m[:3, 3]
             nrm[v0:v1] = on @ normal_matrix(m[:3, :3]).T
-        nrm[v0:v1] = _normalize_rows(nrm[v0:v1])
+        nrm[v0:v1] = normalize_rows(nrm[v0:v1])
     return dataclasses.replace(scene, positions=pos, normals=nrm)
 
 
@@ -201,14 +201,15 @@ def pose_texels(texels: TexelSpace, posed: Scene) -> TexelSpace:
     """The rest pose's texels on the posed scene: same texels, triangles, barycentrics,
     albedo and coverage; positions, shading / geometric normals and footprints recomputed
     (the posed scene must keep the rest pose's faces and TEXCOORD_1)."""
-    from prtcore.receivers.texels import _face_frames, _shading_normals
+    from prtcore.core.geometry import shading_normals
+    from prtcore.receivers.texels import face_frames
 
     tri = texels.triangle
     position = np.einsum("nk,nkj->nj", texels.barycentric, posed.positions[posed.faces[tri]])
     owners, row = np.unique(tri, return_inverse=True)
-    gn, fp = _face_frames(posed, owners, texels.width, texels.height)
+    gn, fp = face_frames(posed, owners, texels.width, texels.height)
     gnormal, footprint = gn[row], fp[row]
-    normal = _shading_normals(posed, tri, texels.barycentric, gnormal)
+    normal = shading_normals(posed, tri, texels.barycentric, gnormal)
     return dataclasses.replace(texels, position=position, normal=normal,
                                geometric_normal=gnormal, footprint=footprint)
 
@@ -220,12 +221,12 @@ def pose_points(points: MeasurementPoints, rest: Scene, posed: Scene) -> Measure
     (not on the surface) move by the displacement of their closest surface point and keep
     their normal, as the placement documents.
     """
-    from prtcore.intake.points import _shading_normals
+    from prtcore.core.geometry import shading_normals
 
     def move(p, n, tri, bary):
         at_posed = np.einsum("nk,nkj->nj", bary, posed.positions[posed.faces[tri]])
         if points.placement == "surface":
-            return at_posed, _shading_normals(posed, tri, bary)
+            return at_posed, shading_normals(posed, tri, bary)
         at_rest = np.einsum("nk,nkj->nj", bary, rest.positions[rest.faces[tri]])
         return p + (at_posed - at_rest), n
 

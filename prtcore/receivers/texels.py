@@ -18,10 +18,11 @@ import numpy as np
 from scipy import ndimage
 
 from prtcore.core.errors import AssetError, SpecError
+from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at
 from prtcore.core.progress import StageTimer
 from prtcore.core.scene import Scene
-from prtcore.core.tolerances import BARY_EPS, DEGENERATE_AREA_REL, NORMAL_EPS, UV_TEXEL_EPS
+from prtcore.core.tolerances import BARY_EPS, DEGENERATE_AREA_REL, UV_TEXEL_EPS
 
 
 @dataclass(frozen=True)
@@ -365,7 +366,7 @@ def _closest_on_triangle(px: np.ndarray, py: np.ndarray, cx: np.ndarray, cy: np.
     return bary
 
 
-def _face_frames(scene: Scene, faces: np.ndarray, width: int, height: int):
+def face_frames(scene: Scene, faces: np.ndarray, width: int, height: int):
     """Unit geometric normals (k, 3) and texel-step footprints (k, 2, 3) of faces (k,).
 
     footprint[:, 0] = dP/dx, footprint[:, 1] = dP/dy for one texel step, from the face's
@@ -387,17 +388,6 @@ def _face_frames(scene: Scene, faces: np.ndarray, width: int, height: int):
     footprint[:, 0] = (e1 * t2[:, 1:2] - e2 * t1[:, 1:2]) * inv
     footprint[:, 1] = (e2 * t1[:, 0:1] - e1 * t2[:, 0:1]) * inv
     return gn, footprint
-
-
-def _shading_normals(scene: Scene, tri: np.ndarray, bary: np.ndarray,
-                     gn: np.ndarray) -> np.ndarray:
-    """Interpolated vertex normals (n, 3), normalised; the geometric normal ``gn`` (n, 3)
-    where they vanish; negated where they point away from ``gn``'s hemisphere."""
-    sn = np.einsum("nk,nkj->nj", bary, scene.normals[scene.faces[tri]])
-    sl = np.linalg.norm(sn, axis=1)
-    good = sl > NORMAL_EPS
-    sn = np.where(good[:, None], sn / np.where(good, sl, 1.0)[:, None], gn)
-    return np.where(((sn * gn).sum(axis=1) < 0)[:, None], -sn, sn)
 
 
 def _dilation(covered: np.ndarray, padding: int) -> tuple[np.ndarray, np.ndarray]:
@@ -552,14 +542,14 @@ def _build(scene: Scene, width: int, height: int, padding: int,
     row[tri] = 1
     owners = np.flatnonzero(row)
     row[owners] = np.arange(len(owners))
-    face_gn, face_fp = _face_frames(scene, owners, width, height)
+    face_gn, face_fp = face_frames(scene, owners, width, height)
     gnormal = face_gn[row[tri]]
     footprint = face_fp[row[tri]]
     del face_gn, face_fp, row
     normal = np.empty((n, 3))
     albedo = np.empty((n, 3))
     for s in _blocks(n):
-        normal[s] = _shading_normals(scene, tri[s], bary[s], gnormal[s])
+        normal[s] = shading_normals(scene, tri[s], bary[s], gnormal[s])
         albedo[s] = albedo_at(scene, tri[s], bary[s])
     return TexelSpace(
         width=width, height=height, xy=xy, position=position, normal=normal,

@@ -210,12 +210,8 @@ def reference_image(scene: Scene, lights: Sequence[Light], camera: Camera, spp: 
     are exactly that point). No buried-origin probes: a point the camera sees is outside
     geometry. spp : paths per pixel.
     """
-    from prtcore.reference.pathtracer import (
-        default_tracer,
-        reference_direct,
-        reference_lightmaps,
-        shading_normals,
-    )
+    from prtcore.core.geometry import shading_normals
+    from prtcore.reference.pathtracer import default_tracer, reference_direct, reference_lightmaps
 
     tracer = tracer if tracer is not None else default_tracer(scene)
     h, w = camera.height, camera.width

@@ -63,11 +63,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prtcore.core.geometry import orthonormal_frame, shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
-from prtcore.core.tolerances import NORMAL_EPS
 from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.receivers.texels import TexelRegions, TexelSpace, sample_texel_regions, texel_regions
 
@@ -87,21 +87,9 @@ def default_tracer(scene: Scene) -> RayTracer:
     return RayTracer(scene.positions, scene.faces, scene.radius)
 
 
-def _frame(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents completing each unit normal (n, 3) to an orthonormal basis
-    (Duff et al. 2017, "Building an orthonormal basis, revisited")."""
-    nx, ny, nz = normals[:, 0], normals[:, 1], normals[:, 2]
-    sign = np.where(nz >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    t = np.stack([1.0 + sign * nx * nx * a, sign * b, -sign * nx], axis=1)
-    s = np.stack([b, sign + ny * ny * a, -ny], axis=1)
-    return t, s
-
-
 def _around(axes: np.ndarray, cos_theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """Unit directions at polar angle acos(cos_theta) and azimuth phi about unit axes."""
-    t, s = _frame(axes)
+    t, s = orthonormal_frame(axes)
     sin_theta = np.sqrt(np.clip(1.0 - cos_theta * cos_theta, 0.0, None))
     d = ((sin_theta * np.cos(phi))[:, None] * t + (sin_theta * np.sin(phi))[:, None] * s
          + cos_theta[:, None] * axes)
@@ -115,22 +103,6 @@ def cosine_directions(normals: np.ndarray, u: np.ndarray) -> np.ndarray:
     Returns (n, 3) float64 unit directions with pdf ``cosθ/π``.
     """
     return _around(normals, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)), 2.0 * math.pi * u[:, 1])
-
-
-def shading_normals(scene: Scene, triangle: np.ndarray, barycentric: np.ndarray,
-                    face_normals: np.ndarray) -> np.ndarray:
-    """Interpolated vertex normals at surface points, facing the front of their face.
-
-    triangle : (n,) int64; barycentric : (n, 3) float64; face_normals : (n, 3) float64
-    unit geometric normals of those faces. Where the interpolated normal is degenerate or
-    points to the back of the face, the geometric normal is used. Returns (n, 3) float64.
-    """
-    ns = np.einsum("nk,nkj->nj", barycentric, scene.normals[scene.faces[triangle]])
-    ln = np.linalg.norm(ns, axis=1)
-    ok = (ln > NORMAL_EPS) & (np.einsum("ij,ij->i", ns, face_normals) > 0)
-    out = face_normals.copy()
-    out[ok] = ns[ok] / ln[ok, None]
-    return out
 
 
 def direct_irradiance(lights: Sequence[Light], points: np.ndarray, normals: np.ndarray,
@@ -217,7 +189,7 @@ class LightSampler:
         phi = 2.0 * math.pi * u[:, 1]
         if self.light.type == "directional":
             axis = np.broadcast_to(self._axis(), (n, 3))
-            t, s = _frame(np.ascontiguousarray(axis))
+            t, s = orthonormal_frame(np.ascontiguousarray(axis))
             r = self.disk_radius * np.sqrt(u[:, 0])
             origin = (self.disk_centre - 2.0 * self.disk_radius * axis
                       + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * s)

@@ -220,7 +220,7 @@ void main() {
     vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
     if (dot(ng, eye - v_pos) < 0.0) ng = -ng;
     vec3 n = normalize(v_nrm);
-    if (!(dot(n, ng) > 0.0)) n = ng;  // as prtcore.reference.pathtracer.shading_normals
+    if (!(dot(n, ng) > 0.0)) n = ng;  // as prtcore.core.geometry.shading_normals
     vec3 col = vec3(0.0);
     if ((mode & 1) != 0) {
         vec3 albedo = base_color.rgb;

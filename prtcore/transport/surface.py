@@ -55,6 +55,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from prtcore.core.geometry import orthonormal_frame, shading_normals
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
@@ -208,18 +209,6 @@ class Gather:
 
 # ---------------------------------------------------------------------------------------
 # Sampling helpers
-
-
-def _frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents completing unit normals n (m, 3) to an orthonormal frame
-    (Duff et al. 2017, branchless)."""
-    nx, ny, nz = n[:, 0], n[:, 1], n[:, 2]
-    sign = np.where(nz >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    t = np.stack([1.0 + sign * nx * nx * a, sign * b, -sign * nx], axis=1)
-    s = np.stack([b, sign + ny * ny * a, -ny], axis=1)
-    return t, s
 
 
 def fibonacci_lattice(count: int, shift: np.ndarray) -> np.ndarray:
@@ -439,7 +428,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     geo = geo * np.where(np.einsum("ij,ij->i", shade, geo) < 0, -1.0, 1.0)[:, None]
     start = offset_origins(origins.reshape(-1, 3), np.repeat(geo, s, axis=0),
                            tracer.scale).reshape(t, s, 3)
-    tan, bit = _frame(shade)
+    tan, bit = orthonormal_frame(shade)
     # frame rows (tangent, bitangent, normal) in float32 for the Embree-bound directions
     frame = np.stack([tan, bit, shade], axis=1).astype(np.float32)  # (T, 3, 3)
     up = np.einsum("tij,tj->ti", np.stack([tan, bit, shade], axis=1), geo)  # (T, 3)
@@ -671,7 +660,6 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
     (r, K, 3) float32; :func:`solve_indirect` adds them to the first bounce.
     """
     from prtcore.core.materials import albedo_at
-    from prtcore.receivers.texels import _shading_normals
 
     k = direct_texels.shape[1]
     rows = np.unique(near.row)
@@ -684,7 +672,7 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
         sl = slice(a, a + NEAR_CHUNK)
         tri, bary = near.triangle[sl], near.barycentric[sl]
         point = tracer.surface_point(tri, bary)
-        normal = _shading_normals(scene, tri, bary, tracer.face_normals[tri])
+        normal = shading_normals(scene, tri, bary, tracer.face_normals[tri])
         ld = direct_radiance(scene, tracer, lights, point, normal, albedo_at(scene, tri, bary))
         ld -= direct_texels[near.col[sl]]
         ld *= near.weight[sl, None, None]
