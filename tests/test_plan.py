@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import re
 import time
 
@@ -15,8 +14,6 @@ from prtcore.core.scene import Animation, AnimationChannel, Material, PrimitiveI
 from prtcore.core.spec import parse_spec
 from prtcore.intake.plan import Plan, StagePlan, plan_asset
 from prtcore.intake.prepare import prepare_scene
-
-ASSETS = "/work/shared/assets"
 
 
 def make_scene(pos, faces, uv1=None, animations=()) -> Scene:
@@ -177,11 +174,9 @@ def test_prepare_follows_the_plan(make):
     assert "inspect" not in rep2.seconds and out2.uv1 is not None
 
 
-@pytest.mark.skipif(not os.path.exists(f"{ASSETS}/CesiumMilkTruck.glb"),
-                    reason="shared test assets not available")
-def test_truck_plan_is_cheap():
+def test_truck_plan_is_cheap(shared_assets):
     from prtcore.io.gltf.loader import load_asset
-    s = load_asset(f"{ASSETS}/CesiumMilkTruck.glb")
+    s = load_asset(shared_assets / "CesiumMilkTruck.glb")
     t0 = time.perf_counter()
     plan = plan_asset(s, parse_spec({}))
     assert time.perf_counter() - t0 < 2.0

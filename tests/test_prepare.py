@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -16,9 +15,6 @@ from prtcore.core.spec import parse_spec
 from prtcore.intake.mesh import inspect_mesh, remesh_scene, repair_scene
 from prtcore.intake.prepare import PrepareReport, prepare_scene
 from prtcore.intake.uv import check_uv1, generate_uv1, rasterise_uv
-
-ASSETS = "/work/shared/assets"
-
 
 # ---------------------------------------------------------------------------------------
 # Scene builders and invariant checks (independent of prtcore.io.gltf.loader)
@@ -529,11 +525,9 @@ def test_prepare_with_remesh_generates_uv1():
 # Real assets
 
 
-@pytest.mark.skipif(not os.path.exists(f"{ASSETS}/CesiumMilkTruck.glb"),
-                    reason="shared test assets not available")
-def test_cesium_milk_truck_at_512():
+def test_cesium_milk_truck_at_512(shared_assets):
     from prtcore.io.gltf.loader import load_asset
-    s = load_asset(f"{ASSETS}/CesiumMilkTruck.glb")
+    s = load_asset(shared_assets / "CesiumMilkTruck.glb")
     t0 = time.perf_counter()
     out, rep = prepare_scene(s, spec(resolution=512, padding=4))
     seconds = time.perf_counter() - t0
@@ -552,11 +546,10 @@ def test_cesium_milk_truck_at_512():
     assert seconds < 20.0  # a few seconds on a quiet machine (xatlas in a child process)
 
 
-def test_trimesh_loaded_duck_uv1():
+def test_trimesh_loaded_duck_uv1(shared_assets):
     """Extra geometry check with an asset loaded by trimesh (no prtcore.io.gltf.loader)."""
-    path = f"{ASSETS}/Duck.glb"
-    if not os.path.exists(path):
-        pytest.skip("shared test assets not available")
+    path = shared_assets / "Duck.glb"
+    assert path.is_file(), f"{path} missing from the shared assets"
     mesh = trimesh.load(path, force="mesh")
     s = make_scene([(np.array(mesh.vertices), np.array(mesh.faces))])
     out = generate_uv1(s, 256, 2)
