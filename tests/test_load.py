@@ -35,7 +35,8 @@ from hostile_assets import (
     wrong_magic_asset,
 )
 
-import prtcore.io.gltf.loader as load_mod
+import prtcore.io.gltf.animation
+import prtcore.io.gltf.meshes
 from prtcore.core.errors import AssetError, LimitExceeded, UnsupportedAsset
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.materials import albedo_at, srgb_to_linear
@@ -50,6 +51,12 @@ def quat(axis, angle):
     return np.append(axis * np.sin(angle / 2), np.cos(angle / 2))
 
 
+def forbid_decoding(monkeypatch, replacement):
+    """Replace ``read_accessor`` in every loader module that decodes accessors."""
+    for mod in (prtcore.io.gltf.meshes, prtcore.io.gltf.animation):
+        monkeypatch.setattr(mod, "read_accessor", replacement)
+
+
 @pytest.fixture
 def no_decode(monkeypatch):
     """Fail the test if any accessor is decoded (limits must trip before allocation)."""
@@ -57,7 +64,7 @@ def no_decode(monkeypatch):
     def boom(*args, **kwargs):  # pytest.fail is a BaseException: the loader cannot wrap it
         pytest.fail("an accessor was decoded before the refusal")
 
-    monkeypatch.setattr(load_mod, "read_accessor", boom)
+    forbid_decoding(monkeypatch, boom)
 
 
 @pytest.fixture
@@ -642,7 +649,7 @@ def test_zero_triangles(tmp_path):
 def test_triangles_over_limit_counts_instances(tmp_path, monkeypatch):
     path = instanced_asset(tmp_path, copies=3)
     assert load_asset(path, IntakeLimits(max_triangles=3)).triangle_count == 3
-    monkeypatch.setattr(load_mod, "read_accessor", lambda *a, **k: pytest.fail("decoded"))
+    forbid_decoding(monkeypatch, lambda *a, **k: pytest.fail("decoded"))
     msg = refused(path, LimitExceeded, IntakeLimits(max_triangles=2))
     assert "scenes[0]" in msg and "max_triangles=2" in msg and "3 triangles" in msg
     msg = refused(path, LimitExceeded, IntakeLimits(max_vertices=8))
