@@ -33,14 +33,27 @@ def small_bundle(tmp_path_factory):
     return pipeline.bake(CORNELL, parse_spec(SMALL_SPEC), out, quiet=True)
 
 
+#: Noise-corrected relative RMSE of SMALL_SPEC's bundle against the path tracer (held-out
+#: lights 0 and 1, 32 spp, seed 1): measured 0.125 (n = 4) and 0.118 (n = 8); seeds 2 and 3
+#: give 0.118–0.131, and 4 lights at 256 spp 0.135 / 0.128 (the 48² atlas and 32 gather
+#: rays, not the fit, set this floor). Bound: the measurement + 30 % margin.
+VALIDATE_RMSE = {4: 0.16, 8: 0.16}
+#: The reference's own relative noise at 32 spp: measured 0.171 (seeds 1–3: 0.163–0.173).
+VALIDATE_NOISE = 0.22
+
+
 def test_validation_of_held_out_lights(small_bundle):
     v = validate_bundle(small_bundle, spp=32, count=2, seed=1)
     assert v["lights"] == 2 and v["light_source"] == "held-out"
     assert [r["n"] for r in v["rows"]] == [4, 8]
     for r in v["rows"]:
-        # finite, plausible, and the noise correction can only lower the error
-        assert 0.0 < r["rmse_noise_corrected_mean"] <= r["rmse_mean"] < 0.6, r
-    assert 0.0 < v["reference_noise_mean"] < 0.5
+        # the reference noise removed (rmse² − noise²), not allowed for: what the method
+        # achieves plus the stated margin; the correction can only lower the error
+        assert 0.0 < r["rmse_noise_corrected_mean"] <= r["rmse_mean"], r
+        assert r["rmse_noise_corrected_mean"] <= VALIDATE_RMSE[r["n"]], r
+        # the raw error cannot be below the noise it contains
+        assert r["rmse_mean"] >= 0.9 * v["reference_noise_mean"], (r, v["reference_noise_mean"])
+    assert 0.0 < v["reference_noise_mean"] < VALIDATE_NOISE, v["reference_noise_mean"]
     # more elements fit better (on the mean over lights: the reference noise is shared)
     assert v["rows"][1]["rmse_mean"] <= v["rows"][0]["rmse_mean"] * 1.05
     text = format_validation(v)
