@@ -45,7 +45,7 @@ if str(ROOT) not in sys.path:
 from prtcore.core.progress import StageTimer  # noqa: E402
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
-from prtcore.emitters.punctual import sample_configurations  # noqa: E402
+from prtcore.emitters.families import sample_configurations  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.reference.pathtracer import reference_lightmaps  # noqa: E402
 from prtcore.scenes.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402

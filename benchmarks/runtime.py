@@ -37,7 +37,7 @@ if str(ROOT) not in sys.path:
 
 from prtcore import pipeline  # noqa: E402
 from prtcore.core.spec import parse_spec  # noqa: E402
-from prtcore.emitters.punctual import load_light_file  # noqa: E402
+from prtcore.emitters.lightfile import load_light_file  # noqa: E402
 from prtcore.reference.camera import load_camera  # noqa: E402
 from prtcore.runtime.gl import BundleRenderer, gpu_runtime_table  # noqa: E402
 from prtcore.scenes.cornell import EXAMPLE_SPEC  # noqa: E402

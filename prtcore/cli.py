@@ -71,7 +71,7 @@ def _cmd_reference(args: argparse.Namespace) -> int:
 
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
-    from prtcore.emitters.punctual import load_light_file
+    from prtcore.emitters.lightfile import load_light_file
     from prtcore.io.bundle import load_runtime, read_manifest
     from prtcore.io.gltf.loader import load_asset
     from prtcore.io.imageio import write_exr
@@ -131,7 +131,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise PrtError("report: --light needs --reference-spp N (the path tracer's samples "
                        "per texel)")
     if args.gpu:
-        from prtcore.emitters.punctual import load_light_file
+        from prtcore.emitters.lightfile import load_light_file
         from prtcore.report import merge_gpu_columns
         from prtcore.runtime.gl import BundleRenderer, gpu_runtime_table
 

@@ -104,7 +104,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
     from prtcore.core.materials import clamp_albedo
     from prtcore.core.spec import spec_hash, spec_to_dict
-    from prtcore.emitters.punctual import sample_configurations, save_light_file
+    from prtcore.emitters.families import sample_configurations
+    from prtcore.emitters.lightfile import save_light_file
     from prtcore.fit.transfer import fit_transfer
     from prtcore.io.bundle import (
         RUNTIME_FORMULA,
@@ -332,7 +333,7 @@ def reference_to_exr(source: str | Path, light_path: str | Path, out: Path, *, s
                      quiet: bool = False) -> Path:
     """``prtcore reference``: the path-traced indirect lightmap as an RGBA EXR."""
     from prtcore.core.errors import PrtError
-    from prtcore.emitters.punctual import load_light_file
+    from prtcore.emitters.lightfile import load_light_file
     from prtcore.io.imageio import write_exr
     from prtcore.receivers.texels import texels_to_image
     from prtcore.reference.pathtracer import reference_lightmap

@@ -13,15 +13,11 @@ from prtcore.core.errors import LightFileError
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import (
-    irradiance,
-    load_light_file,
-    range_window,
-    sample_configurations,
-    save_light_file,
-    spot_factor,
-    unshadowed_irradiance,
-)
+from prtcore.emitters.families import sample_configurations
+from prtcore.emitters.lightfile import load_light_file, save_light_file
+from prtcore.emitters.point import range_window
+from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
+from prtcore.emitters.spot import spot_factor
 
 UP = np.array([0.0, 1.0, 0.0])
 
@@ -334,7 +330,7 @@ def test_directional_lights_have_no_range(tmp_path):
     import json
 
     from prtcore.core.errors import LightFileError
-    from prtcore.emitters.punctual import load_light_file
+    from prtcore.emitters.lightfile import load_light_file
 
     p = tmp_path / "sun.json"
     p.write_text(json.dumps({"type": "directional", "direction": [0, -1, 0], "range": 5}))

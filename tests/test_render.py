@@ -30,12 +30,8 @@ from prtcore import pipeline
 from prtcore.cli import main
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import (
-    irradiance,
-    light_from_dict,
-    load_light_file,
-    unshadowed_irradiance,
-)
+from prtcore.emitters.lightfile import light_from_dict, load_light_file
+from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.io.imageio import read_image, write_png
 from prtcore.reference.camera import Camera, CameraFileError, camera_from_dict, load_camera
 from prtcore.report import format_table, merge_gpu_columns

@@ -4,7 +4,8 @@
   points, keyframe poses, the near field, the path tracer and the GLSL renderer all follow
   this rule);
 * :func:`face_normals` — unit geometric normals of triangles;
-* :func:`orthonormal_frame` — tangents completing a unit normal to a frame.
+* :func:`orthonormal_frame` — tangents completing a unit normal to a frame;
+* :func:`directions_around` — directions at given polar angles about axes.
 """
 
 from __future__ import annotations
@@ -55,3 +56,13 @@ def orthonormal_frame(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.stack([1.0 + sign * nx * nx * a, sign * b, -sign * nx], axis=1)
     s = np.stack([b, sign + ny * ny * a, -ny], axis=1)
     return t, s
+
+
+def directions_around(axes: np.ndarray, cos_theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Unit directions (n, 3) at polar angle acos(cos_theta) and azimuth phi (n,) about
+    unit axes (n, 3)."""
+    t, s = orthonormal_frame(axes)
+    sin_theta = np.sqrt(np.clip(1.0 - cos_theta * cos_theta, 0.0, None))
+    d = ((sin_theta * np.cos(phi))[:, None] * t + (sin_theta * np.sin(phi))[:, None] * s
+         + cos_theta[:, None] * axes)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)

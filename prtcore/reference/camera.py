@@ -249,7 +249,7 @@ def reference_view_to_exr(source: str | Path, light_path: str | Path, camera_pat
     """``prtcore reference SRC --camera CAM``: the path-traced view as an RGBA float EXR
     (component "full" = direct + indirect, "direct" or "indirect"). SRC: a bundle
     directory (its asset.glb, the scene a render of that bundle draws) or an asset file."""
-    from prtcore.emitters.punctual import load_light_file
+    from prtcore.emitters.lightfile import load_light_file
     from prtcore.io.gltf.loader import load_asset
     from prtcore.io.imageio import write_exr
 

@@ -63,11 +63,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prtcore.core.geometry import orthonormal_frame, shading_normals
+from prtcore.core.geometry import directions_around, shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
+from prtcore.emitters.base import emitter_for
 from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.receivers.texels import TexelRegions, TexelSpace, sample_texel_regions, texel_regions
 
@@ -87,22 +88,14 @@ def default_tracer(scene: Scene) -> RayTracer:
     return RayTracer(scene.positions, scene.faces, scene.radius)
 
 
-def _around(axes: np.ndarray, cos_theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """Unit directions at polar angle acos(cos_theta) and azimuth phi about unit axes."""
-    t, s = orthonormal_frame(axes)
-    sin_theta = np.sqrt(np.clip(1.0 - cos_theta * cos_theta, 0.0, None))
-    d = ((sin_theta * np.cos(phi))[:, None] * t + (sin_theta * np.sin(phi))[:, None] * s
-         + cos_theta[:, None] * axes)
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
 def cosine_directions(normals: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Cosine-weighted directions about unit normals (Malley's method).
 
     normals : (n, 3) float64 unit; u : (n, 2) float64 uniform in [0, 1).
     Returns (n, 3) float64 unit directions with pdf ``cosθ/π``.
     """
-    return _around(normals, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)), 2.0 * math.pi * u[:, 1])
+    return directions_around(normals, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)),
+                             2.0 * math.pi * u[:, 1])
 
 
 def direct_irradiance(lights: Sequence[Light], points: np.ndarray, normals: np.ndarray,
@@ -179,46 +172,16 @@ class LightSampler:
     def for_scene(cls, light: Light, scene: Scene) -> LightSampler:
         return cls(light, np.asarray(scene.center, np.float64), 1.01 * max(scene.radius, 1e-30))
 
-    def _axis(self) -> np.ndarray:
-        d = np.asarray(self.light.direction, dtype=np.float64)
-        return d / np.linalg.norm(d)
-
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         """n rays: origins (n, 3), unit directions (n, 3) float64."""
-        u = rng.random((n, 2))
-        phi = 2.0 * math.pi * u[:, 1]
-        if self.light.type == "directional":
-            axis = np.broadcast_to(self._axis(), (n, 3))
-            t, s = orthonormal_frame(np.ascontiguousarray(axis))
-            r = self.disk_radius * np.sqrt(u[:, 0])
-            origin = (self.disk_centre - 2.0 * self.disk_radius * axis
-                      + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * s)
-            return origin, axis.copy()
-        origin = np.broadcast_to(np.asarray(self.light.position, np.float64), (n, 3)).copy()
-        if self.light.type == "spot":
-            cos_o = math.cos(self.light.outer_cone_angle)
-            axis = np.broadcast_to(self._axis(), (n, 3)).copy()
-            return origin, _around(axis, 1.0 - u[:, 0] * (1.0 - cos_o), phi)
-        axis = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (n, 3)).copy()
-        return origin, _around(axis, 1.0 - 2.0 * u[:, 0], phi)
+        return emitter_for(self.light).sample_rays(self.light, rng, n, self.disk_centre,
+                                                    self.disk_radius)
 
     def density(self, points: np.ndarray, face_normals: np.ndarray) -> np.ndarray:
         """(n,) area density of first hits at surface points that the light reaches
         unoccluded (callers only ask where the light's irradiance is > 0)."""
-        if self.light.type == "directional":
-            cos = np.abs(face_normals @ self._axis())
-            return cos / (math.pi * self.disk_radius**2)
-        w = points - np.asarray(self.light.position, np.float64)
-        r2 = np.einsum("ij,ij->i", w, w)
-        r = np.sqrt(r2)
-        cos = np.abs(np.einsum("ij,ij->i", face_normals, w))
-        if self.light.type == "spot":
-            cos_o = math.cos(self.light.outer_cone_angle)
-            inside = w @ self._axis() >= cos_o * r
-            pdf_dir = np.where(inside, 1.0 / (2.0 * math.pi * (1.0 - cos_o)), 0.0)
-        else:
-            pdf_dir = np.full(len(points), 1.0 / (4.0 * math.pi))
-        return np.divide(pdf_dir * cos, r2 * r, out=np.zeros_like(r), where=r > 0)
+        return emitter_for(self.light).first_hit_density(self.light, points, face_normals,
+                                                          self.disk_radius)
 
 
 def _balance(p_this: np.ndarray, p_other: np.ndarray) -> np.ndarray:

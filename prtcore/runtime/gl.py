@@ -41,6 +41,7 @@ import numpy as np
 
 from prtcore.core.errors import PrtError
 from prtcore.core.scene import Light
+from prtcore.emitters.base import emitter_for
 from prtcore.reference.camera import Camera, look_at, orthographic, perspective
 
 #: Lights drawn at once (each gets a row of the shadow atlas).
@@ -630,7 +631,7 @@ class BundleRenderer:
         """Clip-from-world matrices of a light's shadow views, and the world texel size
         for directional lights (0 otherwise)."""
         R, c, res = self.radius, self.center, self.shadow_resolution
-        if light.type == "directional":
+        if not emitter_for(light).positioned:  # at infinity: one orthographic view
             d = np.asarray(light.direction, np.float64)
             d = d / np.linalg.norm(d)
             up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
@@ -650,7 +651,7 @@ class BundleRenderer:
         buf = np.zeros((max(1, len(lights)), _FLOATS_PER_LIGHT), np.float32)
         self._views = []
         for i, lt in enumerate(lights):
-            t = {"point": 0, "spot": 1, "directional": 2}[lt.type]
+            t = emitter_for(lt).gl_code
             views, texel = self._light_views(lt)
             self._views.append(views)
             d = np.asarray(lt.direction, np.float64)
@@ -658,7 +659,7 @@ class BundleRenderer:
             buf[i, 0:4] = [*np.asarray(lt.position, float), t]
             buf[i, 4:8] = [*d, 0.0 if lt.range is None else lt.range]
             buf[i, 8:11] = np.asarray(lt.color, float) * lt.intensity
-            if lt.type == "spot":
+            if emitter_for(lt).coned:
                 ci, co = math.cos(lt.inner_cone_angle), math.cos(lt.outer_cone_angle)
                 scale = 1.0 / max(1e-3, ci - co)
                 buf[i, 12:14] = [scale, -co * scale]
@@ -708,8 +709,7 @@ class BundleRenderer:
             for i, lt in enumerate(lights):
                 d = np.asarray(lt.direction, np.float64)
                 _set(prog, "light_pos_type", (*map(float, lt.position),
-                                              float({"point": 0, "spot": 1,
-                                                     "directional": 2}[lt.type])))
+                                              float(emitter_for(lt).gl_code)))
                 _set(prog, "light_dir", tuple(float(v) for v in d / np.linalg.norm(d)))
                 for k, view in enumerate(self._views[i]):
                     self._shadow_fbo.viewport = (k * res, i * res, res, res)
@@ -946,7 +946,7 @@ def render_to_file(bundle: str | Path, light_path: str | Path, camera_path: str 
                    time: float | None = None) -> tuple[RenderResult, str]:
     """``prtcore render``: one frame of the bundle to a PNG or EXR. Returns the frame and
     the GL renderer's label. (A single frame's timings include shader compilation.)"""
-    from prtcore.emitters.punctual import load_light_file
+    from prtcore.emitters.lightfile import load_light_file
     from prtcore.reference.camera import load_camera
 
     if Path(out).suffix.lower() not in (".png", ".exr"):

@@ -160,7 +160,7 @@ class Transport:
         self.gather = spec_gather(sc, self.intake.texels, self.tracer, self.spec.transport)
 
     def configurations(self):
-        from prtcore.emitters.punctual import sample_configurations
+        from prtcore.emitters.families import sample_configurations
 
         sc = self.intake.scene
         return sample_configurations(self.spec.lights, sc.center, sc.radius, sc.lights)

@@ -17,7 +17,7 @@ from prtcore.core.errors import SpecError
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import load_light_file
+from prtcore.emitters.lightfile import load_light_file
 from prtcore.fit.transfer import GAMMA_RANGE, fit_transfer, reconstruct
 from prtcore.io.bundle import load_runtime
 from prtcore.io.gltf.loader import load_asset

@@ -15,7 +15,8 @@ from stab_helpers import CORNELL, ROOM_BOX, assert_bundle_finite, bake, spec_wit
 
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import load_light_file, sample_configurations
+from prtcore.emitters.families import sample_configurations
+from prtcore.emitters.lightfile import load_light_file
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
 from prtcore.runtime.cpu import relight

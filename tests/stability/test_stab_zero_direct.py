@@ -17,7 +17,8 @@ from stab_helpers import CORNELL, ROOM_BOX, assert_bundle_finite, bake, spec_wit
 from prtcore.core.errors import PrtError
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import irradiance, sample_configurations
+from prtcore.emitters.families import sample_configurations
+from prtcore.emitters.punctual import irradiance
 from prtcore.io.bundle import load_runtime
 from prtcore.io.gltf.loader import load_asset
 from prtcore.runtime.cpu import relight

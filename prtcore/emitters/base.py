@@ -1,0 +1,87 @@
+"""The emitter interface: what every kind of light provides, and the registry.
+
+An emitter is stateless: it evaluates a :class:`prtcore.core.scene.Light` of its ``type``.
+Each member is a module of this package that defines a subclass and registers it with
+:func:`register`; ``prtcore.emitters`` imports the members (one line each). The transport,
+the path tracer, the runtime and the GL renderer never branch on a light's type: they ask
+:func:`emitter_for`.
+
+A new kind of light (an environment map, SH lighting) is a new module here.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+
+_REGISTRY: dict[str, Emitter] = {}
+
+
+class Emitter:
+    """One kind of light. Arrays are float64 unless stated.
+
+    type : the light-file / glTF type name; gl_code : its code in the GLSL light table;
+    positioned / directed / coned / ranged : which Light fields the kind uses (the
+    light-file contract requires position when positioned and direction when directed).
+    """
+
+    type: ClassVar[str]
+    gl_code: ClassVar[int]
+    positioned: ClassVar[bool] = True
+    directed: ClassVar[bool] = False
+    coned: ClassVar[bool] = False
+    ranged: ClassVar[bool] = True
+
+    def unshadowed(self, light: Light, points: np.ndarray, normals: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Irradiance without visibility at points (n, 3) with unit normals (n, 3).
+
+        Returns E (n, 3) RGB, unit directions toward the light (n, 3), distances (n,)
+        (inf for lights at infinity)."""
+        raise NotImplementedError
+
+    def visible(self, light: Light, tracer: RayTracer, points: np.ndarray,
+                normals: np.ndarray, to_light: np.ndarray) -> np.ndarray:
+        """(n,) bool: an occlusion ray from each point reaches the light."""
+        raise NotImplementedError
+
+    def sample_rays(self, light: Light, rng: np.random.Generator, n: int,
+                    disk_centre: np.ndarray, disk_radius: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """n rays leaving the light (for the path tracer's light strategy): origins (n, 3),
+        unit directions (n, 3). Lights at infinity start on a disk of ``disk_radius``
+        around ``disk_centre`` that covers the scene."""
+        raise NotImplementedError
+
+    def first_hit_density(self, light: Light, points: np.ndarray, face_normals: np.ndarray,
+                          disk_radius: float) -> np.ndarray:
+        """(n,) area density of :meth:`sample_rays`' first hits at surface points the light
+        reaches unoccluded."""
+        raise NotImplementedError
+
+
+def register(cls: type[Emitter]) -> type[Emitter]:
+    """Class decorator: make ``cls`` the emitter of lights of type ``cls.type``."""
+    if cls.type in _REGISTRY:
+        raise ValueError(f"emitter type {cls.type!r} registered twice")
+    _REGISTRY[cls.type] = cls()
+    return cls
+
+
+def emitter_for(light_or_type: Light | str) -> Emitter:
+    """The emitter of a light (or of a type name). KeyError names the known types."""
+    t = light_or_type if isinstance(light_or_type, str) else light_or_type.type
+    try:
+        return _REGISTRY[t]
+    except KeyError:
+        raise KeyError(f"no emitter for light type {t!r} (known: {', '.join(types())})"
+                       ) from None
+
+
+def types() -> tuple[str, ...]:
+    """Registered light types, in registration order."""
+    return tuple(_REGISTRY)

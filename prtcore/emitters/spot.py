@@ -1,0 +1,48 @@
+"""Spot lights (KHR_lights_punctual ``spot``): a point light times the KHR angular
+attenuation ``saturate(cosθ·scale + offset)²``, ``scale = 1/max(1e-3, cos(inner) −
+cos(outer))``, ``offset = −cos(outer)·scale``."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from prtcore.core.scene import Light
+from prtcore.emitters.base import emitter_for, register
+from prtcore.emitters.point import PointEmitter
+
+
+def spot_factor(light: Light, cos_angle: np.ndarray) -> np.ndarray:
+    """KHR angular attenuation. cos_angle : (n,) cosine between the spot axis and the
+    direction from the light to the point. Returns (n,) float64; ones for a light
+    without a cone."""
+    if not emitter_for(light).coned:
+        return np.ones_like(cos_angle)
+    ci, co = math.cos(light.inner_cone_angle), math.cos(light.outer_cone_angle)
+    scale = 1.0 / max(1e-3, ci - co)
+    offset = -co * scale
+    a = np.clip(cos_angle * scale + offset, 0.0, 1.0)
+    return a * a
+
+
+def _axis(light: Light) -> np.ndarray:
+    d = np.asarray(light.direction, dtype=np.float64)
+    return d / np.linalg.norm(d)
+
+
+@register
+class SpotEmitter(PointEmitter):
+    type = "spot"
+    gl_code = 1
+    directed = True
+    coned = True
+
+    def cone(self, light, to_light):
+        return spot_factor(light, -(to_light @ _axis(light)))
+
+    def emission_cone(self, light):
+        return math.cos(light.outer_cone_angle)
+
+    def emission_axis(self, light):
+        return _axis(light)
