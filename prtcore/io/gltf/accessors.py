@@ -11,7 +11,6 @@ from prtcore.io.gltf.schema import (
     Ctx,
     get_bool,
     get_dict,
-    get_extension,
     get_index,
     get_int,
     get_items,
@@ -54,8 +53,25 @@ def buffer_lengths(ctx: Ctx, doc: dict) -> list[int]:
     return lengths
 
 
+@dataclass(frozen=True)
+class NoData:
+    """A buffer without bytes of its own (no ``uri``, not the GLB BIN chunk): valid JSON, an
+    error only where an accessor or image reads it (or meshopt decodes into it)."""
+
+    why: str
+
+
+def buffer_data(ctx: Ctx, buffers: list, b: int, where: str):
+    """The bytes of ``buffers[b]``, or the refusal naming ``where`` (the reader)."""
+    data = buffers[b]
+    if isinstance(data, NoData):
+        raise ctx.fail(where, f"reads buffers[{b}], which {data.why}")
+    return data
+
+
 def load_buffers(ctx: Ctx, doc: dict, bin_chunk: memoryview | None) -> list:
-    """Every buffer's bytes, exactly ``byteLength`` long (bytes or memoryview)."""
+    """Every buffer's bytes, exactly ``byteLength`` long (bytes or memoryview), or
+    :class:`NoData` for a buffer with neither uri nor GLB BIN chunk."""
     out = []
     for i, (b, n) in enumerate(zip(get_items(ctx, doc, "buffers"), buffer_lengths(ctx, doc),
                                    strict=True)):
@@ -64,12 +80,11 @@ def load_buffers(ctx: Ctx, doc: dict, bin_chunk: memoryview | None) -> list:
         uri = get_str(ctx, b, "uri", where, default=None)
         if uri is None:
             if bin_chunk is None:
-                if get_extension(ctx, b, "EXT_meshopt_compression", where) is not None:
-                    raise ctx.unsupported(where, "meshopt fallback buffer without data: "
-                                                 "meshopt-compressed buffers are refused")
-                raise ctx.fail(where, "has no uri and the file has no GLB BIN chunk")
+                out.append(NoData("has no uri and the file has no GLB BIN chunk"))
+                continue
             if i != 0:
-                raise ctx.fail(where, "only buffers[0] may refer to the GLB BIN chunk")
+                out.append(NoData("has no uri (only buffers[0] may be the GLB BIN chunk)"))
+                continue
             if len(bin_chunk) < n:
                 raise ctx.fail(f"{where}.byteLength",
                                f"declares {n} bytes but the GLB BIN chunk has {len(bin_chunk)}")
@@ -223,19 +238,21 @@ def read_accessor(ctx: Ctx, lay: AccessorLayout, buffers: list) -> np.ndarray:
     if lay.buffer < 0:
         out = np.zeros(shape, dtype=native)
     else:
-        view = np.ndarray(shape, dtype=dt, buffer=buffers[lay.buffer], offset=lay.byte_offset,
+        data = buffer_data(ctx, buffers, lay.buffer, lay.where)
+        view = np.ndarray(shape, dtype=dt, buffer=data, offset=lay.byte_offset,
                           strides=(lay.byte_stride, dt.itemsize))
         out = view.astype(native)  # copy, detached from the file bytes
     s = lay.sparse
     if s is not None:
         idt = np.dtype(COMPONENTS[s.index_component][0])
-        idx = np.ndarray((s.count,), dtype=idt, buffer=buffers[s.index_buffer],
-                         offset=s.index_offset).astype(np.int64)
+        idx = np.ndarray((s.count,), dtype=idt, offset=s.index_offset,
+                         buffer=buffer_data(ctx, buffers, s.index_buffer, lay.where)
+                         ).astype(np.int64)
         if idx.max() >= lay.count:
             raise ctx.fail(f"{lay.where} sparse.indices",
                            f"index {int(idx.max())} out of range for {lay.count} elements")
-        vals = np.ndarray((s.count, lay.ncomp), dtype=dt, buffer=buffers[s.value_buffer],
-                          offset=s.value_offset)
+        vals = np.ndarray((s.count, lay.ncomp), dtype=dt, offset=s.value_offset,
+                          buffer=buffer_data(ctx, buffers, s.value_buffer, lay.where))
         out[idx] = vals
     return out
 

@@ -24,6 +24,7 @@ from prtcore.io.gltf.schema import (
     get_items,
     get_list,
     get_str,
+    index_list,
     show,
 )
 
@@ -35,10 +36,8 @@ def parse_skins(ctx: Ctx, doc: dict, buffers: list) -> list[Skin]:
     for i, sj in enumerate(get_items(ctx, doc, "skins")):
         where = f"skins[{i}]"
         ctx.where = where
-        joints = get_list(ctx, sj, "joints", where)
-        for k, j in enumerate(joints):
-            if isinstance(j, bool) or not isinstance(j, int) or not 0 <= j < n_nodes:
-                raise ctx.fail(f"{where}.joints[{k}]", f"must be a node index below {n_nodes}")
+        get_list(ctx, sj, "joints", where)  # required
+        joints = index_list(ctx, sj, "joints", where, n_nodes, "a node index")
         if not joints:
             raise ctx.fail(f"{where}.joints", "is empty")
         ibm = np.broadcast_to(np.eye(4), (len(joints), 4, 4)).copy()

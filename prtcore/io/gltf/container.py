@@ -12,16 +12,12 @@ from prtcore.io.gltf.schema import Ctx, get_dict, get_items, get_list, get_str, 
 GLB_MAGIC = b"glTF"
 CHUNK_JSON = 0x4E4F534A
 CHUNK_BIN = 0x004E4942
-#: Required extensions we refuse outright, with what they would need.
-REFUSED_EXTENSIONS = {
-    "KHR_draco_mesh_compression": "Draco-compressed geometry",
-    "EXT_meshopt_compression": "meshopt-compressed buffers",
-}
 #: Required extensions we honour (plus every ``KHR_materials_*``, whose extra terms the
 #: Lambertian transport ignores).
-SUPPORTED_EXTENSIONS = frozenset(
-    {"KHR_lights_punctual", "KHR_texture_transform", "KHR_mesh_quantization", "EXT_texture_webp"}
-)
+SUPPORTED_EXTENSIONS = frozenset({
+    "KHR_lights_punctual", "KHR_texture_transform", "KHR_mesh_quantization", "EXT_texture_webp",
+    "KHR_draco_mesh_compression", "EXT_meshopt_compression",
+})
 
 
 def read_glb(ctx: Ctx, data: bytes) -> tuple[dict, memoryview | None]:
@@ -106,11 +102,6 @@ def check_header(ctx: Ctx, doc: dict) -> None:
         where = f"extensionsRequired[{i}]"
         if not isinstance(name, str):
             raise ctx.fail(where, f"must be a string, got {show(name)}")
-        if name in REFUSED_EXTENSIONS:
-            raise ctx.unsupported(
-                where, f"{name} is required but {REFUSED_EXTENSIONS[name]} is refused (not "
-                "decoded); export the asset without mesh compression",
-            )
         if name not in SUPPORTED_EXTENSIONS and not name.startswith("KHR_materials_"):
             raise ctx.unsupported(where, f"required extension {name} is not supported")
 

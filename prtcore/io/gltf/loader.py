@@ -5,21 +5,22 @@ getters rather than with pygltflib, so that no library ever follows a URI or all
 buffer before the checks below have passed. Order of work for glTF:
 
 1. file size (``os.stat``) → GLB container (header, chunks) → JSON → ``asset.version`` and
-   ``extensionsRequired`` (Draco/meshopt refused);
+   ``extensionsRequired`` (every one must be supported);
 2. element counts (nodes, meshes, materials, images, animations) against the limits;
 3. node hierarchy (single parent, no cycles) and world transforms at rest;
 4. every primitive of every mesh instance in the scene is *planned* from the JSON alone:
    accessor byte ranges must fit their bufferView and buffer (Python ints), vertex and
    triangle totals over all instances are compared with the limits;
 5. only then buffers are read (URIs confined to the asset's folder, sizes checked first),
-   accessors decoded, images decoded (header dimensions checked before pixels), and the
-   geometry flattened to world space.
+   meshopt-compressed bufferViews and Draco-compressed primitives decoded (counts checked
+   first, :mod:`.compression`), accessors decoded, images decoded (header dimensions
+   checked before pixels), and the geometry flattened to world space.
 
 The work is split along those steps: :mod:`.container` (GLB, JSON, header, counts),
 :mod:`.nodes` (hierarchy, transforms), :mod:`.meshes` (primitive plans, decoding,
 flattening), :mod:`.accessors` (buffers, bufferViews, accessors), :mod:`.uris`,
-:mod:`.materials`, :mod:`.lights` and :mod:`.animation`, all reading the JSON through the
-typed readers of :mod:`.schema`. This module is the orchestrator.
+:mod:`.compression`, :mod:`.materials`, :mod:`.lights` and :mod:`.animation`, all reading
+the JSON through the typed readers of :mod:`.schema`. This module is the orchestrator.
 
 Every refusal is a :class:`~prtcore.core.errors.AssetError` (or its subclasses
 :class:`~prtcore.core.errors.LimitExceeded`, :class:`~prtcore.core.errors.UnsupportedAsset`) whose
@@ -41,6 +42,7 @@ from prtcore.core.limits import IntakeLimits
 from prtcore.core.scene import Material, PrimitiveInstance, Scene
 from prtcore.io.gltf.accessors import buffer_lengths, load_buffers
 from prtcore.io.gltf.animation import parse_animations, parse_skins
+from prtcore.io.gltf.compression import decode_meshopt_views
 from prtcore.io.gltf.container import GLB_MAGIC, check_counts, check_header, parse_json, read_glb
 from prtcore.io.gltf.lights import parse_lights
 from prtcore.io.gltf.materials import DEFAULT_GREY, parse_materials, texture_transform_matrix
@@ -81,6 +83,7 @@ def load_gltf(ctx: Ctx, data: bytes) -> Scene:
     check_totals(ctx, scene_where, nodes, order, plans)
 
     buffers = load_buffers(ctx, doc, bin_chunk)
+    decode_meshopt_views(ctx, doc, buffers)
     materials, textures = parse_materials(ctx, doc, buffers)
     skins = parse_skins(ctx, doc, buffers)
     geo = flatten(ctx, nodes, order, plans, buffers, skins, default_material=len(materials))

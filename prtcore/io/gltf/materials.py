@@ -13,7 +13,7 @@ from prtcore.core.scene import (
     Material,
     Texture,
 )
-from prtcore.io.gltf.accessors import buffer_view
+from prtcore.io.gltf.accessors import buffer_data, buffer_view
 from prtcore.io.gltf.schema import (
     Ctx,
     get_bool,
@@ -60,7 +60,7 @@ def image_bytes(ctx: Ctx, doc: dict, index: int, buffers: list) -> bytes:
     if bv < 0:
         raise ctx.fail(where, "has neither uri nor bufferView")
     b, off, length, _ = buffer_view(ctx, doc, bv)
-    return bytes(buffers[b][off: off + length])
+    return bytes(buffer_data(ctx, buffers, b, where)[off: off + length])
 
 
 def decode_image(ctx: Ctx, data: bytes, where: str) -> np.ndarray:

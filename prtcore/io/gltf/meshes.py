@@ -26,6 +26,7 @@ from prtcore.io.gltf.accessors import (
     read_accessor,
     to_float,
 )
+from prtcore.io.gltf.compression import DRACO, DracoPlan, decode_draco, plan_draco
 from prtcore.io.gltf.nodes import apply_linear, normal_matrix, normalize_rows
 from prtcore.io.gltf.schema import (
     Ctx,
@@ -58,11 +59,12 @@ class PrimitivePlan:
     where: str
     mode: int
     material: int
-    position: AccessorLayout
+    position: AccessorLayout | None  # None: no POSITION, the primitive is skipped
     indices: AccessorLayout | None
     attributes: dict  # semantic → AccessorLayout for NORMAL, TEXCOORD_0/1, JOINTS_0, WEIGHTS_0
-    vertex_count: int
+    vertex_count: int  # vertices the loader makes: 3 per triangle when NORMAL is absent
     triangle_count: int  # upper bound (degenerate strip/fan triangles are dropped later)
+    draco: DracoPlan | None = None
 
 
 def triangle_count(mode: int, n: int) -> int:
@@ -92,9 +94,12 @@ def plan_primitive(ctx: Ctx, doc: dict, m: int, p: int, prim: dict) -> Primitive
         raise ctx.fail(f"{where}.mode", f"unknown primitive mode {mode}")
     attrs = get_dict(ctx, prim, "attributes", where)
     aw = f"{where}.attributes"
-    if "POSITION" not in attrs:
-        raise ctx.fail(f"{aw}.POSITION", "is missing")
-    draco = get_extension(ctx, prim, "KHR_draco_mesh_compression", where) is not None
+    material = get_index(ctx, prim, "material", where, "materials", default=-1)
+    if "POSITION" not in attrs:  # valid: "client implementations SHOULD skip" it
+        ctx.warn(where, "primitive without POSITION skipped")
+        return PrimitivePlan(m, p, where, mode, material, None, None, {}, 0, 0)
+    ext = get_extension(ctx, prim, DRACO, where)
+    draco = None if ext is None else plan_draco(ctx, doc, ext, where)
     pos = accessor_layout(ctx, doc, get_index(ctx, attrs, "POSITION", aw, "accessors"),
                           f"{aw}.POSITION", ("VEC3",), POSITION_CT)
     layouts = {}
@@ -112,20 +117,22 @@ def plan_primitive(ctx: Ctx, doc: dict, m: int, p: int, prim: dict) -> Primitive
                                   f"{where}.indices", ("SCALAR",), INDEX_CT)
         if indices.normalized:
             raise ctx.fail(indices.where, "indices must not be normalized")
-    if draco and any(lay.buffer < 0 and lay.sparse is None
-                     for lay in (pos, indices, *layouts.values()) if lay is not None):
-        raise ctx.unsupported(where, "geometry only available Draco-compressed "
-                                     "(KHR_draco_mesh_compression is refused, not decoded)")
+    if draco is not None and mode not in (4, 5):
+        raise ctx.fail(f"{where}.mode", f"{MODE_NAMES[mode]} with {DRACO} (only TRIANGLES "
+                                        "and TRIANGLE_STRIP may be Draco-compressed)")
     n = indices.count if indices is not None else pos.count
+    if draco is not None:  # Draco decodes to a triangle list (a strip's own indices unused)
+        mode, n = 4, 3 * triangle_count(mode, n)
     if mode < 4:
         ctx.warn(where, f"{MODE_NAMES[mode]} primitive skipped (only triangles are baked)")
     elif mode == 4 and n % 3:
         ctx.warn(where, f"{n} indices is not a multiple of 3; the last {n % 3} ignored")
     if "targets" in prim:
         ctx.warn(where, "morph targets ignored (rest shape used)")
-    material = get_index(ctx, prim, "material", where, "materials", default=-1)
-    return PrimitivePlan(m, p, where, mode, material, pos, indices, layouts, pos.count,
-                         triangle_count(mode, n))
+    tris = triangle_count(mode, n)
+    verts = pos.count if "NORMAL" in layouts else 3 * tris  # flat normals: one per corner
+    return PrimitivePlan(m, p, where, mode, material, pos, indices, layouts, verts, tris,
+                         draco)
 
 
 def plan_mesh(ctx: Ctx, doc: dict, m: int) -> list[PrimitivePlan]:
@@ -217,44 +224,69 @@ class DecodedPrimitive:
     faces: np.ndarray
 
 
+def flat_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit geometric normals (f, 3) of triangles (right-handed winding); +Z for degenerate
+    ones."""
+    v = positions[faces]
+    return normalize_rows(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]))
+
+
+def _raw_attributes(ctx: Ctx, plan: PrimitivePlan, buffers: list
+                    ) -> tuple[dict, np.ndarray]:
+    """({semantic: raw accessor values}, vertex indices (n,) int64) of a planned primitive,
+    from its accessors or its Draco bitstream."""
+    if plan.draco is not None:
+        return decode_draco(ctx, plan.draco, buffers, plan.position, plan.attributes,
+                            plan.triangle_count)
+    raw = {"POSITION": read_accessor(ctx, plan.position, buffers)}
+    for sem, lay in plan.attributes.items():
+        raw[sem] = read_accessor(ctx, lay, buffers)
+    if plan.indices is None:
+        return raw, np.arange(plan.position.count, dtype=np.int64)
+    idx = read_accessor(ctx, plan.indices, buffers)[:, 0].astype(np.int64)
+    if len(idx) and idx.max() >= plan.position.count:
+        raise ctx.fail(plan.indices.where, f"index {int(idx.max())} out of range for "
+                                           f"{plan.position.count} vertices")
+    return raw, idx
+
+
 def decode_primitive(ctx: Ctx, plan: PrimitivePlan, buffers: list) -> DecodedPrimitive:
-    """Decode a planned triangle primitive (positions checked finite, indices in range,
-    normals filled area-weighted where absent or unusable)."""
+    """Decode a planned triangle primitive (positions checked finite, indices in range).
+
+    Without NORMAL the primitive gets flat normals, as the glTF specification requires
+    ("client implementations MUST calculate flat normals"): every triangle gets its own three
+    vertices whose normal is the triangle's geometric normal. Unusable NORMAL values (zero,
+    NaN) are replaced by area-weighted vertex normals, with a warning.
+    """
     ctx.where = plan.where
-    positions = finite_floats(ctx, read_accessor(ctx, plan.position, buffers), plan.position)
-    nv = plan.vertex_count
-    if plan.indices is not None:
-        idx = read_accessor(ctx, plan.indices, buffers)[:, 0].astype(np.int64)
-        if len(idx) and idx.max() >= nv:
-            raise ctx.fail(plan.indices.where, f"index {int(idx.max())} out of range for "
-                                               f"{nv} vertices")
-    else:
-        idx = np.arange(nv, dtype=np.int64)
+    raw, idx = _raw_attributes(ctx, plan, buffers)
+    positions = finite_floats(ctx, raw["POSITION"], plan.position)
     faces = triangulate(plan.mode, idx)
-    lay = plan.attributes.get("NORMAL")
-    if lay is None:
-        normals = area_weighted_normals(positions, faces)
+    attrs = plan.attributes
+
+    def floats(sem: str) -> np.ndarray | None:
+        return None if sem not in attrs else finite_floats(ctx, raw[sem], attrs[sem])
+
+    uv0, uv1 = floats("TEXCOORD_0"), floats("TEXCOORD_1")
+    joints = weights = None
+    if "JOINTS_0" in attrs and "WEIGHTS_0" in attrs:
+        joints, weights = raw["JOINTS_0"].astype(np.int32), floats("WEIGHTS_0")
+    if "NORMAL" not in attrs:
+        corner = faces.reshape(-1)
+        normals = np.repeat(flat_normals(positions, faces), 3, axis=0)
+        positions, faces = positions[corner], np.arange(len(corner)).reshape(-1, 3)
+        uv0, uv1, joints, weights = (None if a is None else a[corner]
+                                     for a in (uv0, uv1, joints, weights))
     else:
-        normals = to_float(read_accessor(ctx, lay, buffers), lay)
+        normals = to_float(raw["NORMAL"], attrs["NORMAL"])
         length = np.linalg.norm(normals, axis=1)
         bad = ~np.isfinite(length) | (length <= NORMAL_EPS)
         if bad.any():
-            ctx.warn(lay.where, f"{int(bad.sum())} unusable normals replaced by area-weighted "
-                                "ones")
+            ctx.warn(attrs["NORMAL"].where, f"{int(bad.sum())} unusable normals replaced by "
+                                            "area-weighted ones")
             normals[bad] = area_weighted_normals(positions, faces)[bad]
         normals = normalize_rows(normals)
-
-    def floats(sem: str) -> np.ndarray | None:
-        lay = plan.attributes.get(sem)
-        return None if lay is None else finite_floats(ctx, read_accessor(ctx, lay, buffers),
-                                                      lay)
-
-    joints = weights = None
-    if "JOINTS_0" in plan.attributes and "WEIGHTS_0" in plan.attributes:
-        joints = read_accessor(ctx, plan.attributes["JOINTS_0"], buffers).astype(np.int32)
-        weights = floats("WEIGHTS_0")
-    return DecodedPrimitive(positions, normals, floats("TEXCOORD_0"), floats("TEXCOORD_1"),
-                            joints, weights, faces)
+    return DecodedPrimitive(positions, normals, uv0, uv1, joints, weights, faces)
 
 
 def place_primitive(world_from_node: np.ndarray, prim: DecodedPrimitive
@@ -323,7 +355,7 @@ def flatten(ctx: Ctx, nodes: list[Node], order: list[int], plans: dict, buffers:
         if node.mesh < 0:
             continue
         for plan in plans[node.mesh]:
-            if plan.mode < 4:
+            if plan.mode < 4 or plan.position is None:
                 continue
             key = (plan.mesh, plan.primitive)
             if key not in cache:

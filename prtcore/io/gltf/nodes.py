@@ -14,10 +14,9 @@ from prtcore.io.gltf.schema import (
     get_index,
     get_int,
     get_items,
-    get_list,
     get_nums,
     get_str,
-    show,
+    index_list,
 )
 
 
@@ -107,11 +106,9 @@ def parse_nodes(ctx: Ctx, doc: dict) -> tuple[list[Node], list[int]]:
     for i, nd in enumerate(nodes_json):
         where = f"nodes[{i}]"
         ctx.where = where
-        children = get_list(ctx, nd, "children", where, default=[])
+        children = index_list(ctx, nd, "children", where, n, "a node index")
         for k, c in enumerate(children):
             cw = f"{where}.children[{k}]"
-            if isinstance(c, bool) or not isinstance(c, int) or not 0 <= c < n:
-                raise ctx.fail(cw, f"must be a node index below {n}, got {show(c)}")
             if c == i or parent[c] != -1:
                 raise ctx.fail(cw, f"nodes[{c}] already has a parent (the hierarchy must be "
                                    "a tree)")
@@ -168,10 +165,8 @@ def scene_roots(ctx: Ctx, doc: dict, nodes: list[Node]) -> tuple[list[int], str]
     s = get_index(ctx, doc, "scene", "", "scenes", default=0)
     where = f"scenes[{s}]"
     roots = []
-    for k, r in enumerate(get_list(ctx, scenes[s], "nodes", where, default=[])):
+    for k, r in enumerate(index_list(ctx, scenes[s], "nodes", where, len(nodes), "a node index")):
         rw = f"{where}.nodes[{k}]"
-        if isinstance(r, bool) or not isinstance(r, int) or not 0 <= r < len(nodes):
-            raise ctx.fail(rw, f"must be a node index below {len(nodes)}, got {show(r)}")
         if nodes[r].parent != -1:
             raise ctx.fail(rw, f"nodes[{r}] is not a root node")
         if r in roots:

@@ -72,15 +72,39 @@ def _value(ctx: Ctx, obj: dict, key: str, where: str, default):
     return default, False
 
 
+def as_int(v) -> int | None:
+    """A JSON Schema integer as a Python int, else None: ``3`` and ``3.0`` are integers (JSON
+    Schema: "a number with a zero fractional part"), ``true`` and ``3.5`` are not."""
+    if isinstance(v, bool):
+        return None
+    if isinstance(v, int):
+        return v
+    if isinstance(v, float) and np.isfinite(v) and v == int(v):
+        return int(v)
+    return None
+
+
+def index_list(ctx: Ctx, obj: dict, key: str, where: str, n: int, what: str) -> list[int]:
+    """obj[key] (default []) as a list of indices below ``n`` (``what``: "a node index")."""
+    out = []
+    for k, v in enumerate(get_list(ctx, obj, key, where, default=[])):
+        i = as_int(v)
+        if i is None or not 0 <= i < n:
+            raise ctx.fail(f"{join(where, key)}[{k}]", f"must be {what} below {n}, got {show(v)}")
+        out.append(i)
+    return out
+
+
 def get_int(ctx: Ctx, obj: dict, key: str, where: str, default=REQUIRED, lo: int | None = 0,
             hi: int | None = None) -> int:
-    """obj[key] as a JSON integer in [lo, hi] (``bool`` and ``3.0`` are not integers)."""
+    """obj[key] as a JSON integer in [lo, hi] (``3.0`` is one, ``true`` and ``3.5`` are not)."""
     v, present = _value(ctx, obj, key, where, default)
     if not present:
         return v
     path = join(where, key)
-    if isinstance(v, bool) or not isinstance(v, int):
+    if as_int(v) is None:
         raise ctx.fail(path, f"must be an integer, got {show(v)}")
+    v = as_int(v)
     if lo is not None and v < lo:
         raise ctx.fail(path, f"must be >= {lo}, got {v}")
     if hi is not None and v > hi:

@@ -13,6 +13,7 @@ import urllib.parse
 from prtcore.io.gltf.schema import Ctx, show
 
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*:")
+_BASE64 = re.compile(r"[A-Za-z0-9+/]*={0,2}")
 _DATA_URI = re.compile(r"^data:([^,]*),(.*)$", re.DOTALL)
 
 
@@ -85,6 +86,8 @@ def data_uri_size(ctx: Ctx, uri: str, where: str) -> tuple[int, str]:
     if "base64" not in params:
         raise ctx.unsupported(where, "only base64 data: URIs are supported")
     payload = m.group(2)
+    if _BASE64.fullmatch(payload) is None:
+        raise ctx.fail(where, "malformed base64 in data: URI")
     if len(payload) % 4:
         raise ctx.fail(where, "malformed base64 in data: URI (length not a multiple of 4)")
     pad = len(payload) - len(payload.rstrip("="))
@@ -93,10 +96,15 @@ def data_uri_size(ctx: Ctx, uri: str, where: str) -> tuple[int, str]:
     return len(payload) // 4 * 3 - pad, payload
 
 
-def decode_data_uri(ctx: Ctx, uri: str, where: str, limit: str) -> bytes:
+def decode_data_uri(ctx: Ctx, uri: str, where: str, limit: str, want: int | None = None
+                    ) -> bytes:
     """Decode a base64 ``data:`` URI after checking its decoded size against
-    ``max_data_uri_bytes`` and ``limit`` (and the total budget)."""
+    ``max_data_uri_bytes`` and ``limit`` (and the total budget), and, for a buffer, against
+    its ``byteLength`` ``want`` (they must be equal, as the Khronos validator requires)."""
     size, payload = data_uri_size(ctx, uri, where)
+    if want is not None and size != want:
+        raise ctx.fail(where, f"data: URI decodes to {size} bytes but the buffer's byteLength "
+                              f"is {want} (they must be equal)")
     if size > ctx.limits.max_data_uri_bytes:
         raise ctx.over(where, f"data: URI decodes to {size} bytes", "max_data_uri_bytes")
     if size > getattr(ctx.limits, limit):
@@ -110,5 +118,5 @@ def decode_data_uri(ctx: Ctx, uri: str, where: str, limit: str) -> bytes:
 
 def uri_bytes(ctx: Ctx, uri: str, where: str, limit: str, want: int | None = None) -> bytes:
     if uri.startswith("data:"):
-        return decode_data_uri(ctx, uri, where, limit)
+        return decode_data_uri(ctx, uri, where, limit, want)
     return read_local_file(ctx, resolve_uri(ctx, uri, where), where, limit, want)
