@@ -12,7 +12,7 @@ from prtcore import pipeline
 from prtcore.core.errors import BundleError, PrtError
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import load_light_file
+from prtcore.emitters.lightfile import load_light_file
 from prtcore.fit.transfer import fit_transfer, reconstruct
 from prtcore.io.bundle import (
     basis_planes,

@@ -20,7 +20,7 @@ from prtcore.core.errors import PrtError, SpecError
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Animation, AnimationChannel
 from prtcore.core.spec import parse_spec
-from prtcore.emitters.punctual import load_light_file
+from prtcore.emitters.lightfile import load_light_file
 from prtcore.io.bundle import load_keyframe, load_runtime, read_manifest, verify_bundle
 from prtcore.io.gltf.loader import load_asset
 from prtcore.io.imageio import read_image

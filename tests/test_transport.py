@@ -19,7 +19,7 @@ from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Material, Scene
 from prtcore.core.spec import LightFamily, LightsSpec, TransportSpec
-from prtcore.emitters.punctual import sample_configurations
+from prtcore.emitters.families import sample_configurations
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.texels import TexelSpace, build_texel_space
 from prtcore.transport import surface as transport
