@@ -110,6 +110,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.io.bundle import (
         RUNTIME_FORMULA,
         basis_planes,
+        check_output,
         manifest_base,
         planes_layout,
         points_files,
@@ -123,6 +124,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
     from prtcore.transport.surface import bake_dataset, check_bake_memory
 
+    check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
     intake = run_intake(asset, spec, timer=timer, limits=limits)
@@ -241,7 +243,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         )
 
     with timer.stage("export"):
-        out = write_bundle(out, write, force=force, exclude=RUN_FILES)
+        out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
     if not quiet:
         print(format_table(table, dict(timer.seconds)))
     return out

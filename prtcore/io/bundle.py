@@ -73,8 +73,47 @@ def basis_planes(mean: np.ndarray, basis: np.ndarray, channels: str) -> np.ndarr
     return np.concatenate([mean, basis.reshape(len(basis), -1)], axis=1).astype(np.float32)
 
 
+def is_bundle(path: str | Path) -> bool:
+    """True when ``path`` is a directory whose manifest.json says it is a prtcore bundle."""
+    path = Path(path)
+    if path.is_symlink() or not path.is_dir():
+        return False
+    try:
+        m = json.loads((path / "manifest.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(m, dict) and m.get("schema") == SCHEMA
+
+
+def check_output(out: str | Path, force: bool = False,
+                 inputs: tuple[str | Path, ...] = ()) -> None:
+    """Refuse an output path that a bake must not write or replace (nothing is lost).
+
+    Refused always: ``out`` is one of ``inputs`` or a directory holding one. Refused unless
+    ``force``: ``out`` exists. Refused even with ``force``: ``out`` is a file, a link or a
+    directory that is not a prtcore bundle (:func:`is_bundle`). Raises :class:`PrtError`
+    with one line naming the path and the reason.
+    """
+    out = Path(out)
+    where = out.resolve()
+    for src in inputs:
+        s = Path(src).resolve()
+        if s == where or where in s.parents:
+            what = "the input" if s == where else "a directory holding the input"
+            raise PrtError(f"{out}: is {what} {src}; choose another --out")
+    if not (out.exists() or out.is_symlink()):
+        return
+    if not force:
+        raise PrtError(f"{out}: already exists (use --force to replace it)")
+    if out.is_symlink() or not out.is_dir():
+        raise PrtError(f"{out}: is a file, not a prtcore bundle; refusing to replace it")
+    if not is_bundle(out):
+        raise PrtError(f"{out}: is a directory but not a prtcore bundle (no manifest.json "
+                       f"with schema {SCHEMA!r}); refusing to replace it")
+
+
 def write_bundle(out: Path, writer: Callable[[Path], dict[str, Any]], force: bool = False,
-                 exclude: tuple[str, ...] = ()) -> Path:
+                 exclude: tuple[str, ...] = (), inputs: tuple[str | Path, ...] = ()) -> Path:
     """Run ``writer(tmpdir) -> manifest`` and move the result to ``out`` atomically.
 
     ``writer`` writes its files into the temporary directory and returns the manifest
@@ -83,8 +122,7 @@ def write_bundle(out: Path, writer: Callable[[Path], dict[str, Any]], force: boo
     manifest.json and renames the directory into place.
     """
     out = Path(out)
-    if out.exists() and not force:
-        raise PrtError(f"{out}: already exists (use --force to replace it)")
+    check_output(out, force, inputs)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
     try:
@@ -100,6 +138,7 @@ def write_bundle(out: Path, writer: Callable[[Path], dict[str, Any]], force: boo
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=False)
                                            + "\n", encoding="utf-8")
         if out.exists():
+            check_output(out, force, inputs)  # still a bundle now that the new one is done
             old = out.with_name(f".{out.name}.old")
             if old.exists():
                 shutil.rmtree(old)
