@@ -15,6 +15,7 @@ from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import load_light_file
 from prtcore.fit.transfer import fit_transfer, reconstruct
 from prtcore.io.bundle import (
+    RuntimeData,
     basis_planes,
     load_runtime,
     planes_layout,
@@ -24,7 +25,7 @@ from prtcore.io.bundle import (
     write_bundle,
 )
 from prtcore.io.gltf.loader import load_asset
-from prtcore.runtime.cpu import RuntimeData, blend, plane_weights, relight
+from prtcore.runtime.cpu import blend, plane_weights, relight
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "examples" / "cornell_box.glb"

@@ -13,6 +13,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,6 @@ import numpy as np
 from prtcore import __version__
 from prtcore.core.errors import BundleError, PrtError
 from prtcore.io.imageio import read_image, write_exr
-from prtcore.runtime.cpu import RuntimeData
 
 SCHEMA = "prtcore.bundle"
 VERSION = 1
@@ -35,6 +35,39 @@ RUNTIME_FORMULA = (
     "rgb element i channel c -> u_c,i*e_c; colour = sum_j plane_j * w_j; "
     "with gamma: colour = max(colour, 0)^gamma"
 )
+
+
+@dataclass(frozen=True)
+class RuntimeData:
+    """What the runtime needs, as loaded from a bundle.
+
+    planes : (h, w, q) float32 basis planes (q = 3 + n_b for mono, 3 + 3·n_b for rgb)
+    plane_element : (q,) int32 element index of each plane; plane_channel : (q,) int8,
+        0/1/2 for R/G/B, −1 for a plane shared by all channels (mono)
+    transfer : (3, n_b, P) or (G, 3, n_b, P) float32; offset : (3, n_b) or (G, 3, n_b)
+    gamma : float or None; coverage : (h, w) bool
+    cluster_position, cluster_normal, cluster_albedo : (s, 3) float32 (albedo as used by
+        transport, i.e. clamped); cluster_owner : (s,) int32; point_count : P
+    """
+
+    planes: np.ndarray
+    plane_element: np.ndarray
+    plane_channel: np.ndarray
+    transfer: np.ndarray
+    offset: np.ndarray
+    gamma: float | None
+    coverage: np.ndarray
+    cluster_position: np.ndarray
+    cluster_normal: np.ndarray
+    cluster_albedo: np.ndarray
+    cluster_owner: np.ndarray
+    point_count: int
+    keyframe_times: tuple[float, ...] | None = None
+
+    @property
+    def n_basis(self) -> int:
+        """Elements including the mean."""
+        return int(self.plane_element.max()) + 1
 
 
 def _sha256(path: Path) -> str:

@@ -18,46 +18,13 @@ coefficient vector ``w_j``: mean plane of channel c → ``s·e_c``; mono element
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.emitters.punctual import irradiance
-
-
-@dataclass(frozen=True)
-class RuntimeData:
-    """What the runtime needs, as loaded from a bundle.
-
-    planes : (h, w, q) float32 basis planes (q = 3 + n_b for mono, 3 + 3·n_b for rgb)
-    plane_element : (q,) int32 element index of each plane; plane_channel : (q,) int8,
-        0/1/2 for R/G/B, −1 for a plane shared by all channels (mono)
-    transfer : (3, n_b, P) or (G, 3, n_b, P) float32; offset : (3, n_b) or (G, 3, n_b)
-    gamma : float or None; coverage : (h, w) bool
-    cluster_position, cluster_normal, cluster_albedo : (s, 3) float32 (albedo as used by
-        transport, i.e. clamped); cluster_owner : (s,) int32; point_count : P
-    """
-
-    planes: np.ndarray
-    plane_element: np.ndarray
-    plane_channel: np.ndarray
-    transfer: np.ndarray
-    offset: np.ndarray
-    gamma: float | None
-    coverage: np.ndarray
-    cluster_position: np.ndarray
-    cluster_normal: np.ndarray
-    cluster_albedo: np.ndarray
-    cluster_owner: np.ndarray
-    point_count: int
-    keyframe_times: tuple[float, ...] | None = None
-
-    @property
-    def n_basis(self) -> int:
-        """Elements including the mean."""
-        return int(self.plane_element.max()) + 1
+from prtcore.io.bundle import RuntimeData
 
 
 def shade_points(data: RuntimeData, lights: Sequence[Light], tracer: RayTracer | None
