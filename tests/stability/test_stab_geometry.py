@@ -22,9 +22,28 @@ from trimesh.visual.material import PBRMaterial
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.scenes.cornell import cornell_box
 from prtcore.transport.surface import direct_radiance
+from prtcore.validate import validate_bundle
 
 #: Bakes of the same room in other units (light boxes scaled, intensities × scale²).
 SCALE_RTOL = 1e-5
+
+#: Fixed accuracy bounds (issue 21), measured, not relative to the bake itself. ``pt``:
+#: noise-corrected relative RMSE of the bundle against the path tracer
+#: (prtcore.validate: every held-out light's error with the reference's own standard error
+#: removed, sqrt(max(rmse² − noise², 0))), at the worst n of the table; ``heldout``: the
+#: report's held-out error against the fast transport, worst n. For scale: the plain Cornell
+#: box with TINY measures pt 0.185 (64 spp, 6 lights), held-out 0.153.
+#: coplanar (TINY, 64 spp, 6 lights, seed 0): pt 0.258 (seed 1: 0.289, noise 0.122), held-out
+#: 0.169. sphere (128² atlas): 16 spp, 3 lights, seed 0: pt 0.235 (noise 0.243); 64 spp,
+#: 6 lights: 0.265 (seed 1: 0.264, noise 0.126); held-out 0.194. Bounds: measured + ~20 %.
+COPLANAR_PT, COPLANAR_HELDOUT = 0.31, 0.20
+SPHERE_PT_FAST, SPHERE_PT, SPHERE_HELDOUT = 0.29, 0.32, 0.23
+
+
+def worst_against_path_tracer(bundle, spp: int, count: int) -> float:
+    """Worst (over n) mean noise-corrected relative RMSE against the path tracer."""
+    v = validate_bundle(bundle, spp=spp, count=count, seed=0)
+    return max(r["rmse_noise_corrected_mean"] for r in v["rows"])
 
 
 def _room_spec(scale: float) -> dict:
@@ -122,7 +141,8 @@ def test_coplanar_overlapping_faces(tmp_path):
     b = bake(asset, TINY, tmp_path / "b")
     m = assert_bundle_finite(b)
     assert m["fit"]["used"] == m["fit"]["configurations"]
-    assert max(heldout_rmse(b).values()) < 0.5
+    assert max(heldout_rmse(b).values()) <= COPLANAR_HELDOUT, heldout_rmse(b)
+    assert worst_against_path_tracer(b, spp=64, count=6) <= COPLANAR_PT
 
 
 def test_degenerate_and_sliver_triangles(tmp_path):
@@ -143,13 +163,26 @@ def test_degenerate_and_sliver_triangles(tmp_path):
     assert m["asset"]["triangles"] == m["prepare"]["repair_counts"]["faces_before"] - 2
 
 
-def test_huge_triangle_count_disparity(tmp_path):
-    """A 20 480-triangle sphere in a room of 34 triangles."""
+@pytest.fixture(scope="module")
+def sphere_room(tmp_path_factory):
+    """A 20 480-triangle sphere in a room of 34 triangles, baked at 128²."""
+    root = tmp_path_factory.mktemp("sphere")
     sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.2)
     sphere.apply_translation([0.3, 1.0, 0.2])
-    asset = write_scene(_cornell_plus({"sphere": sphere}), tmp_path / "sphere.glb")
-    b = bake(asset, spec_with(atlas={"resolution": 128}), tmp_path / "b")
+    asset = write_scene(_cornell_plus({"sphere": sphere}), root / "sphere.glb")
+    return bake(asset, spec_with(atlas={"resolution": 128}), root / "b")
+
+
+def test_huge_triangle_count_disparity(sphere_room):
+    b = sphere_room
     m = assert_bundle_finite(b)
     assert m["asset"]["triangles"] >= 20480
     assert m["fit"]["used"] == m["fit"]["configurations"]
-    assert max(heldout_rmse(b).values()) < 0.5
+    assert max(heldout_rmse(b).values()) <= SPHERE_HELDOUT, heldout_rmse(b)
+    assert worst_against_path_tracer(b, spp=16, count=3) <= SPHERE_PT_FAST
+
+
+@pytest.mark.slow
+def test_huge_triangle_count_disparity_accurate_reference(sphere_room):
+    """The same bound at 64 spp over all 6 held-out lights (~40 s of path tracing)."""
+    assert worst_against_path_tracer(sphere_room, spp=64, count=6) <= SPHERE_PT
