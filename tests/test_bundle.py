@@ -7,6 +7,7 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 import pytest
+from scenes import TINY_SPEC
 
 from prtcore import pipeline
 from prtcore.core.errors import BundleError, PrtError
@@ -31,16 +32,6 @@ ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "examples" / "cornell_box.glb"
 SCHEMA = json.loads((ROOT / "prtcore" / "data" / "manifest.schema.json").read_text())
 
-TINY_SPEC = {
-    "atlas": {"resolution": 32, "padding": 2},
-    "measurement_points": {"count": 32, "supersample": 2},
-    "lights": {"count": 24, "holdout": 4, "families": [
-        {"type": "point", "position": {"box": [[-0.8, 0.3, -0.8], [0.8, 1.9, 0.9]]},
-         "intensity": {"uniform": [0.5, 3.0]}}]},
-    "transport": {"gather_rays": 16, "max_bounces": 8},
-    "fit": {"basis": 8},
-    "output": {"dtype": "float"},
-}
 
 
 @pytest.fixture(scope="module")

@@ -97,8 +97,9 @@ def assert_invariants(s: Scene, offsets=None) -> None:
     assert v == nv and f == nf
 
 
-def quad(x0, y0, x1, y1, z=0.0):
-    """A unit-ish quad in the xy plane (positions, faces, uv1 = the same rectangle)."""
+def rect(x0, y0, x1, y1, z=0.0):
+    """An axis-aligned rectangle in the xy plane, corners in rect_uv's order: (positions,
+    faces). (Not tests/scenes.quad: that one orders its grid vertices differently.)"""
     pos = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], dtype=np.float64)
     faces = np.array([[0, 1, 2], [0, 2, 3]])
     return pos, faces
@@ -281,7 +282,7 @@ def test_missing_uv1():
 
 def test_two_separated_quads_valid_with_exact_gap():
     R = 32
-    a, b = quad(0, 0, 1, 1), quad(2, 0, 3, 1)
+    a, b = rect(0, 0, 1, 1), rect(2, 0, 3, 1)
     uv_a, uv_b = rect_uv(0.1, 0.1, 0.3, 0.3), rect_uv(0.5, 0.1, 0.7, 0.3)
     s = make_scene([(*a, uv_a), (*b, uv_b)])
     c = check_uv1(s, R, 2)
@@ -301,7 +302,7 @@ def test_quads_too_close_for_bilinear_are_invalid():
     # lookup near either edge reads texel 10 (centre 10.5)
     uv_a = rect_uv(2 / R, 2 / R, 10 / R, 8 / R)
     uv_b = rect_uv(11.25 / R, 2 / R, 18 / R, 8 / R)
-    s = make_scene([(*quad(0, 0, 1, 1), uv_a), (*quad(2, 0, 3, 1), uv_b)])
+    s = make_scene([(*rect(0, 0, 1, 1), uv_a), (*rect(2, 0, 3, 1), uv_b)])
     c = check_uv1(s, R, 2)
     assert not c.valid and c.reason.startswith("padding"), c.reason
     assert c.overlapping_texels == 0 and c.bleeding_texels > 0
@@ -310,7 +311,7 @@ def test_quads_too_close_for_bilinear_are_invalid():
 
 def test_overlapping_charts_invalid():
     uv = rect_uv(0.1, 0.1, 0.5, 0.5)
-    s = make_scene([(*quad(0, 0, 1, 1), uv), (*quad(2, 0, 3, 1), uv + 0.2)])
+    s = make_scene([(*rect(0, 0, 1, 1), uv), (*rect(2, 0, 3, 1), uv + 0.2)])
     c = check_uv1(s, 64, 4)
     assert not c.valid and c.reason.startswith("overlap")
     assert c.overlapping_texels > 0 and c.min_padding_texels == 0.0
@@ -319,7 +320,7 @@ def test_overlapping_charts_invalid():
 def test_instanced_copies_with_identical_uv1_overlap():
     """Same TEXCOORD_1 on two placements of one mesh: separate charts, full overlap."""
     uv = rect_uv(0.1, 0.1, 0.5, 0.5)
-    s = make_scene([(*quad(0, 0, 1, 1), uv), (*quad(0, 0, 1, 1, z=2.0), uv)])
+    s = make_scene([(*rect(0, 0, 1, 1), uv), (*rect(0, 0, 1, 1, z=2.0), uv)])
     c = check_uv1(s, 64, 4)
     assert c.charts == 2 and not c.valid and c.reason.startswith("overlap")
 
@@ -339,22 +340,22 @@ def test_folded_chart_is_overlap():
 
 def test_out_of_range_invalid():
     uv = rect_uv(0.5, 0.5, 1.2, 0.9)
-    s = make_scene([(*quad(0, 0, 1, 1), uv)])
+    s = make_scene([(*rect(0, 0, 1, 1), uv)])
     c = check_uv1(s, 64, 4)
     assert not c.valid and c.reason.startswith("out of range") and c.out_of_range == 2
     uv[1, 0] = np.nan
-    assert check_uv1(make_scene([(*quad(0, 0, 1, 1), uv)]), 64, 4).out_of_range == 2
+    assert check_uv1(make_scene([(*rect(0, 0, 1, 1), uv)]), 64, 4).out_of_range == 2
 
 
 def test_collapsed_triangle_invalid():
     uv = rect_uv(0.1, 0.1, 0.5, 0.5)
     uv[1] = [0.3, 0.3]  # triangle (0, 1, 2) collapses onto the diagonal; (0, 2, 3) is fine
-    c = check_uv1(make_scene([(*quad(0, 0, 1, 1), uv)]), 64, 4)
+    c = check_uv1(make_scene([(*rect(0, 0, 1, 1), uv)]), 64, 4)
     assert not c.valid and c.collapsed_faces == 1 and c.reason.startswith("collapsed")
-    c = check_uv1(make_scene([(*quad(0, 0, 1, 1), np.full((4, 2), 0.5))]), 64, 4)
+    c = check_uv1(make_scene([(*rect(0, 0, 1, 1), np.full((4, 2), 0.5))]), 64, 4)
     assert not c.valid and c.collapsed_faces == 2
     # a world-tiny triangle may have ~no UV area
-    pos, faces = quad(0, 0, 1, 1)
+    pos, faces = rect(0, 0, 1, 1)
     pos = np.vstack([pos, [[5, 5, 5], [5 + 1e-6, 5, 5], [5, 5 + 1e-6, 5]]])
     faces = np.vstack([faces, [[4, 5, 6]]])
     uv = np.vstack([rect_uv(0.1, 0.1, 0.5, 0.5), [[0.8, 0.8]] * 3])
@@ -445,7 +446,7 @@ def test_impossible_packing_is_a_spec_error():
 
 
 def test_prepare_keeps_valid_uv1_and_generates_missing():
-    a, b = quad(0, 0, 1, 1), quad(2, 0, 3, 1)
+    a, b = rect(0, 0, 1, 1), rect(2, 0, 3, 1)
     s = make_scene([(*a, rect_uv(0.1, 0.1, 0.3, 0.3)), (*b, rect_uv(0.5, 0.1, 0.7, 0.3))])
     timer = StageTimer(quiet=True)
     out, rep = prepare_scene(s, spec(resolution=64, padding=2), timer=timer)
@@ -465,7 +466,7 @@ def test_prepare_keeps_valid_uv1_and_generates_missing():
 
 def test_prepare_uv_keep_refuses_invalid_uv1():
     uv = rect_uv(0.1, 0.1, 0.5, 0.5)
-    s = make_scene([(*quad(0, 0, 1, 1), uv), (*quad(2, 0, 3, 1), uv + 0.2)])
+    s = make_scene([(*rect(0, 0, 1, 1), uv), (*rect(2, 0, 3, 1), uv + 0.2)])
     with pytest.raises(AssetError, match=r"TEXCOORD_1.*overlap"):
         prepare_scene(s, spec(uv="keep"))
     m = trimesh.creation.box()
@@ -477,7 +478,7 @@ def test_prepare_uv_keep_refuses_invalid_uv1():
 
 def test_duplicate_faces_are_repaired_before_uv_decision():
     """Duplicated faces make TEXCOORD_1 overlap; after repair the UVs are kept."""
-    pos, faces = quad(0, 0, 1, 1)
+    pos, faces = rect(0, 0, 1, 1)
     uv = rect_uv(0.1, 0.1, 0.4, 0.4)
     s = make_scene([(pos, np.vstack([faces, faces[:1]]), uv)])
     assert not check_uv1(s, 64, 2).valid

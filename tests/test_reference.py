@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from scenes import inside_sphere, point_light, quad, quad_normal
 from scipy import integrate
 
 from prtcore.core.materials import albedo_at
@@ -52,20 +53,10 @@ def make_scene(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, tuple]]) ->
                  face_instance=np.zeros(len(faces), np.int32), materials=tuple(mats))
 
 
-def quad(corners, rgb, subdiv: int = 2):
-    """A planar quad split into subdiv × subdiv cells of two triangles; corners a, b, c, d
-    counter-clockwise seen from the front."""
-    a, b, c, d = np.asarray(corners, float)
-    k = subdiv + 1
-    s, t = (g.ravel()[:, None] for g in np.meshgrid(np.linspace(0, 1, k),
-                                                    np.linspace(0, 1, k), indexing="ij"))
-    v = (1 - s) * (1 - t) * a + s * (1 - t) * b + s * t * c + (1 - s) * t * d
-    i, j = (g.ravel() for g in np.meshgrid(np.arange(subdiv), np.arange(subdiv),
-                                           indexing="ij"))
-    v00, v10, v11, v01 = i * k + j, (i + 1) * k + j, (i + 1) * k + j + 1, i * k + j + 1
-    f = np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)])
-    normal = np.cross(b - a, d - a)
-    return v, f, np.broadcast_to(normal / np.linalg.norm(normal), v.shape).copy(), rgb
+def quad_part(corners, rgb, subdiv: int = 2):
+    """A part for make_scene: the shared quad (tests/scenes.py) with its flat normal."""
+    v, f = quad(corners, subdiv)
+    return v, f, np.broadcast_to(quad_normal(corners), v.shape).copy(), rgb
 
 
 def make_texels(scene: Scene, triangle: np.ndarray, barycentric: np.ndarray,
@@ -115,17 +106,9 @@ def random_texels(scene: Scene, count: int, size: float, seed: int) -> TexelSpac
     return make_texels(scene, tri, bary, size)
 
 
-def point_light(pos, intensity: float = 1.0, color=(1.0, 1.0, 1.0)) -> Light:
-    return Light(type="point", color=np.asarray(color, float), intensity=intensity,
-                 position=np.asarray(pos, float))
-
-
-def inside_sphere(subdivisions: int, radius: float, rgb) -> Scene:
-    """An icosphere wound so that its inside is the front, radial inward normals."""
-    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
-    v = np.asarray(m.vertices, float)
-    return make_scene([(v, np.asarray(m.faces)[:, ::-1], -v / np.linalg.norm(
-        v, axis=1, keepdims=True), rgb)])
+def sphere_scene(subdivisions: int, radius: float, rgb) -> Scene:
+    """The inside of a sphere (tests/scenes.py), radial inward normals, albedo ``rgb``."""
+    return make_scene([(*inside_sphere(subdivisions, radius), rgb)])
 
 
 def cornell_scene() -> Scene:
@@ -237,7 +220,7 @@ def test_texel_regions_are_sampled_uniformly_on_the_texel_triangle():
 
 def test_single_plane_has_no_indirect_and_direct_closed_form():
     rho = (0.2, 0.5, 0.8)
-    scene = make_scene([quad([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], rho)])
+    scene = make_scene([quad_part([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], rho)])
     rng = np.random.default_rng(3)
     pts = np.column_stack([rng.uniform(-0.9, 0.9, 30), np.zeros(30), rng.uniform(-0.9, 0.9, 30)])
     tx = texels_at_points(scene, pts, 0.05)
@@ -256,8 +239,8 @@ def test_back_faces_end_paths():
     """A floor under a one-sided lid that faces up (away from the floor), light above the
     lid: the floor is in shadow and its paths only hit the lid's back: no light inside
     geometry, so exactly zero indirect (a tracer shading back hits would see the lit top)."""
-    floor = quad([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], (0.5, 0.5, 0.5))
-    lid = quad([[-3, 1, 3], [3, 1, 3], [3, 1, -3], [-3, 1, -3]], (0.9, 0.9, 0.9))
+    floor = quad_part([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], (0.5, 0.5, 0.5))
+    lid = quad_part([[-3, 1, 3], [3, 1, 3], [3, 1, -3], [-3, 1, -3]], (0.9, 0.9, 0.9))
     scene = make_scene([floor, lid])
     tx = texels_at_points(scene, np.array([[0.0, 0.0, 0.0], [0.5, 0.0, -0.3]]), 0.05)
     light = point_light([0.0, 2.0, 0.0], 5.0)
@@ -275,7 +258,7 @@ def test_furnace_sphere_closed_form():
     [1, R²/r_in²]·I/R²; the tolerance is that factor plus 4 standard errors."""
     R, inten = 2.0, 3.0
     rho = np.array([0.3, 0.5, 0.7])
-    scene = inside_sphere(4, R, tuple(rho))
+    scene = sphere_scene(4, R, tuple(rho))
     tri = np.random.default_rng(0).choice(len(scene.faces), 96, replace=False)
     tx = make_texels(scene, tri, np.full((96, 3), 1 / 3), 0.02)
     mean, err = reference_lightmap_with_error(scene, tx, [point_light([0, 0, 0], inten)],
@@ -297,7 +280,7 @@ def test_furnace_depth_limited_closed_form_with_and_without_rr():
     first bounce and without any (rr_depth ≥ max_depth)."""
     R, inten, depth = 1.0, 1.0, 4
     rho = np.array([0.4, 0.6, 0.8])
-    scene = inside_sphere(4, R, tuple(rho))
+    scene = sphere_scene(4, R, tuple(rho))
     tri = np.random.default_rng(1).choice(len(scene.faces), 64, replace=False)
     tx = make_texels(scene, tri, np.full((64, 3), 1 / 3), 0.02)
     light = [point_light([0, 0, 0], inten)]
@@ -379,8 +362,8 @@ def _first_bounce_grid(w: np.ndarray, light: Light, rho_floor: float, panels: in
 
 
 def _l_scene(rho_f, rho_w, wall_subdiv: int = 3) -> Scene:
-    floor = quad([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], tuple(rho_f), 3)
-    wall = quad([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], tuple(rho_w), wall_subdiv)
+    floor = quad_part([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], tuple(rho_f), 3)
+    wall = quad_part([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], tuple(rho_w), wall_subdiv)
     return make_scene([floor, wall])
 
 
@@ -389,8 +372,8 @@ def test_l_shape_first_bounce_matches_quadrature():
     L = ρ_w/π · E_ind, equals an independent form-factor quadrature over the floor."""
     rho_f = np.array([0.8, 0.5, 0.2])
     rho_w = np.array([0.6, 0.6, 0.6])
-    floor = quad([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], tuple(rho_f), 3)
-    wall = quad([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], tuple(rho_w), 3)
+    floor = quad_part([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], tuple(rho_f), 3)
+    wall = quad_part([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], tuple(rho_w), 3)
     scene = make_scene([floor, wall])
     np.testing.assert_allclose(scene.face_normals()[scene.face_material == 1], [[1, 0, 0]] * 18,
                                atol=1e-12)
@@ -453,9 +436,9 @@ def test_l_shape_with_occluder():
     kinds of visibility (checked against the grid rule with analytic visibility)."""
     plate = (0.3, 0.25, 0.55, 0.3, 0.7)
     hgt, x0, x1, z0, z1 = plate
-    black = quad([[x0, hgt, z0], [x1, hgt, z0], [x1, hgt, z1], [x0, hgt, z1]], (0, 0, 0), 1)
-    floor = quad([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], (0.7, 0.7, 0.7), 3)
-    wall = quad([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], (0.5, 0.5, 0.5), 3)
+    black = quad_part([[x0, hgt, z0], [x1, hgt, z0], [x1, hgt, z1], [x0, hgt, z1]], (0, 0, 0), 1)
+    floor = quad_part([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], (0.7, 0.7, 0.7), 3)
+    wall = quad_part([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], (0.5, 0.5, 0.5), 3)
     scene = make_scene([floor, wall, black])
     hz = [(0.1, 0.5), (0.25, 0.3), (0.45, 0.5), (0.6, 0.4), (0.85, 0.7), (0.3, 0.8)]
     pts = np.array([[0.0, h, z] for h, z in hz])
@@ -476,7 +459,7 @@ def test_origins_jitter_uniformly_over_the_footprint():
     """A wall texel with a large footprint (0.7 × 0.7 in the wall plane, inside the wall's
     one triangle): its one-bounce value is the footprint average of the quadrature above
     (6×6 Gauss–Legendre), which differs clearly from the value at the texel centre."""
-    floor = quad([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], (0.7, 0.7, 0.7), 3)
+    floor = quad_part([[0, 0, 1], [1, 0, 1], [1, 0, 0], [0, 0, 0]], (0.7, 0.7, 0.7), 3)
     # one wall triangle holding the whole footprint (origins stay on the texel's triangle)
     wall = (np.array([[0, 0, -1], [0, 2, 0.5], [0, 0, 2]], float), np.array([[0, 1, 2]]),
             np.array([[1.0, 0, 0]] * 3), (0.5, 0.5, 0.5))
@@ -506,7 +489,7 @@ def test_buried_origins_zero_or_excluded():
     """A floor texel half under a block. By default (buried_probes > 0) its buried half is
     left out and it gets what its visible half alone gets; with buried_probes=0 paths from
     its buried half see only back faces and bring 0, so it gets half of that."""
-    floor = quad([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], (0.8, 0.8, 0.8), 1)
+    floor = quad_part([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], (0.8, 0.8, 0.8), 1)
     box = trimesh.creation.box(extents=(0.4, 0.4, 0.4))
     box.apply_translation([0.2, 0.2, 0.0])  # x ∈ [0, 0.4], standing on the floor
     box.unmerge_vertices()
@@ -640,7 +623,7 @@ def test_arguments_and_empty_cases(box):
 def test_furnace_high_albedo_slow():
     """A bright furnace (ρ = 0.95: ~20 bounces on average) still matches ρ/(1−ρ)."""
     rho = np.array([0.95, 0.9, 0.85])
-    scene = inside_sphere(4, 1.0, tuple(rho))
+    scene = sphere_scene(4, 1.0, tuple(rho))
     tri = np.random.default_rng(2).choice(len(scene.faces), 128, replace=False)
     tx = make_texels(scene, tri, np.full((128, 3), 1 / 3), 0.02)
     mean, err = reference_lightmap_with_error(scene, tx, [point_light([0, 0, 0], 1.0)],

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import TINY_SPEC
 
 from prtcore import pipeline
 from prtcore.cli import main
@@ -57,16 +58,6 @@ GOLDEN_TOLERANCE = 8
 #: Fraction of pixels allowed beyond the tolerance.
 GOLDEN_OUTLIERS = 0.01
 
-TINY_SPEC = {
-    "atlas": {"resolution": 32, "padding": 2},
-    "measurement_points": {"count": 32, "supersample": 2},
-    "lights": {"count": 24, "holdout": 4, "families": [
-        {"type": "point", "position": {"box": [[-0.8, 0.3, -0.8], [0.8, 1.9, 0.9]]},
-         "intensity": {"uniform": [0.5, 3.0]}}]},
-    "transport": {"gather_rays": 16, "max_bounces": 8},
-    "fit": {"basis": 8},
-    "output": {"dtype": "float"},
-}
 #: A shared asset with textures, several materials and self-shadowing.
 TRUCK = "CesiumMilkTruck.glb"
 TRUCK_SPEC = {

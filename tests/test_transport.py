@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from scenes import inside_sphere, point_light, quad
 
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
@@ -76,19 +77,6 @@ def make_scene(parts, res: int, smooth: bool = False) -> Scene:
                  face_instance=np.zeros(n, np.int32), materials=tuple(mats))
 
 
-def quad(corners, subdiv: int = 2):
-    """Planar quad from corners a, b, c, d (counter-clockwise seen from the front)."""
-    a, b, c, d = np.asarray(corners, float)
-    k = subdiv + 1
-    s, t = (g.ravel()[:, None] for g in np.meshgrid(np.linspace(0, 1, k),
-                                                    np.linspace(0, 1, k), indexing="ij"))
-    v = (1 - s) * (1 - t) * a + s * (1 - t) * b + s * t * c + (1 - s) * t * d
-    i, j = (g.ravel() for g in np.meshgrid(np.arange(subdiv), np.arange(subdiv),
-                                           indexing="ij"))
-    v00, v10, v11, v01 = i * k + j, (i + 1) * k + j, (i + 1) * k + j + 1, i * k + j + 1
-    return v, np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)])
-
-
 FLOOR = [[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]]  # y = 0, facing +y
 
 
@@ -97,11 +85,6 @@ def box(extents, center, angle=0.0):
     m.apply_transform(trimesh.transformations.rotation_matrix(angle, [0, 1, 0]))
     m.apply_translation(center)
     return m.vertices, m.faces
-
-
-def point_light(pos, intensity=1.0, color=(1.0, 1.0, 1.0)) -> Light:
-    return Light(type="point", color=np.asarray(color, float), intensity=float(intensity),
-                 position=np.asarray(pos, float))
 
 
 def spot_light(pos, target, outer, intensity=1.0) -> Light:
@@ -195,15 +178,16 @@ def test_plane_direct_closed_form_and_no_indirect():
 # (2) Furnace: inside a closed sphere of albedo ρ every bounce keeps a fraction ρ
 
 
-def inside_sphere(rho: float, res: int = 128) -> Scene:
-    m = trimesh.creation.icosphere(subdivisions=2)
-    return make_scene([(m.vertices, m.faces[:, ::-1], (rho, rho, rho))], res=res)
+def sphere_room(rho: float, res: int = 128) -> Scene:
+    """The inside of a sphere (tests/scenes.py) of albedo ρ, one chart per face."""
+    v, f, _ = inside_sphere(2)
+    return make_scene([(v, f, (rho, rho, rho))], res=res)
 
 
 @pytest.fixture(scope="module")
 def sphere_gather():
     """The gather operator of the inside of a sphere (geometry only, albedo-free)."""
-    scene = inside_sphere(0.5)
+    scene = sphere_room(0.5)
     texels = build_texel_space(scene, 128, padding=1)
     return scene, texels, gather_operator(scene, texels, tracer_of(scene), 64, seed=3)
 

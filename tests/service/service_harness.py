@@ -18,6 +18,8 @@ import httpx
 ROOT = Path(__file__).resolve().parents[2]
 CORNELL = ROOT / "examples" / "cornell_box.glb"
 FINAL = ("succeeded", "failed", "cancelled")
+#: Stages during which a bake is well under way (a kill or cancel lands mid-bake).
+MID = ("lights", "gather operator", "direct texels", "direct points", "indirect solve", "fit")
 
 #: A bake of a few seconds on the Cornell box: long enough to kill or cancel mid-bake.
 SLOW_SPEC = {
@@ -220,3 +222,17 @@ def mark_succeeded(db_url: str, artifacts_root: Path, job_id: str) -> Path:
     artifacts.write_zip(bundle, artifacts.zip_path(artifacts_root, job_id))
     store.engine.dispose()
     return bundle
+
+
+def running_mid_bake(job: dict) -> bool:
+    return job["status"] == "running" and job["stage"] in MID
+
+
+def single_bundle(c: Cluster, job_id: str) -> None:
+    """Exactly one bundle for the job, nothing half-written, the zip matching it."""
+    import zipfile
+
+    d = c.job_dir(job_id)
+    assert sorted(p.name for p in d.iterdir()) == ["bundle", "bundle.zip", "input"]
+    files = sorted(p.name for p in (d / "bundle").iterdir())
+    assert sorted(zipfile.ZipFile(d / "bundle.zip").namelist()) == files

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import hostile_assets as H
 import pytest
+from scenes import TINY_SPEC
 from service_harness import CORNELL, ROOT
-from test_bundle import TINY_SPEC
 
 
 def post(client, asset: Path | bytes, spec=TINY_SPEC, name: str | None = None,

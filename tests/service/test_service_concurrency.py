@@ -7,7 +7,7 @@ import re
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-from test_bundle import TINY_SPEC
+from scenes import TINY_SPEC
 
 
 def spec(seed: int) -> dict:

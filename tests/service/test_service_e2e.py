@@ -114,8 +114,8 @@ def test_prtcore_serve_runs_everything_and_stops_cleanly(tmp_path):
     import time
 
     import httpx
+    from scenes import TINY_SPEC
     from service_harness import alive, descendants, free_port
-    from test_bundle import TINY_SPEC
 
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("PRT_")}

@@ -6,27 +6,13 @@ from __future__ import annotations
 
 import shutil
 import time
-import zipfile
 
 import pytest
-from service_harness import SLOW_SPEC, alive
-from test_bundle import TINY_SPEC
+from scenes import TINY_SPEC
+from service_harness import SLOW_SPEC, alive, running_mid_bake, single_bundle
+
 
 #: Stages strictly inside a bake (after intake, before the bundle is written).
-MID = ("lights", "gather operator", "direct texels", "direct points", "indirect solve", "fit")
-
-
-def running_mid_bake(job: dict) -> bool:
-    return job["status"] == "running" and job["stage"] in MID
-
-
-def single_bundle(c, job_id: str) -> None:
-    d = c.job_dir(job_id)
-    assert sorted(p.name for p in d.iterdir()) == ["bundle", "bundle.zip", "input"]
-    files = sorted(p.name for p in (d / "bundle").iterdir())
-    assert sorted(zipfile.ZipFile(d / "bundle.zip").namelist()) == files
-
-
 @pytest.mark.slow
 def test_kill9_worker_mid_bake_job_still_succeeds_once(make_cluster):
     c = make_cluster()

@@ -8,8 +8,8 @@ import json
 import socket
 
 import pytest
+from scenes import TINY_SPEC
 from service_harness import CORNELL, Cluster, mark_succeeded
-from test_bundle import TINY_SPEC
 
 
 def _recv_status(sock: socket.socket) -> str:

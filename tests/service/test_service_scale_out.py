@@ -4,9 +4,8 @@ as if on two machines sharing the artifact location)."""
 from __future__ import annotations
 
 import pytest
-from service_harness import SLOW_SPEC
-from test_bundle import TINY_SPEC
-from test_service_faults import running_mid_bake, single_bundle
+from scenes import TINY_SPEC
+from service_harness import SLOW_SPEC, running_mid_bake, single_bundle
 
 
 def test_postgres_redis_end_to_end(scale_out_env, make_cluster):

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scenes import tiny_spec
 
 from prtcore import pipeline
 from prtcore.core.spec import parse_spec
@@ -28,17 +29,9 @@ CORNELL = ROOT / "examples" / "cornell_box.glb"
 #: The room's point-light family: inside the box, clear of the walls.
 ROOM_BOX = [[-0.6, 1.3, -0.6], [0.6, 1.7, 0.6]]
 
-#: A bake that takes about a second on the Cornell box (cf. tests/test_bundle.py).
-TINY = {
-    "atlas": {"resolution": 32, "padding": 2},
-    "measurement_points": {"count": 32, "supersample": 2},
-    "lights": {"count": 24, "holdout": 6, "families": [
-        {"type": "point", "position": {"box": ROOM_BOX},
-         "intensity": {"uniform": [0.5, 3.0]}}]},
-    "transport": {"gather_rays": 16, "max_bounces": 8},
-    "fit": {"basis": 8},
-    "output": {"dtype": "float"},
-}
+#: TINY_SPEC (tests/scenes.py) with the room's light family and 6 held-out lights.
+TINY = tiny_spec(lights={"count": 24, "holdout": 6, "families": [
+    {"type": "point", "position": {"box": ROOM_BOX}, "intensity": {"uniform": [0.5, 3.0]}}]})
 
 
 def spec_with(**changes) -> dict:
