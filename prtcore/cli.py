@@ -69,6 +69,16 @@ def _cmd_reference(args: argparse.Namespace) -> int:
     return 0
 
 
+def _warn_time(command: str, manifest: dict, time: float | None) -> None:
+    """``--time`` outside the animation: one warning line on stderr; the nearest keyframe
+    is used (README, "The bake spec"). A non-finite time is refused (exit 2)."""
+    from prtcore.keyframes.pose import time_outside_warning
+
+    msg = time_outside_warning(manifest.get("keyframes") or {}, time)
+    if msg:
+        print(f"prtcore {command}: warning: {msg}", file=sys.stderr)
+
+
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
@@ -86,6 +96,7 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     if manifest.get("keyframes") or args.time is not None:  # pose at the nearest keyframe
         from prtcore.keyframes.pose import bundle_at_time
 
+        _warn_time("relight", manifest, args.time)
         data, scene, key = bundle_at_time(bundle, manifest, data, scene, args.time)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     if args.basis is not None and not 1 <= args.basis <= data.n_basis:
@@ -106,6 +117,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
     if args.indirect_only and args.no_indirect:
         raise PrtError("render: --indirect-only and --no-indirect exclude each other")
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
+    if args.time is not None:
+        from prtcore.io.bundle import read_manifest
+
+        _warn_time("render", read_manifest(Path(args.bundle)), args.time)
     res, label = render_to_file(args.bundle, args.light, args.camera, args.out,
                                 n=args.basis, mode=mode, exposure=args.exposure,
                                 shadow_resolution=args.shadow_resolution, time=args.time)
@@ -214,7 +229,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="output .exr (RGBA float, atlas size)")
     sp.add_argument("--time", type=float, default=None,
                     help="keyframe bundles: seconds into the animation (nearest keyframe; "
-                         "default the first)")
+                         "default the first; outside the animation: the nearest keyframe "
+                         "with a warning)")
     sp.add_argument("--basis", type=int, default=None,
                     help="basis elements to use, mean included (default: all)")
     sp.set_defaults(func=_cmd_relight)
@@ -243,7 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", required=True, help="output .png (tone-mapped) or .exr (linear)")
     sp.add_argument("--time", type=float, default=None,
                     help="keyframe bundles: seconds into the animation (nearest keyframe; "
-                         "default the first)")
+                         "default the first; outside the animation: the nearest keyframe "
+                         "with a warning)")
     sp.add_argument("--basis", type=int, default=None,
                     help="basis elements to use, mean included (default: all)")
     sp.add_argument("--indirect-only", action="store_true", help="indirect term only")

@@ -136,6 +136,52 @@ def test_keyframe_times_and_pairs():
     assert nearest_keyframe([0.1, 0.5, 0.9], 5.0) == 2
 
 
+@pytest.mark.parametrize("count", [1, 3, 7, 16])
+def test_random_keyframe_times_are_stratified(count):
+    """Drawn times cover the animation: one in each of F equal sub-intervals of
+    [0, duration], whatever the seed (issue 14: 0.64, 1.18, 1.22 s of 1.25 s clustered)."""
+    duration = 1.25
+    anim = Animation("a", (AnimationChannel(0, "translation", np.array([0.0, duration]),
+                                            np.zeros((2, 3))),))
+    draws = []
+    for seed in range(20):
+        t = keyframe_times(anim, parse_spec(_spec(count=count, seed=seed)))
+        assert len(t) == count and np.all(np.diff(t) > 0)
+        stratum = np.floor(t / (duration / count)).astype(int)
+        np.testing.assert_array_equal(stratum, np.arange(count), err_msg=str(t))
+        assert 0.0 <= t[0] and t[-1] <= duration
+        draws.append(t)
+    # seeded: the same seed gives the same times, different seeds different ones
+    np.testing.assert_array_equal(draws[4], keyframe_times(anim, parse_spec(
+        _spec(count=count, seed=4))))
+    assert len({tuple(d) for d in draws}) == 20
+    # within its sub-interval a time is uniform: offsets spread over the sub-interval
+    offsets = np.concatenate([d / (duration / count) - np.arange(count) for d in draws])
+    assert offsets.min() < 0.2 and offsets.max() > 0.8
+
+
+def test_stage_lines_give_each_keyframe_its_own_time(column, tmp_path, capsys, monkeypatch):
+    """A keyframe bake runs the transport stages once per keyframe: each printed line is
+    that run's own time (not the running total), the report keeps the sum."""
+    import types
+
+    from prtcore.core import progress
+
+    clock = iter(np.arange(1e6))  # every perf_counter() call one second later
+    monkeypatch.setattr(progress, "time", types.SimpleNamespace(
+        perf_counter=lambda: float(next(clock))))
+    out = pipeline.bake(column, parse_spec(_spec()), tmp_path / "b", quiet=False)
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines()
+             if ln.startswith("[prtcore] gather operator") and "starting" not in ln]
+    assert len(lines) == 3, err
+    assert lines[0].split()[3:] == ["1.00", "s"]
+    assert lines[1].split()[3:] == ["1.00", "s", "(run", "2;", "2.00", "s", "in", "all)"]
+    assert lines[2].split()[3:] == ["1.00", "s", "(run", "3;", "3.00", "s", "in", "all)"]
+    seconds = json.loads((out / "report.json").read_text())["stage_seconds"]
+    assert seconds["gather operator"] == 3.0
+
+
 def test_rest_pose_is_the_loaded_scene(column):
     s = load_asset(column)
     world = node_matrices(s, None, 0.0)
@@ -350,6 +396,54 @@ def test_relight_at_a_time(per_key_bundle, shared_bundle, tmp_path, capsys):
     m = read_manifest(per_key_bundle)
     with pytest.raises(PrtError, match="keyframe 7 out of range"):
         load_keyframe(per_key_bundle, m, 7)
+
+
+def test_time_outside_the_animation_uses_the_nearest_keyframe_with_a_warning(
+        shared_bundle, tmp_path, capsys):
+    """README policy: `--time` before 0 or after the animation's end is not refused; the
+    nearest keyframe (the first or the last) is used and one warning line on stderr says
+    so. A time inside the animation prints no warning; a non-finite one is refused."""
+    light = tmp_path / "light.json"
+    light.write_text(json.dumps({"type": "point", "color": [1, 1, 1], "intensity": 3,
+                                 "position": [0.6, 1.8, 0.4]}))
+    kf = read_manifest(shared_bundle)["keyframes"]
+    images = {}
+    for t, k in ((kf["times"][-1], 2), (kf["duration"] + 5.0, 2), (kf["times"][0], 0),
+                 (-3.0, 0)):
+        out = tmp_path / f"r{t}.exr"
+        assert main(["relight", str(shared_bundle), "--light", str(light), "--out", str(out),
+                     "--time", str(t)]) == 0
+        o, e = capsys.readouterr()
+        assert f"keyframe {k} at {kf['times'][k]:g} s" in o
+        if 0 <= t <= kf["duration"]:
+            assert e == ""
+        else:
+            assert e.count("\n") == 1 and e.startswith("prtcore relight: warning: "), e
+            assert f"--time {t:g} s is outside animation" in e
+            assert f"(0..{kf['duration']:g} s)" in e
+            assert f"keyframe, {k} at {kf['times'][k]:g} s" in e
+        images[t] = read_image(out)
+    np.testing.assert_array_equal(images[kf["duration"] + 5.0], images[kf["times"][-1]])
+    np.testing.assert_array_equal(images[-3.0], images[kf["times"][0]])
+    for bad in ("nan", "inf"):
+        assert main(["relight", str(shared_bundle), "--light", str(light), "--out",
+                     str(tmp_path / "x.exr"), "--time", bad]) == 2
+        e = capsys.readouterr().err
+        assert "finite" in e and len(e.strip().splitlines()) == 1
+
+
+def test_render_warns_for_a_time_outside_the_animation(shared_bundle, tmp_path, capsys):
+    light = tmp_path / "light.json"
+    light.write_text(json.dumps({"type": "point", "color": [1, 1, 1], "intensity": 3,
+                                 "position": [0.6, 1.8, 0.4]}))
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"position": [1.6, 0.9, 1.6], "target": [0, 0.5, 0],
+                               "fov_y_deg": 50, "width": 16, "height": 16}))
+    assert main(["render", str(shared_bundle), "--light", str(light), "--camera", str(cam),
+                 "--out", str(tmp_path / "r.exr"), "--time", "99"]) == 0
+    e = capsys.readouterr().err
+    assert e.startswith("prtcore render: warning: --time 99 s is outside animation"), e
+    assert e.count("\n") == 1
 
 
 def test_render_at_a_time(per_key_bundle, tmp_path, capsys):

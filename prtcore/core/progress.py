@@ -36,20 +36,30 @@ class StageTimer:
     callback: ProgressCallback | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
+    #: how many times each stage ran (a keyframe bake runs the transport stages per keyframe)
+    runs: dict[str, int] = field(default_factory=dict)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
+        """Time the block as stage ``name``. ``seconds[name]`` accumulates over repeated
+        runs (the report's stage times); the line printed at the end gives this run's own
+        time, and for a repeated stage which run it was and the total so far."""
         if self.callback is not None:
             self.callback(name, 0.0)
         t0 = time.perf_counter()
         try:
             yield
         finally:
-            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+            dt = time.perf_counter() - t0
+            self.seconds[name] = self.seconds.get(name, 0.0) + dt
+            self.runs[name] = self.runs.get(name, 0) + 1
         if self.callback is not None:
             self.callback(name, 1.0)
         if not self.quiet:
-            print(f"[prtcore] {name:<18s} {self.seconds[name]:8.2f} s", file=sys.stderr)
+            line = f"[prtcore] {name:<18s} {dt:8.2f} s"
+            if self.runs[name] > 1:
+                line += f"  (run {self.runs[name]}; {self.seconds[name]:.2f} s in all)"
+            print(line, file=sys.stderr)
 
     def skip(self, name: str, why: str) -> None:
         self.skipped[name] = why
