@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from prtcore.fit.transfer import TransferModel, projection_bound, reconstruct, relative_rmse
+from prtcore.fit.model import TransferModel, relative_rmse
+from prtcore.fit.transfer import projection_bound, reconstruct
 
 TABLE_N = (4, 8, 16, 32, 64)
 #: The CPU blend timing runs on at most this many pixels (1024²) and is scaled linearly.

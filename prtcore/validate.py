@@ -15,7 +15,7 @@ import numpy as np
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.emitters.lightfile import load_light_file
-from prtcore.fit.transfer import relative_rmse
+from prtcore.fit.model import relative_rmse
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.receivers.texels import image_to_texels
 from prtcore.reference.pathtracer import reference_lightmaps

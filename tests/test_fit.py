@@ -10,21 +10,21 @@ import numpy as np
 import pytest
 
 from prtcore.core.errors import PrtError
-from prtcore.fit.transfer import (
+from prtcore.fit.model import (
     AUTO_ENERGY,
     AUTO_HOLDOUT_MARGIN,
     UNDERDETERMINED_WARNING,
-    _direct_svd,
-    _fit_transfer64,
-    _loo_sse,
-    _reconstruct64,
-    _ridge_solve,
-    fit_transfer,
     gamma_decode,
     gamma_encode,
+    relative_rmse,
+)
+from prtcore.fit.ridge import direct_svd, loo_sse, ridge_solve
+from prtcore.fit.transfer import (
+    fit_transfer,
+    fit_transfer64,
     projection_bound,
     reconstruct,
-    relative_rmse,
+    reconstruct64,
 )
 
 
@@ -88,7 +88,7 @@ def test_exact_recovery_of_lowrank_operator(channels):
     op = lowrank_operator(rng, T, P, r)
     D = coloured_lights(rng, P, K)
     I = transport(op, D)
-    m64 = _fit_transfer64(D, I, basis=r + 1, ridge=0.0, channels=channels)
+    m64 = fit_transfer64(D, I, basis=r + 1, ridge=0.0, channels=channels)
     m32 = fit_transfer(D, I, basis=16, ridge=0.0, channels=channels)
     assert m32.n_basis == r + 1  # capped at the rank, and said so
     assert m32.diagnostics.n_basis_method == "capped"
@@ -97,7 +97,7 @@ def test_exact_recovery_of_lowrank_operator(channels):
     for _ in range(3):
         x = rng.uniform(0.0, 1.0, (P, 3)) * rng.uniform(0.0, 1.0, 3)  # new light, new colour
         truth = op @ x
-        assert relative_rmse(_reconstruct64(m64, x), truth) < 1e-8
+        assert relative_rmse(reconstruct64(m64, x), truth) < 1e-8
         y32 = reconstruct(m32, x)
         assert y32.dtype == np.float32 and y32.shape == (T, 3)
         assert relative_rmse(y32, truth) < 1e-5
@@ -110,7 +110,7 @@ def test_intercept_false_is_the_papers_formula_and_not_exact():
     op = lowrank_operator(rng, T, P, r)
     D = coloured_lights(rng, P, K)
     I = transport(op, D)
-    m = _fit_transfer64(D, I, basis=r + 1, ridge=0.0, intercept=False)
+    m = fit_transfer64(D, I, basis=r + 1, ridge=0.0, intercept=False)
     assert np.all(m.offset == 0.0)
     C = coefficients(m, D, I)
     Dn, _, _ = normalised(D, I)
@@ -118,7 +118,7 @@ def test_intercept_false_is_the_papers_formula_and_not_exact():
         M_ref, _ = ridge_normal_equations(C[c], Dn[:, :, c], 0.0, intercept=False)
         np.testing.assert_allclose(m.transfer[c], M_ref, rtol=1e-8, atol=1e-10)
     x = rng.uniform(0.0, 1.0, (P, 3))
-    assert relative_rmse(_reconstruct64(m, x), op @ x) > 1e-6
+    assert relative_rmse(reconstruct64(m, x), op @ x) > 1e-6
 
 
 # ---------------------------------------------------------------------------------------
@@ -131,10 +131,10 @@ def test_ridge_solve_matches_normal_equations():
     D = rng.standard_normal((P, K))
     C = rng.standard_normal((m, K))
     for intercept in (True, False):
-        svd = _direct_svd(D, intercept)
+        svd = direct_svd(D, intercept)
         norms = []
         for lam in (0.0, 1e-3, 0.1, 1.0, 10.0, 1e3):
-            M, b = _ridge_solve(svd, C, lam)
+            M, b = ridge_solve(svd, C, lam)
             M_ref, b_ref = ridge_normal_equations(C, D, lam, intercept)
             np.testing.assert_allclose(M, M_ref, rtol=1e-9, atol=1e-12)
             np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-12)
@@ -148,7 +148,7 @@ def test_fitted_transfer_matches_normal_equations():
     D = coloured_lights(rng, P, K)
     I = transport(rng.standard_normal((T, P)), D) + 0.01 * rng.standard_normal((T, K, 3))
     lam = 0.05
-    m = _fit_transfer64(D, I, basis=6, ridge=lam, channels="rgb")
+    m = fit_transfer64(D, I, basis=6, ridge=lam, channels="rgb")
     _, In, _ = normalised(D, I)
     np.testing.assert_allclose(m.mean, In.mean(axis=1), rtol=1e-12, atol=1e-14)
     C = coefficients(m, D, I)
@@ -171,7 +171,7 @@ def test_loo_closed_form_equals_brute_force(intercept):
     D = rng.standard_normal((P, K))
     C = rng.standard_normal((m, P)) @ D + 0.3 * rng.standard_normal((m, K)) + 0.5
     lams = np.array([0.0, 1e-2, 0.3, 5.0])
-    closed = _loo_sse(_direct_svd(D, intercept), C, lams)
+    closed = loo_sse(direct_svd(D, intercept), C, lams)
     for j, lam in enumerate(lams):
         brute = np.zeros(m)
         for k in range(K):
@@ -193,7 +193,7 @@ def test_auto_ridge_is_the_cv_minimum():
     assert d.ridge == d.ridge_grid[int(np.argmin(cv))]
     assert m.ridge == d.ridge
     # the reported curve is the brute-force LOO of the transfer (basis fixed)
-    m64 = _fit_transfer64(D, I, basis=6, ridge=d.ridge)
+    m64 = fit_transfer64(D, I, basis=6, ridge=d.ridge)
     C = coefficients(m64, D, I)
     Dn, In, _ = normalised(D, I)
     j = len(d.ridge_grid) // 2
@@ -221,7 +221,7 @@ def test_rank_deficient_direct_gives_min_norm_transfer():
     P = D.shape[0]
     I = transport(rng.standard_normal((T, P)), D)
     for lam in (0.0, 1e-30):
-        m = _fit_transfer64(D, I, basis=4, ridge=lam)
+        m = fit_transfer64(D, I, basis=4, ridge=lam)
         assert np.all(np.isfinite(m.transfer)) and np.all(np.isfinite(m.offset))
         assert UNDERDETERMINED_WARNING in m.diagnostics.warnings
         C = coefficients(m, D, I)
@@ -252,7 +252,7 @@ def test_zero_and_nonfinite_configurations_are_excluded():
     Dbad[:, 3, :] = 0.0
     Dbad[0, 5, 1] = np.nan
     Ibad[2, 9, 0] = np.inf
-    m = _fit_transfer64(Dbad, Ibad, basis=5, ridge=0.01)
+    m = fit_transfer64(Dbad, Ibad, basis=5, ridge=0.01)
     d = m.diagnostics
     assert [e["index"] for e in d.excluded] == [3, 5, 9]
     assert [e["reason"] for e in d.excluded] == [
@@ -261,7 +261,7 @@ def test_zero_and_nonfinite_configurations_are_excluded():
     for a in (m.mean, m.basis, m.transfer, m.offset):
         assert np.all(np.isfinite(a))
     keep = np.delete(np.arange(K), [3, 5, 9])
-    ref = _fit_transfer64(D[:, keep], I[:, keep], basis=5, ridge=0.01)
+    ref = fit_transfer64(D[:, keep], I[:, keep], basis=5, ridge=0.01)
     np.testing.assert_allclose(m.basis, ref.basis, atol=1e-12)
     np.testing.assert_allclose(m.transfer, ref.transfer, atol=1e-10)
 
@@ -295,11 +295,11 @@ def test_mono_equals_rgb_for_white_lights_and_grey_transport():
     white = rng.uniform(0.0, 1.0, (P, K))
     D = np.repeat(white[:, :, None], 3, axis=2)
     I = transport(op, D)
-    mono = _fit_transfer64(D, I, basis=5, ridge=1e-3, channels="mono")
-    rgb = _fit_transfer64(D, I, basis=5, ridge=1e-3, channels="rgb")
+    mono = fit_transfer64(D, I, basis=5, ridge=1e-3, channels="mono")
+    rgb = fit_transfer64(D, I, basis=5, ridge=1e-3, channels="rgb")
     xw = rng.uniform(0.0, 1.0, P)
     x = np.repeat(xw[:, None], 3, axis=1)
-    y_mono, y_rgb = _reconstruct64(mono, x), _reconstruct64(rgb, x)
+    y_mono, y_rgb = reconstruct64(mono, x), reconstruct64(rgb, x)
     assert relative_rmse(y_mono, op @ x) > 1e-3  # the comparison is not trivially exact
     assert relative_rmse(y_mono, y_rgb) < 1e-9
 
@@ -366,7 +366,7 @@ def test_gamma_round_trip_reproduces_training_and_clamps():
         assert relative_rmse(y, I[:, k]) < 1e-4
     y = reconstruct(m, -3.0 * D[:, 0])  # drives the gamma-space result negative
     assert np.all(np.isfinite(y)) and np.all(y >= 0.0)
-    y_lin = _reconstruct64(m, -3.0 * D[:, 0])
+    y_lin = reconstruct64(m, -3.0 * D[:, 0])
     assert np.any(y_lin == 0.0)  # clamped values exist
 
 
@@ -380,8 +380,8 @@ def test_blocked_gram_gives_the_same_basis(channels):
     T, P, K = 123, 6, 15
     D = coloured_lights(rng, P, K)
     I = transport(rng.standard_normal((T, P)), D) + 0.1 * rng.standard_normal((T, K, 3))
-    one = _fit_transfer64(D, I, basis=8, ridge=0.01, channels=channels)
-    blocked = _fit_transfer64(D, I, basis=8, ridge=0.01, channels=channels, block_rows=7)
+    one = fit_transfer64(D, I, basis=8, ridge=0.01, channels=channels)
+    blocked = fit_transfer64(D, I, basis=8, ridge=0.01, channels=channels, block_rows=7)
     np.testing.assert_allclose(blocked.mean, one.mean, atol=1e-13)
     Ua = one.basis.reshape(T, one.basis.shape[1], -1)
     Ub = blocked.basis.reshape(T, blocked.basis.shape[1], -1)
@@ -400,7 +400,7 @@ def test_basis_is_orthonormal_and_spectrum_matches_numpy_svd():
     T, P, K = 160, 6, 12
     D = coloured_lights(rng, P, K)
     I = transport(rng.standard_normal((T, P)), D) + 0.05 * rng.standard_normal((T, K, 3))
-    m = _fit_transfer64(D, I, basis=10, ridge=0.0)
+    m = fit_transfer64(D, I, basis=10, ridge=0.0)
     U = m.basis
     np.testing.assert_allclose(U.T @ U, np.eye(U.shape[1]), atol=1e-10)
     _, In, _ = normalised(D, I)

@@ -16,9 +16,8 @@ from typing import ClassVar
 import numpy as np
 
 from prtcore.core.raytrace import RayTracer
+from prtcore.core.registry import Registry
 from prtcore.core.scene import Light
-
-_REGISTRY: dict[str, Emitter] = {}
 
 
 class Emitter:
@@ -64,24 +63,17 @@ class Emitter:
         raise NotImplementedError
 
 
-def register(cls: type[Emitter]) -> type[Emitter]:
-    """Class decorator: make ``cls`` the emitter of lights of type ``cls.type``."""
-    if cls.type in _REGISTRY:
-        raise ValueError(f"emitter type {cls.type!r} registered twice")
-    _REGISTRY[cls.type] = cls()
-    return cls
+_REGISTRY: Registry[Emitter] = Registry("emitter for light type", "type")
+
+#: class decorator: make a class the emitter of lights of its ``type``
+register = _REGISTRY.register
 
 
 def emitter_for(light_or_type: Light | str) -> Emitter:
     """The emitter of a light (or of a type name). KeyError names the known types."""
-    t = light_or_type if isinstance(light_or_type, str) else light_or_type.type
-    try:
-        return _REGISTRY[t]
-    except KeyError:
-        raise KeyError(f"no emitter for light type {t!r} (known: {', '.join(types())})"
-                       ) from None
+    return _REGISTRY.get(light_or_type if isinstance(light_or_type, str) else light_or_type.type)
 
 
 def types() -> tuple[str, ...]:
     """Registered light types, in registration order."""
-    return tuple(_REGISTRY)
+    return _REGISTRY.names()

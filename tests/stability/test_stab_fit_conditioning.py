@@ -14,14 +14,8 @@ import numpy as np
 import pytest
 
 from prtcore.core.tolerances import DIRECT_SVD_REL_TOL
-from prtcore.fit.transfer import (
-    UNDERDETERMINED_WARNING,
-    _fit_transfer64,
-    _reconstruct64,
-    fit_transfer,
-    reconstruct,
-    relative_rmse,
-)
+from prtcore.fit.model import UNDERDETERMINED_WARNING, relative_rmse
+from prtcore.fit.transfer import fit_transfer, fit_transfer64, reconstruct, reconstruct64
 
 #: float32 model (what a bundle stores) vs float64 model, relative over the lightmap.
 F32_RTOL = 1e-5
@@ -57,10 +51,10 @@ def test_nearly_coincident_points_float32_agrees_with_float64(eps, ridge):
     D = base + eps * np.abs(rng.normal(size=(P, K, 3)))
     op, D, I = _data(rng, 300, P, K, noise=1e-3, D=D)
     m32 = fit_transfer(D, I, basis=6, ridge=ridge)
-    m64 = _fit_transfer64(D, I, basis=6, ridge=ridge)
+    m64 = fit_transfer64(D, I, basis=6, ridge=ridge)
     x = D[:, 3] + eps * rng.random((P, 3))
     y32 = reconstruct(m32, x).astype(np.float64)
-    y64 = _reconstruct64(m64, x)
+    y64 = reconstruct64(m64, x)
     assert np.isfinite(m32.transfer).all() and np.isfinite(y32).all()
     assert relative_rmse(y32, y64) <= F32_RTOL
     assert relative_rmse(y64, op @ x) <= 5e-3  # noise level 1e-3, no blow-up
@@ -81,7 +75,7 @@ def test_diagnostics_match_numpy_for_coincident_points():
     D0 = np.abs(rng.normal(size=(P0, K, 3)))
     D = np.concatenate([D0, D0[:4], D0[:4]], axis=0)  # 8 points coincide with 4 others
     _, D, I = _data(rng, 120, D.shape[0], K, D=D)
-    d = _fit_transfer64(D, I, basis=5, ridge=1e-3).diagnostics
+    d = fit_transfer64(D, I, basis=5, ridge=1e-3).diagnostics
     Dc = _centred_normalised(D)
     for c in range(3):
         sv = np.linalg.svd(Dc[:, :, c], compute_uv=False)
@@ -92,7 +86,7 @@ def test_diagnostics_match_numpy_for_coincident_points():
         assert d.direct_condition[c] is None  # 18 singular values, 10 non-zero
     # without duplicates: finite condition number equal to numpy's
     _, D1, I1 = _data(rng, 120, P0, K, D=D0)
-    d1 = _fit_transfer64(D1, I1, basis=5, ridge=1e-3).diagnostics
+    d1 = fit_transfer64(D1, I1, basis=5, ridge=1e-3).diagnostics
     Dc1 = _centred_normalised(D1)
     for c in range(3):
         assert d1.direct_condition[c] == pytest.approx(np.linalg.cond(Dc1[:, :, c]), rel=1e-8)
@@ -119,7 +113,7 @@ def test_ridge_from_zero_to_huge_on_rank_deficient_direct():
     norms = []
     models = {}
     for lam in LAMBDAS:
-        m = _fit_transfer64(D, I, basis=6, ridge=lam)
+        m = fit_transfer64(D, I, basis=6, ridge=lam)
         assert np.isfinite(m.transfer).all() and np.isfinite(m.offset).all()
         assert np.isfinite(reconstruct(m, D[:, 0])).all()
         norms.append(float(np.linalg.norm(m.transfer)))
@@ -132,7 +126,7 @@ def test_ridge_from_zero_to_huge_on_rank_deficient_direct():
     # λ huge: u = s·b with b the mean normalised coefficients → reconstruction of a
     # training configuration equals s·(mean + U·c̄)
     assert np.linalg.norm(models[1e300].offset) > 0
-    auto = _fit_transfer64(D, I, basis=6, ridge="auto")
+    auto = fit_transfer64(D, I, basis=6, ridge="auto")
     assert auto.diagnostics.ridge_method == "loo" and np.isfinite(auto.ridge)
 
 
@@ -157,8 +151,8 @@ def test_fit_is_invariant_to_configuration_scale_over_twelve_decades():
     rng = np.random.default_rng(4)
     _, D, I = _data(rng, 150, 20, 40)
     a = 10.0 ** rng.uniform(-6, 6, size=40)
-    m1 = _fit_transfer64(D, I, basis=6, ridge=1e-3)
-    m2 = _fit_transfer64(D * a[None, :, None], I * a[None, :, None], basis=6, ridge=1e-3)
+    m1 = fit_transfer64(D, I, basis=6, ridge=1e-3)
+    m2 = fit_transfer64(D * a[None, :, None], I * a[None, :, None], basis=6, ridge=1e-3)
     for name in ("mean", "basis", "transfer", "offset"):
         np.testing.assert_allclose(getattr(m2, name), getattr(m1, name), rtol=1e-8,
                                    atol=1e-10, err_msg=name)

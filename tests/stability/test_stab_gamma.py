@@ -18,7 +18,8 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import load_light_file
-from prtcore.fit.transfer import GAMMA_RANGE, fit_transfer, reconstruct
+from prtcore.fit.model import GAMMA_RANGE
+from prtcore.fit.transfer import fit_transfer, reconstruct
 from prtcore.io.bundle import load_runtime
 from prtcore.io.gltf.loader import load_asset
 from prtcore.runtime.cpu import plane_weights, relight, shade_points

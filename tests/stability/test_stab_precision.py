@@ -21,8 +21,8 @@ from stab_helpers import (
     spec_with,
 )
 
-from prtcore.fit.transfer import _fit_transfer64, _reconstruct64, fit_transfer, reconstruct
-from prtcore.fit.transfer import relative_rmse as rrmse
+from prtcore.fit.model import relative_rmse as rrmse
+from prtcore.fit.transfer import fit_transfer, fit_transfer64, reconstruct, reconstruct64
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.runtime.cpu import blend, plane_weights
 
@@ -49,10 +49,10 @@ def test_float32_model_agrees_with_float64(transport, channels, gamma, ridge):
     D, I = transport.dataset(train)
     Dh, _ = transport.dataset(hold)
     kw = {"basis": 8, "ridge": ridge, "channels": channels, "gamma": gamma}
-    m32, m64 = fit_transfer(D, I, **kw), _fit_transfer64(D, I, **kw)
+    m32, m64 = fit_transfer(D, I, **kw), fit_transfer64(D, I, **kw)
     for h in range(Dh.shape[1]):
         x = Dh[:, h].astype(np.float64)
-        y64 = _reconstruct64(m64, x)
+        y64 = reconstruct64(m64, x)
         assert rrmse(reconstruct(m32, x), y64) <= F32_RTOL
         assert np.isfinite(y64).all()
 
@@ -83,13 +83,13 @@ def test_runtime_and_half_planes_agree_with_float64(float_and_half, transport):
     train, _ = transport.configurations()
     D, I = transport.dataset(train)
     m = read_manifest(fb)
-    m64 = _fit_transfer64(D, I, basis=64, ridge=m["fit"]["ridge"])
+    m64 = fit_transfer64(D, I, basis=64, ridge=m["fit"]["ridge"])
     fdata, hdata = load_runtime(fb), load_runtime(hb)
     cov = fdata.coverage
     tx = transport.intake.texels
     for h in range(Dh.shape[1]):
         x = Dh[:, h].astype(np.float64)
-        y64 = _reconstruct64(m64, x, n=8)
+        y64 = reconstruct64(m64, x, n=8)
         yf = blend(fdata, plane_weights(fdata, x))
         yh = blend(hdata, plane_weights(hdata, x))
         got = yf[tx.xy[:, 1], tx.xy[:, 0]]  # covered texels in the fit's order

@@ -1,0 +1,30 @@
+"""Families with members register them by name; the stages ask the registry, never a type
+string (issue 12)."""
+
+from __future__ import annotations
+
+import pytest
+
+from prtcore.core.registry import Registry
+from prtcore.emitters.base import emitter_for, types
+from prtcore.fit.regressor import regressor
+
+
+def test_registry_refuses_a_second_member_of_the_same_name_and_names_known_ones():
+    reg: Registry[object] = Registry("widget", "name")
+
+    @reg.register
+    class A:
+        name = "a"
+
+    assert isinstance(reg.get("a"), A) and reg.names() == ("a",)
+    with pytest.raises(ValueError, match="widget 'a' registered twice"):
+        reg.register(type("B", (), {"name": "a"}))
+    with pytest.raises(KeyError, match=r"no widget 'z' \(known: a\)"):
+        reg.get("z")
+
+
+def test_the_shipped_members_are_registered():
+    assert types() == ("directional", "point", "spot")
+    assert [emitter_for(t).gl_code for t in ("point", "spot", "directional")] == [0, 1, 2]
+    assert regressor("ridge").name == "ridge"
