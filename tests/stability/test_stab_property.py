@@ -31,7 +31,8 @@ from hypothesis import strategies as st
 from stab_helpers import CORNELL, ROOM_BOX, Transport, spec_with
 
 from prtcore.core.scene import Light
-from prtcore.fit.transfer import fit_transfer, reconstruct, relative_rmse
+from prtcore.fit.model import relative_rmse
+from prtcore.fit.transfer import fit_transfer, reconstruct
 from prtcore.reference.pathtracer import reference_lightmaps
 
 PER_LIGHT_MAX = 0.80   # measured 0.670 (+20 %)
