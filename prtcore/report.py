@@ -33,6 +33,15 @@ def truncate(model: TransferModel, n: int) -> TransferModel:
             diag, n_basis=nb + 1, n_basis_requested=n, n_basis_method="given",
             energy_kept=diag.energy_curve[nb],
             warnings=tuple(w for w in diag.warnings if not w.startswith("basis count ")))
+    elif diag.n_basis_requested != n:  # the larger fit was capped below n: say n, not its size
+        capped = model.n_basis < n
+        diag = dataclasses.replace(
+            diag, n_basis_requested=n,
+            n_basis_method="capped" if capped else diag.n_basis_method,
+            warnings=tuple(
+                w for w in diag.warnings if not w.startswith("basis count ")) + (
+                (f"basis count {n} capped at {model.n_basis}: the indirect data has rank "
+                 f"{diag.indirect_rank} after mean subtraction",) if capped else ()))
     return dataclasses.replace(model, basis=model.basis[:, :nb], transfer=model.transfer[
         ..., :nb, :], offset=model.offset[..., :nb], diagnostics=diag)
 
