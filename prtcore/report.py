@@ -118,11 +118,25 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             "rows": rows}
 
 
+def format_skipped(skipped: list[dict]) -> str:
+    """The held-out configurations the table skips, in the words of ``report.json``
+    (``heldout_skipped[].reason``): "8 skipped: zero indirect", or per reason when they
+    differ, "3 skipped: 2 zero direct, 1 zero indirect". Empty when none are skipped."""
+    if not skipped:
+        return ""
+    counts: dict[str, int] = {}
+    for s in skipped:
+        counts[s["reason"]] = counts.get(s["reason"], 0) + 1
+    if len(counts) == 1:
+        return f"{len(skipped)} skipped: {next(iter(counts))}"
+    return f"{len(skipped)} skipped: " + ", ".join(f"{c} {r}" for r, c in counts.items())
+
+
 def format_table(table: dict, seconds: dict[str, float] | None = None) -> str:
+    skipped = format_skipped(table.get("heldout_skipped") or [])
     lines = [f"error against run time — held-out configurations: "
              f"{table['heldout_configurations']}"
-             + (f" ({len(table['heldout_skipped'])} skipped: no direct or indirect light)"
-                if table.get("heldout_skipped") else "")
+             + (f" ({skipped})" if skipped else "")
              + f", reference: {table['reference']}",
              f"{'n':>4s} {'held-out rRMSE':>15s} {'(max)':>8s} {'proj. bound':>12s} "
              f"{'u=M·x µs':>10s} {'blend ms':>9s} {'EXRs':>5s} {'storage':>10s}"]
@@ -209,7 +223,15 @@ def plot(table: dict, path: Path) -> None:
     ax.set_xlabel("basis elements n (mean included)")
     ax.set_ylabel("relative RMSE (%)")
     ax.set_title(f"error against run time ({table['heldout_configurations']} held-out)")
-    ax.legend(loc="upper right")
+    # one legend for both axes, and none without labelled lines (no rows with an error):
+    # legend() without labelled artists warns "No artists with labels found" on stderr
+    handles, labels = [], []
+    for a in fig.axes:
+        h, lb = a.get_legend_handles_labels()
+        handles += h
+        labels += lb
+    if handles:
+        ax.legend(handles, labels, loc="upper right")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
