@@ -34,6 +34,7 @@ _PUBLIC = {
     "load_spec": "prtcore.core.spec",
     "spec_hash": "prtcore.core.spec",
     "spec_to_dict": "prtcore.core.spec",
+    "canonical_spec_json": "prtcore.core.spec",
     # intake
     "load_asset": "prtcore.io.gltf.loader",
     "plan_asset": "prtcore.intake.plan",

@@ -11,6 +11,8 @@ import dataclasses
 import os
 from dataclasses import dataclass
 
+from prtcore.core.errors import SpecError
+
 MiB = 1 << 20
 
 
@@ -30,9 +32,17 @@ class IntakeLimits:
     max_animations: int = 1_000
     max_accessor_elements: int = 32_000_000
     max_atlas_resolution: int = 4096
-    #: estimated peak memory of the bake (prtcore.transport.surface.estimate_bake_bytes), checked
+    #: estimated peak memory of the bake (prtcore.transport.dataset.estimate_bake_bytes), checked
     #: once the texel space is built, before transport allocates
     max_bake_bytes: int = 16 * 1024 * MiB
+
+    def check_spec(self, spec) -> None:
+        """Refuse, before anything is loaded, a spec these limits do not allow
+        (:class:`~prtcore.core.errors.SpecError` naming the key and the limit)."""
+        if spec.atlas.resolution > self.max_atlas_resolution:
+            raise SpecError("atlas.resolution", f"{spec.atlas.resolution} exceeds the "
+                            f"configured limit max_atlas_resolution="
+                            f"{self.max_atlas_resolution}")
 
     @classmethod
     def from_env(cls, environ: dict[str, str] | None = None) -> IntakeLimits:

@@ -431,7 +431,12 @@ def spec_to_dict(spec: BakeSpec) -> dict:
     return conv(spec)
 
 
+def canonical_spec_json(spec: BakeSpec) -> str:
+    """The complete spec (defaults filled) as canonical JSON: sorted keys, no spaces. The
+    one form that is hashed, stored by the service and compared for idempotent bakes."""
+    return json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"))
+
+
 def spec_hash(spec: BakeSpec) -> str:
-    """sha256 of the canonical JSON of the complete spec."""
-    blob = json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(blob.encode()).hexdigest()
+    """sha256 of :func:`canonical_spec_json`."""
+    return hashlib.sha256(canonical_spec_json(spec).encode()).hexdigest()

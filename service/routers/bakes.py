@@ -59,10 +59,10 @@ def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
         AssetError,
         IntakeLimits,
         SpecError,
+        canonical_spec_json,
         load_asset,
         parse_spec,
         spec_hash,
-        spec_to_dict,
     )
 
     try:
@@ -74,9 +74,10 @@ def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
     except SpecError as e:
         raise ApiError(422, "invalid_spec", str(e)) from None
     limits = IntakeLimits.from_env()
-    if spec.atlas.resolution > limits.max_atlas_resolution:
-        raise ApiError(422, "invalid_spec", f"spec atlas.resolution: {spec.atlas.resolution} "
-                       f"exceeds the limit max_atlas_resolution={limits.max_atlas_resolution}")
+    try:
+        limits.check_spec(spec)
+    except SpecError as e:
+        raise ApiError(422, "invalid_spec", str(e)) from None
     assert up.asset_path is not None
     try:
         load_asset(up.asset_path, limits)
@@ -86,7 +87,7 @@ def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
             parts.insert(1, os.path.basename(e.file))
         msg = ": ".join(parts) + f": {e.what}" + (f" (limit {e.limit})" if e.limit else "")
         raise ApiError(422, "invalid_asset", msg) from None
-    canonical = json.dumps(spec_to_dict(spec), sort_keys=True, separators=(",", ":"))
+    canonical = canonical_spec_json(spec)
     s_hash = spec_hash(spec)
     key = hashlib.sha256(f"{up.asset_sha256}:{s_hash}".encode()).hexdigest()
     return canonical, s_hash, key

@@ -111,6 +111,19 @@ def test_spec_with_unknown_keys_is_422_naming_them(app_client):
     assert job_count(c) == 0 and left_behind(c) == []
 
 
+
+def test_atlas_over_the_limit_is_422_by_the_librarys_rule(app_client, monkeypatch):
+    """The service refuses what the library's IntakeLimits.check_spec refuses, in its words."""
+    monkeypatch.setenv("PRT_LIMIT_MAX_ATLAS_RESOLUTION", "64")
+    c = app_client()
+    r = post(c, CORNELL, spec={**TINY_SPEC, "atlas": {"resolution": 128, "padding": 2}})
+    assert r.status_code == 422
+    err = r.json()["error"]
+    assert err["code"] == "invalid_spec"
+    assert err["message"] == ("spec atlas.resolution: 128 exceeds the configured limit "
+                              "max_atlas_resolution=64")
+    assert job_count(c) == 0
+
 HOSTILE = {
     "path_traversal": lambda d: H.path_traversal_asset(d)[0],
     "http_uri": lambda d: H.uri_buffer_asset(d, "http://example.com/model.bin"),
