@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.progress import bar
 from prtcore.fit.model import TransferModel, relative_rmse
 from prtcore.fit.transfer import projection_bound, reconstruct
 
@@ -80,7 +81,9 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             skipped.append({"index": h, "reason": "zero direct"})
         elif not np.linalg.norm(holdout_indirect[:, h, :]) > 0:
             skipped.append({"index": h, "reason": "zero indirect"})
-    for n in sorted(ns):
+    # a bar on the report stage's timer (the pipeline passes none): each n costs the
+    # held-out reconstructions and the run-time measurements
+    for n in bar(sorted(ns), "error vs run time", total=len(ns)):
         errs, bounds = [], []
         for h in range(H):
             x = holdout_direct[:, h, :].astype(np.float64)

@@ -20,7 +20,7 @@ from scipy import ndimage
 from prtcore.core.errors import AssetError, SpecError
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at
-from prtcore.core.progress import StageTimer
+from prtcore.core.progress import StageTimer, bar
 from prtcore.core.scene import Scene
 from prtcore.core.tolerances import BARY_EPS, DEGENERATE_AREA_REL, UV_TEXEL_EPS
 
@@ -302,8 +302,8 @@ def _rasterise(px: np.ndarray, py: np.ndarray, faces: np.ndarray, width: int, he
         return ti[sel]
 
     chunks = range(0, total, _PAIR_CHUNK)
-    if timer is not None:
-        chunks = timer.bar(chunks, desc="texels", total=len(chunks))
+    # without a timer of its own: a bar on the timer of the stage running (the pipeline's)
+    chunks = (timer.bar if timer is not None else bar)(chunks, "texels", total=len(chunks))
     for k0 in chunks:
         k = np.arange(k0, min(k0 + _PAIR_CHUNK, total), dtype=np.int64)
         ti = np.searchsorted(ends, k, side="right")
