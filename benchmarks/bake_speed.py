@@ -49,7 +49,7 @@ from prtcore.emitters.families import sample_configurations  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.reference.pathtracer import reference_lightmaps  # noqa: E402
 from prtcore.scenes.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402
-from prtcore.transport.surface import bake_dataset  # noqa: E402
+from prtcore.transport.dataset import bake_dataset  # noqa: E402
 
 RAY_CHUNK = 1 << 20
 

@@ -17,7 +17,7 @@ from prtcore.intake.plan import Plan
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
 from prtcore.receivers.texels import TexelSpace
-from prtcore.transport.surface import STAGES as TRANSPORT_STAGES
+from prtcore.transport.dataset import STAGES as TRANSPORT_STAGES
 
 #: timed stages of :func:`run_intake`, in the order they run (repair, remesh and uv are
 #: the plan's prepare steps; each is run or recorded as skipped)
@@ -122,7 +122,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.keyframes.pose import keyframe_files
     from prtcore.receivers.texels import texels_to_image
     from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
-    from prtcore.transport.surface import bake_dataset, check_bake_memory
+    from prtcore.transport.dataset import bake_dataset, check_bake_memory
 
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()

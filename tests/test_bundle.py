@@ -113,12 +113,12 @@ def test_same_spec_same_bundle(tiny_bundle, tmp_path):
 
 
 def test_failed_bake_leaves_nothing(tmp_path, monkeypatch):
-    import prtcore.transport.surface
+    import prtcore.transport.dataset
 
     def boom(*args, **kwargs):
         raise PrtError("transport exploded")
 
-    monkeypatch.setattr(prtcore.transport.surface, "bake_dataset", boom)
+    monkeypatch.setattr(prtcore.transport.dataset, "bake_dataset", boom)
     out = tmp_path / "b"
     with pytest.raises(PrtError, match="exploded"):
         pipeline.bake(CORNELL, parse_spec(TINY_SPEC), out, quiet=True)

@@ -23,16 +23,12 @@ from prtcore.core.spec import LightFamily, LightsSpec, TransportSpec
 from prtcore.emitters.families import sample_configurations
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.texels import TexelSpace, build_texel_space
-from prtcore.transport import surface as transport
-from prtcore.transport.surface import (
-    bake_dataset,
-    build_gather_operator,
-    direct_radiance,
-    gather_operator,
-    light_texels,
-    solve_indirect,
-    spec_gather,
-)
+from prtcore.transport import gather as gather_module
+from prtcore.transport import solve as solve_module
+from prtcore.transport.dataset import bake_dataset, light_texels, trace_operators
+from prtcore.transport.direct import direct_radiance
+from prtcore.transport.gather import build_gather_operator, gather_operator
+from prtcore.transport.solve import solve_indirect
 
 # ---------------------------------------------------------------------------------------
 # Scene builders
@@ -135,7 +131,7 @@ def test_plane_direct_closed_form_and_no_indirect():
     assert gather.stats["misses"] == gather.stats["rays_traced"] == 16 * texels.count
     # direct light is evaluated at the texel sample, except on partly covered texels,
     # where it moves to a jittered origin strictly inside the texel's triangle
-    partial = texels.coverage < 1 - transport.PARTIAL_COVERAGE_EPS
+    partial = texels.coverage < 1 - gather_module.PARTIAL_COVERAGE_EPS
     assert partial.any() and (gather.moved == partial).all()
     np.testing.assert_array_equal(gather.sample_position[~partial], texels.position[~partial])
     tri = scene.positions[scene.faces[texels.triangle[partial]]]
@@ -417,7 +413,7 @@ def test_column_blocks_and_threads_do_not_change_the_result(block_problem, monke
     whole = solve_indirect(g, albedo, direct, 30, 1e-4, threads=1)[0]
     np.testing.assert_array_equal(solve_indirect(g, albedo, direct, 30, 1e-4, threads=2)[0],
                                   whole)  # rows split over threads: the same sums
-    monkeypatch.setattr(transport, "SOLVE_BLOCK_BYTES", 5 * 4 * 3 * g.shape[0])  # 1 light
+    monkeypatch.setattr(solve_module, "SOLVE_BLOCK_BYTES", 5 * 4 * 3 * g.shape[0])  # 1 light
     blocks = solve_indirect(g, albedo, direct, 30, 1e-4, threads=2)
     assert len(blocks[3]["blocks"]) == direct.shape[1]
     # each block stops on its own convergence test: equal within the tolerance
@@ -493,8 +489,8 @@ def fast_and_reference(scene, texels, tracer, lights, rays, spp, seed=0):
     from prtcore.reference.pathtracer import reference_lightmaps
 
     spec = TransportSpec(gather_rays=rays, seed=seed, max_bounces=64, tolerance=1e-4)
-    gather = spec_gather(scene, texels, tracer, spec)
-    fast = light_texels(scene, texels, tracer, gather, lights, spec).indirect
+    traced = trace_operators(scene, texels, tracer, spec)
+    fast = light_texels(scene, texels, tracer, traced, lights, spec).indirect
     ref, err = reference_lightmaps(scene, texels, [[lt] for lt in lights], spp=spp,
                                    seed=seed + 1, tracer=tracer)
     return fast.astype(np.float64), ref, err

@@ -303,13 +303,13 @@ def bake_keyframe_dataset(kfs: KeyframeSet, texels: TexelSpace,
                           lights_train: Sequence[Light], lights_holdout: Sequence[Light],
                           spec: TransportSpec | None = None,
                           timer: StageTimer | None = None):
-    """:func:`prtcore.transport.surface.bake_dataset` per keyframe on the posed scene, texels and
-    points, for that keyframe's share of the configurations; the columns are reassembled
+    """:func:`prtcore.transport.dataset.bake_dataset` per keyframe on the posed scene, texels
+    and points, for that keyframe's share of the configurations; the columns are reassembled
     in the order of ``(*lights_train, *lights_holdout)``. ``stats["keyframes"]`` holds each
     keyframe's own transport stats; iterations and residual are the maxima over keyframes.
-    Returns a :class:`~prtcore.transport.surface.Dataset`.
+    Returns a :class:`~prtcore.transport.dataset.Dataset`.
     """
-    from prtcore.transport.surface import Dataset, bake_dataset
+    from prtcore.transport.dataset import Dataset, bake_dataset
 
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     K = len(lights_train)

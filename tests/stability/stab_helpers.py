@@ -139,18 +139,18 @@ def result_files(bundle: Path) -> dict[str, bytes]:
 class Transport:
     """The pipeline's intake and transport for one asset + spec, with the gather operator
     traced once, so that any set of lights can be turned into (D, I) cheaply — the same
-    steps as :func:`prtcore.transport.surface.bake_dataset`."""
+    steps as :func:`prtcore.transport.dataset.bake_dataset`."""
 
     def __init__(self, asset: Path, spec: dict):
         from prtcore.core.raytrace import RayTracer
         from prtcore.pipeline import run_intake
-        from prtcore.transport.surface import spec_gather
+        from prtcore.transport.dataset import trace_operators
 
         self.spec = parse_spec(spec)
         self.intake = run_intake(asset, self.spec, quiet=True)
         sc = self.intake.scene
         self.tracer = RayTracer(sc.positions, sc.faces, sc.radius)
-        self.gather = spec_gather(sc, self.intake.texels, self.tracer, self.spec.transport)
+        self.traced = trace_operators(sc, self.intake.texels, self.tracer, self.spec.transport)
 
     def configurations(self):
         from prtcore.emitters.families import sample_configurations
@@ -160,7 +160,8 @@ class Transport:
 
     def dataset(self, lights) -> tuple[np.ndarray, np.ndarray]:
         """D (P, K, 3) float32 and I (T, K, 3) float32 for ``lights``."""
-        from prtcore.transport.surface import direct_radiance, light_texels
+        from prtcore.transport.dataset import light_texels
+        from prtcore.transport.direct import direct_radiance
 
         sc, tx, pts = self.intake.scene, self.intake.texels, self.intake.points
         cl = direct_radiance(sc, self.tracer, lights, pts.cluster_position,
@@ -168,5 +169,5 @@ class Transport:
         k = len(lights)
         d = pts.average_clusters(cl.reshape(len(cl), 3 * k).astype(np.float64))
         D = d.reshape(pts.count, k, 3).astype(np.float32)
-        I = light_texels(sc, tx, self.tracer, self.gather, lights, self.spec.transport).indirect
+        I = light_texels(sc, tx, self.tracer, self.traced, lights, self.spec.transport).indirect
         return D, I

@@ -16,7 +16,7 @@ from prtcore.core.errors import LimitExceeded, SpecError
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.spec import parse_spec
 from prtcore.pipeline import run_intake
-from prtcore.transport.surface import estimate_bake_bytes
+from prtcore.transport.dataset import estimate_bake_bytes
 
 #: The memory model may overestimate the measured peak by at most this factor.
 ESTIMATE_SLACK = 1.6

@@ -21,7 +21,7 @@ from trimesh.visual.material import PBRMaterial
 
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.scenes.cornell import cornell_box
-from prtcore.transport.surface import direct_radiance
+from prtcore.transport.direct import direct_radiance
 from prtcore.validate import validate_bundle
 
 #: Bakes of the same room in other units (light boxes scaled, intensities × scale²).

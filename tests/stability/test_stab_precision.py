@@ -59,7 +59,7 @@ def test_float32_model_agrees_with_float64(transport, channels, gamma, ridge):
 
 def test_helper_transport_is_the_pipelines(transport, tmp_path):
     """The suite's Transport helper computes the same D as the bake (guards the helper)."""
-    from prtcore.transport.surface import bake_dataset
+    from prtcore.transport.dataset import bake_dataset
 
     train, hold = transport.configurations()
     ds = bake_dataset(transport.intake.scene, transport.intake.texels,

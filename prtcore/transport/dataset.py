@@ -1,0 +1,262 @@
+"""The transport stage: the lighting database of a bake (paper 4.1).
+
+:func:`bake_dataset` traces the transport operators once (:func:`trace_operators`; today
+the surface gather, :mod:`prtcore.transport.surface`), evaluates direct light at the
+measurement points and the texels (:mod:`prtcore.transport.direct`), adds the operators'
+first-bounce corrections (the near field) and solves all bounces for every configuration
+at once over the sum of the operators (:func:`operator_matrix`,
+:func:`prtcore.transport.solve.solve_indirect`). :func:`check_bake_memory` refuses, before
+anything is allocated, a bake whose estimated peak memory — this stage's own arrays plus
+each operator's :meth:`~prtcore.transport.base.TransportOperator.estimate_bytes` — exceeds
+the limit.
+
+A new operator (the subsurface random walk, ``prtcore/transport/subsurface.py``; see
+:mod:`prtcore.transport.base`) joins by its name in ``operators``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from prtcore.core.errors import LimitExceeded
+from prtcore.core.materials import clamp_albedo
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.core.spec import TransportSpec
+from prtcore.intake.points import MeasurementPoints
+from prtcore.receivers.texels import TexelSpace
+from prtcore.transport.base import TransportOperator, TransportTerm, operator_for
+from prtcore.transport.direct import direct_radiance
+from prtcore.transport.solve import SOLVE_BLOCK_BYTES, solve_indirect
+
+#: The operators a bake runs, in order (registry names, :mod:`prtcore.transport.base`).
+DEFAULT_OPERATORS = ("surface",)
+#: the timed stages of :func:`bake_dataset` after its operators', in the order they run
+LIGHT_STAGES = ("direct points", "direct texels", "near field", "indirect solve")
+#: the timed stages of :func:`bake_dataset`, in the order they run
+STAGES = (*(operator_for(n).stage for n in DEFAULT_OPERATORS), *LIGHT_STAGES)
+#: Memory model of a bake (bytes; :func:`estimate_bake_bytes`), measured as peak RSS on the
+#: Cornell box at 512² and 1024² with 4–16 gather rays and 30–96 configurations
+#: (tests/stability) and rounded up, so that it overestimates by 10–30 %: per covered
+#: texel (texel space, gather bookkeeping, interpreter), per texel and configuration
+#: (texel direct and indirect, (T, K, 3) float32 each, and at most as much again for the
+#: near field's first-bounce correction), plus the solver's working arrays (five more per
+#: configuration, up to SOLVE_BLOCK_BYTES), plus each operator's own
+#: (:mod:`prtcore.transport.surface`: per texel and gather ray, and per ray in flight).
+MEM_PER_TEXEL = 1536
+MEM_PER_TEXEL_CONFIG = 36
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """The lighting database of a bake (paper 4.1), one column per configuration.
+
+    lights : (K,) the configurations, training first, then held-out (``stats["train"]``
+        says how many are training; the caller splits)
+    direct_points : (P, K, 3) float32 direct outgoing radiance ρ/π·E_d at the measurement
+        points, each the average of its supersample cluster
+    direct_texels : (T, K, 3) float32 direct outgoing radiance at the texels
+    indirect : (T, K, 3) float32 indirect outgoing radiance ρ/π·E_ind at the texels (light
+        that bounced at least once, all bounces)
+    iterations : bounces computed (1 = single bounce)
+    residual : relative change of the last bounce, max over configurations and channels
+        (``‖ΔE_k‖ / ‖E_k‖``); below ``spec.tolerance`` when ``stats["converged"]``
+    stats : rays traced, seconds per sub-stage, buried/moved texels, back-face fraction, …
+    """
+
+    lights: tuple[Light, ...]
+    direct_points: np.ndarray
+    direct_texels: np.ndarray
+    indirect: np.ndarray
+    iterations: int
+    residual: float
+    stats: dict = field(default_factory=dict)
+
+
+
+@dataclass(frozen=True)
+class Traced:
+    """One transport operator traced for one geometry: the operator, its term and the rays
+    tracing it took."""
+
+    operator: TransportOperator
+    term: TransportTerm
+    rays: int
+
+
+def trace_operators(scene: Scene, texels: TexelSpace, tracer: RayTracer,
+                    spec: TransportSpec, timer: StageTimer | None = None,
+                    operators: Sequence[str] = DEFAULT_OPERATORS) -> tuple[Traced, ...]:
+    """Build every operator of ``operators`` (registry names) once, in order, each timed as
+    its ``stage``."""
+    traced = []
+    for op in (operator_for(n) for n in operators):
+        rays0 = tracer.rays_traced
+        term = op.build(scene, texels, tracer, spec, timer)
+        traced.append(Traced(op, term, tracer.rays_traced - rays0))
+    return tuple(traced)
+
+
+def operator_matrix(traced: Sequence[Traced]) -> sp.csr_matrix:
+    """The operator the solver iterates: the sum of the terms' (T, T) matrices, float32 CSR
+    with sorted indices. One term's matrix is used as it is."""
+    if len(traced) == 1:
+        return traced[0].term.matrix
+    total = traced[0].term.matrix.astype(np.float32)
+    for t in traced[1:]:
+        total = total + t.term.matrix.astype(np.float32)
+    total = sp.csr_matrix(total)
+    total.sum_duplicates()
+    return total
+
+
+def _add_first_bounce(a: tuple[np.ndarray, np.ndarray] | None,
+                      b: tuple[np.ndarray, np.ndarray] | None
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The sum of two first-bounce corrections (rows sorted unique, values (r, K, 3))."""
+    if a is None or b is None:
+        return a if b is None else b
+    rows = np.union1d(a[0], b[0])
+    out = np.zeros((len(rows), *a[1].shape[1:]), dtype=np.float32)
+    out[np.searchsorted(rows, a[0])] += a[1]
+    out[np.searchsorted(rows, b[0])] += b[1]
+    return rows, out
+
+
+def estimate_bake_bytes(texels: int, configurations: int, transport: TransportSpec | int,
+                        operators: Sequence[str] = DEFAULT_OPERATORS) -> int:
+    """Peak memory of a bake with ``texels`` covered texels and ``configurations`` lights
+    (training + held-out), from the measured model above (transport is the peak stage):
+    this stage's arrays and every operator's
+    :meth:`~prtcore.transport.base.TransportOperator.estimate_bytes`. transport : the
+    transport spec, or its gather rays (the other keys at their defaults)."""
+    if not isinstance(transport, TransportSpec):
+        transport = TransportSpec(gather_rays=int(transport))
+    t, k = int(texels), int(configurations)
+    own = t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(5 * t * k * 12,
+                                                                   SOLVE_BLOCK_BYTES)
+    return int(own + sum(operator_for(n).estimate_bytes(t, k, transport) for n in operators))
+
+
+def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int,
+                      operators: Sequence[str] = DEFAULT_OPERATORS) -> int:
+    """Refuse (:class:`~prtcore.core.errors.LimitExceeded`) a bake whose estimated peak memory
+    exceeds ``limit_bytes`` (``IntakeLimits.max_bake_bytes``), before transport allocates.
+    spec : the :class:`~prtcore.core.spec.BakeSpec`. Returns the estimate."""
+    k = spec.lights.count + spec.lights.holdout
+    need = estimate_bake_bytes(texels.count, k, spec.transport, operators)
+    if need > limit_bytes:
+        gib = 1 << 30
+        raise LimitExceeded(
+            str(source), "", f"the bake would need about {need / gib:.1f} GiB "
+            f"({texels.count} covered texels of a {texels.width}×{texels.height} atlas, {k} "
+            f"lighting configurations, {spec.transport.gather_rays} gather rays); lower "
+            "atlas.resolution, lights.count or transport.gather_rays",
+            limit=f"max_bake_bytes={limit_bytes} ({limit_bytes / gib:.1f} GiB)")
+    return need
+
+
+@dataclass(frozen=True)
+class TexelLighting:
+    """Direct and indirect outgoing radiance at the texels for K lights.
+
+    direct, indirect : (T, K, 3) float32; iterations, residual : as :class:`Dataset`;
+    stats : "rays" (direct texels, first-bounce corrections such as the near field),
+    "solve", "direct_samples".
+    """
+
+    direct: np.ndarray
+    indirect: np.ndarray
+    iterations: int
+    residual: float
+    stats: dict
+
+
+def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
+                 traced: Sequence[Traced], lights: Sequence[Light], spec: TransportSpec,
+                 timer: StageTimer | None = None) -> TexelLighting:
+    """Direct light at the texels (averaged over the points an operator chose,
+    :meth:`~prtcore.transport.base.TransportOperator.direct_position`, else at the texel
+    samples), the operators' first-bounce corrections (the near field) and all bounces
+    (:func:`solve_indirect`) for ``lights``, on operators traced once
+    (:func:`trace_operators`). Sub-stages "direct texels", "near field", "indirect solve"."""
+    timer = timer or StageTimer(quiet=True)
+    positions = next((p for p in (t.operator.direct_position(t.term) for t in traced)
+                      if p is not None), None)
+    if positions is None:
+        positions = np.asarray(texels.position, dtype=np.float64)[:, None, :]
+    rays0 = tracer.rays_traced
+    with timer.stage("direct texels"):
+        direct = direct_radiance(scene, tracer, lights, positions,
+                                 texels.normal, texels.albedo, timer, "direct texels")
+    rays1 = tracer.rays_traced
+    first = None
+    for t in traced:
+        first = _add_first_bounce(first, t.operator.first_bounce(
+            t.term, scene, tracer, tuple(lights), direct, timer))
+    rays2 = tracer.rays_traced
+    indirect, bounces, resid, solve_stats = solve_indirect(
+        operator_matrix(traced), texels.albedo, direct, spec.max_bounces, spec.tolerance,
+        timer, threads=tracer.threads, first_bounce=first)
+    stats = {"rays": {"direct_texels": rays1 - rays0, "near_field": rays2 - rays1},
+             "solve": solve_stats, "direct_samples": int(positions.shape[1])}
+    return TexelLighting(direct=direct, indirect=indirect, iterations=bounces,
+                         residual=resid, stats=stats)
+
+
+def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
+                 lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
+                 spec: TransportSpec | None = None, timer: StageTimer | None = None,
+                 tracer: RayTracer | None = None,
+                 operators: Sequence[str] = DEFAULT_OPERATORS) -> Dataset:
+    """The transport stage: the operators (gather), direct light, all bounces.
+
+    Training and held-out configurations are computed in one pass: ``Dataset.lights`` is
+    ``(*lights_train, *lights_holdout)`` and every (…, K, 3) array follows that order;
+    ``stats["train"]`` is ``len(lights_train)`` (the caller splits at it).
+    Sub-stages are timed on ``timer`` as :data:`STAGES` ("gather operator",
+    "direct points", "direct texels", "near field", "indirect solve"). operators :
+    registry names (:mod:`prtcore.transport.base`), traced in order.
+    """
+    spec = spec or TransportSpec()
+    timer = timer or StageTimer(quiet=True)
+    tracer = tracer or RayTracer(scene.positions, scene.faces, scene.radius)
+    lights = (*tuple(lights_train), *tuple(lights_holdout))
+    rays0 = tracer.rays_traced
+    before = dict(timer.seconds)
+
+    traced = trace_operators(scene, texels, tracer, spec, timer, operators)
+    rays1 = tracer.rays_traced
+    with timer.stage("direct points"):
+        cl = direct_radiance(scene, tracer, lights, points.cluster_position,
+                             points.cluster_normal, points.cluster_albedo, timer,
+                             "direct points")
+        k = len(lights)
+        direct_p = points.average_clusters(cl.reshape(len(cl), 3 * k).astype(np.float64))
+        direct_p = direct_p.reshape(points.count, k, 3).astype(np.float32)
+        del cl
+    rays2 = tracer.rays_traced
+    lit = light_texels(scene, texels, tracer, traced, lights, spec, timer)
+    _, clamped = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
+    stages = (*(t.operator.stage for t in traced), *LIGHT_STAGES)
+    stats = {
+        "train": len(lights_train), "holdout": len(lights_holdout),
+        "texels": texels.count, "points": points.count,
+        "rays": {**{t.operator.stats_key: t.rays for t in traced},
+                 "direct_points": rays2 - rays1,
+                 **lit.stats["rays"], "total": tracer.rays_traced - rays0},
+        "direct_samples": lit.stats["direct_samples"],
+        **{t.operator.stats_key: t.term.stats for t in traced},
+        "solve": lit.stats["solve"],
+        "albedo_clamped_values": clamped,
+        "seconds": {name: timer.seconds[name] - before.get(name, 0.0)
+                    for name in stages if name in timer.seconds},
+    }
+    return Dataset(lights=lights, direct_points=direct_p, direct_texels=lit.direct,
+                   indirect=lit.indirect, iterations=lit.iterations, residual=lit.residual,
+                   stats=stats)

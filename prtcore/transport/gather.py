@@ -1,0 +1,509 @@
+"""The surface gather: the texel → texel operator G of inter-reflection (paper 4.1).
+
+Every texel shoots M cosine-distributed rays from points jittered over its footprint; each
+ray's first front-face hit is mapped to the texel holding that surface point, with weight
+1/M. With cosine sampling ``E(x) ≈ π/M Σ_j L(y_j) = 1/M Σ_j ρ_j E_j``, so
+``E_ind = G · (ρ ∘ (E_d + E_ind))``. Tracing G also decides where each texel's direct
+light is evaluated (:attr:`Gather.direct_position`) and which rays hit so close to their
+origin that the first bounce takes the direct light of the hit point
+(:attr:`Gather.near`, :func:`prtcore.transport.direct.near_field_correction`).
+:class:`prtcore.transport.surface.SurfaceGather` is the transport operator built on it.
+
+Sampling conventions of the gather (kept identical in spirit to the reference path
+tracer, :mod:`prtcore.reference.pathtracer`, where they are about the physics):
+
+* a ray that hits the *back* of a face is inside geometry: it brings no light;
+* a ray that misses brings nothing (no environment light);
+* a direction below the geometric plane of its texel (possible with interpolated shading
+  normals) brings nothing; it still counts in the 1/M weight;
+* **buried samples**: each texel shoots its M rays from S = M / RAYS_PER_ORIGIN jittered
+  origins; an origin whose rays mostly hit back faces lies inside other geometry (a floor
+  texel under a block). Its rays are dropped and the row is renormalised over the rays of
+  the texel's *visible* origins (the lightmap value of a partly buried texel is the average
+  over its visible part), and the texel's direct light is evaluated at a visible origin
+  (:class:`Gather`). A texel with no visible origin is *buried*: its row is zero.
+* origins are uniform over the texel's square ∩ its own triangle, the region the
+  reference integrates (:func:`prtcore.receivers.texels.texel_regions`).
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import nullcontext
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from prtcore.core.geometry import orthonormal_frame
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Scene
+from prtcore.core.spec import TransportSpec
+from prtcore.core.tolerances import BARY_EPS, offset_origins
+from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
+
+#: Gather rays that share one jittered origin (S = M / RAYS_PER_ORIGIN origins per texel);
+#: enough rays per origin to tell "inside geometry" (most rays hit back faces) from "sees
+#: the back of some open surface" (a few do).
+RAYS_PER_ORIGIN = 4
+#: How far (in texels) the origins of a texel whose square only touches its triangle are
+#: moved from its sample into the triangle.
+FALLBACK_NUDGE = 0.05
+#: Gather rays traced per batch (bounds memory: ~150 bytes per ray in flight).
+GATHER_BATCH = 1 << 20
+#: A hit mapped through the UV lookup must lie within this many texel footprints of the
+#: texel it lands on; otherwise (overlapping UVs, a texel of another chart) it is re-mapped
+#: to the nearest texel in 3-D facing the same way.
+MAP_SLACK_FOOTPRINTS = 3.0
+#: Texels covered less than 1 − this are "partly covered" (their sample may sit on the
+#: chart border; see :class:`Gather`).
+PARTIAL_COVERAGE_EPS = 1e-3
+#: Golden-ratio conjugate: the rank-1 (Fibonacci) lattice generator.
+PHI = 0.6180339887498949
+
+
+@dataclass(frozen=True)
+class NearField:
+    """Gather rays that hit close to their origin, where a texel's value (its average)
+    stands badly for the light at the hit point: a contact shadow or a lit strip narrower
+    than a texel (a block on a floor, a ledge under a step). Each is also in the gather
+    matrix; :func:`prtcore.transport.direct.near_field_correction` replaces, for the first
+    bounce only, the texel's direct light by the direct light at the hit point.
+
+    row : (n,) int64 receiving texel, sorted; col : (n,) int64 the texel the hit maps to;
+    triangle : (n,) int64 and barycentric : (n, 3) float64, the hit point;
+    weight : (n,) float32 the ray's weight in the matrix row (1/M_valid).
+    """
+
+    row: np.ndarray
+    col: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    weight: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.row)
+
+
+@dataclass(frozen=True)
+class Gather:
+    """The gather operator and what tracing it learnt about the texels.
+
+    matrix : (T, T) float32 CSR, rows = receiving texel, weights 1/M_valid, columns sorted
+    sample_position : (T, 3) float64 where the texel's direct light is evaluated: the
+        texel sample, or — for a partly covered or partly buried texel — its visible
+        jittered origin nearest to the centroid of those origins (a point strictly inside
+        the texel's visible part: a sample on a concave chart border would be shadowed by
+        the neighbouring face, one inside geometry by that geometry)
+    valid_rays : (T,) int32 rays from visible origins (the row's 1/M_valid); 0 = buried
+    moved : (T,) bool texels whose sample_position is not the texel sample
+    stats : counts (rays, back-face hits, misses, re-mapped hits, …)
+    direct_position : (T, J, 3) float64 the points whose direct light, averaged, is the
+        texel's: J visible origins spread over the texel (J = 1: ``sample_position``)
+    near : the rays that hit within ``near_field`` texel footprints of their origin
+        (:class:`NearField`; None when the near field is off)
+    """
+
+    matrix: sp.csr_matrix
+    sample_position: np.ndarray
+    valid_rays: np.ndarray
+    moved: np.ndarray
+    stats: dict
+    direct_position: np.ndarray
+    near: NearField | None = None
+
+    @property
+    def buried(self) -> np.ndarray:
+        """(T,) bool texels with no visible origin (zero rows)."""
+        return self.valid_rays == 0
+
+
+# ---------------------------------------------------------------------------------------
+# Sampling helpers
+
+
+def fibonacci_lattice(count: int, shift: np.ndarray) -> np.ndarray:
+    """Randomly shifted rank-1 Fibonacci lattices in [0, 1)².
+
+    Point i of lattice r is ``frac((i + ½)/count + shift[r, 0], i·φ + shift[r, 1])``, φ the
+    golden-ratio conjugate: well stratified in 2-D for any count, and unbiased under the
+    uniform Cranley–Patterson shift. shift : (m, 2) float64. Returns (m, count, 2).
+    """
+    i = np.arange(count, dtype=np.float64)
+    base = np.stack([(i + 0.5) / count, np.mod(i * PHI, 1.0)], axis=1)
+    return np.mod(base[None, :, :] + shift[:, None, :], 1.0)
+
+
+def _uv_barycentric(a: np.ndarray, inv: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Barycentrics of pixel-space points q (..., 2) in triangles given by their corner 0
+    ``a`` (..., 2) and the inverse edge matrix ``inv`` (..., 2, 2) (see :func:`_uv_frames`).
+    Returns (..., 3); NaN for degenerate triangles (rejected by every inside test)."""
+    d = q - a
+    v = inv[..., 0, 0] * d[..., 0] + inv[..., 0, 1] * d[..., 1]
+    w = inv[..., 1, 0] * d[..., 0] + inv[..., 1, 1] * d[..., 1]
+    return np.stack([1.0 - v - w, v, w], axis=-1)
+
+
+def _uv_frames(tri_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corner 0 (n, 2) and the inverse of the edge matrix [e1 e2] (n, 2, 2) of pixel-space
+    triangles (n, 3, 2); NaN rows for degenerate ones."""
+    e1 = tri_uv[:, 1] - tri_uv[:, 0]
+    e2 = tri_uv[:, 2] - tri_uv[:, 0]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    inv_det = np.divide(1.0, det, out=np.full_like(det, np.nan), where=det != 0)
+    inv = np.stack([np.stack([e2[:, 1], -e2[:, 0]], 1), np.stack([-e1[:, 1], e1[:, 0]], 1)],
+                   axis=1) * inv_det[:, None, None]
+    return tri_uv[:, 0], inv
+
+
+def _jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
+                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Origins jittered over each texel's region: its square ∩ its own triangle
+    (:func:`~prtcore.receivers.texels.texel_regions`), the region the reference integrates.
+
+    A stratified (shifted Fibonacci) set of ``per_texel`` offsets in the texel square
+    [x, x+1] × [y, y+1]; an offset outside the texel's triangle (in TEXCOORD_1) is replaced
+    by a point drawn uniformly over the region, exactly, so the origins are uniform over the
+    region however little of the square it covers. A texel whose square only touches its
+    triangle has no region: its origins are its sample moved FALLBACK_NUDGE texels toward
+    the triangle's centroid.
+    Returns positions (T, S, 3) float64 on the triangle, and (T, S) bool "in the region".
+    """
+    t = texels.count
+    size = np.array([texels.width, texels.height], dtype=np.float64)
+    corner, inv = _uv_frames(scene.uv1[scene.faces[texels.triangle]] * size)
+    centre = texels.xy.astype(np.float64) + 0.5
+    q = fibonacci_lattice(per_texel, rng.random((t, 2))) - 0.5 + centre[:, None, :]
+    bary = _uv_barycentric(corner[:, None], inv[:, None], q).reshape(-1, 3)  # (T·S, 3)
+    owner = np.repeat(np.arange(t), per_texel)
+    inside = (bary >= -BARY_EPS).all(axis=1)
+    part = np.unique(owner[~inside])  # texels with a lattice point off their triangle
+    regions = texel_regions(scene, texels, part)
+    redo = np.flatnonzero(~inside)
+    slot = np.searchsorted(part, owner[redo])
+    redo, slot = redo[~regions.empty[slot]], slot[~regions.empty[slot]]
+    if len(redo):
+        bary[redo] = sample_texel_regions(regions, slot, rng)
+        inside[redo] = True
+    # Fallback: the texel sample nudged toward its triangle's centroid by about
+    # FALLBACK_NUDGE texels, so that it is strictly inside (a sample on a concave chart
+    # border lies on the neighbouring face's plane, where rays hit that face at t ≈ 0).
+    lost = np.flatnonzero(~inside)
+    if len(lost):
+        tex = owner[lost]
+        b0 = np.clip(texels.barycentric[tex], 0.0, None)
+        b0 /= b0.sum(axis=1, keepdims=True)
+        verts = scene.positions[scene.faces[texels.triangle[tex]]]
+        to_mid = verts.mean(axis=1) - np.einsum("nk,nkj->nj", b0, verts)
+        step = FALLBACK_NUDGE * np.linalg.norm(texels.footprint[tex], axis=2).mean(axis=1)
+        dist = np.linalg.norm(to_mid, axis=1)
+        eps = np.minimum(1.0, np.divide(step, dist, out=np.ones_like(dist), where=dist > 0))
+        bary[lost] = (1.0 - eps)[:, None] * b0 + (eps / 3.0)[:, None]
+    bary = np.clip(bary, 0.0, None)
+    bary /= bary.sum(axis=1, keepdims=True)
+    verts = scene.positions[scene.faces[texels.triangle]]  # (T, 3, 3)
+    pos = np.einsum("tsk,tkj->tsj", bary.reshape(t, per_texel, 3), verts)
+    return pos, inside.reshape(t, per_texel)
+
+
+# ---------------------------------------------------------------------------------------
+# Gather operator
+
+
+def _texel_lookup(texels: TexelSpace) -> np.ndarray:
+    """(H, W) int64 texel index per atlas texel: covered texels, padding texels through
+    their dilation source, −1 elsewhere."""
+    lut = np.full((texels.height, texels.width), -1, dtype=np.int64)
+    if len(texels.dilate_xy):
+        lut[texels.dilate_xy[:, 1], texels.dilate_xy[:, 0]] = texels.dilate_src
+    lut[texels.xy[:, 1], texels.xy[:, 0]] = np.arange(texels.count)
+    return lut
+
+
+class _HitMapper:
+    """Surface hit (triangle, barycentric) → texel index (see :func:`gather_operator`)."""
+
+    def __init__(self, scene: Scene, texels: TexelSpace, tracer: RayTracer):
+        self.scene = scene
+        self.texels = texels
+        self.tracer = tracer
+        self.lut = _texel_lookup(texels)
+        # per face: pixel-space corner 0 and edges 0→1, 0→2, one 1-D array each (fast gathers)
+        fuv = scene.uv1[scene.faces] * np.array([texels.width, texels.height], np.float64)
+        self.px = [np.ascontiguousarray(a) for a in (
+            fuv[:, 0, 0], fuv[:, 1, 0] - fuv[:, 0, 0], fuv[:, 2, 0] - fuv[:, 0, 0],
+            fuv[:, 0, 1], fuv[:, 1, 1] - fuv[:, 0, 1], fuv[:, 2, 1] - fuv[:, 0, 1])]
+        self.lut_flat = self.lut.reshape(-1)
+        self.position32 = texels.position.astype(np.float32)
+        fp = np.linalg.norm(texels.footprint, axis=2).sum(axis=1)  # |dP/dx| + |dP/dy|
+        self.reach2 = ((MAP_SLACK_FOOTPRINTS * fp + 2.0 * tracer.offset) ** 2).astype(
+            np.float32)
+        self._tree: cKDTree | None = None
+        self.remapped = 0
+
+    def __call__(self, tri: np.ndarray, bary: np.ndarray, ray: np.ndarray,
+                 origin: np.ndarray, direction: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """tri : (n,) faces, bary : (n, 3) barycentrics, t : (n,) float64 distances of n
+        front hits of rays ``ray`` (n,) int64 into origin, direction ((r, 3) float32).
+        Returns (n,) int64 texel indices."""
+        b1, b2 = bary[:, 1], bary[:, 2]
+        x0, x1, x2, y0, y1, y2 = self.px
+        x = np.floor(x0[tri] + b1 * x1[tri] + b2 * x2[tri])
+        y = np.floor(y0[tri] + b1 * y1[tri] + b2 * y2[tri])
+        w, h = self.texels.width, self.texels.height
+        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        flat = np.clip(y, 0, h - 1).astype(np.int64) * w + np.clip(x, 0, w - 1).astype(np.int64)
+        tex = np.where(inside, self.lut_flat[flat], -1)
+        # A texel sampled on the hit's own face is right by construction; others must be
+        # near the hit point (a texel of another chart means overlapping UVs).
+        other = np.flatnonzero((tex < 0) | (self.texels.triangle[tex] != tri))
+        tk = tex[other]
+        ro = ray[other]
+        point = origin[ro] + direction[ro] * t[other].astype(np.float32)[:, None]
+        diff = point - self.position32[tk]
+        far = (tk < 0) | (np.einsum("ij,ij->i", diff, diff) > self.reach2[tk])
+        bad = other[far]
+        if len(bad):
+            p64 = self.tracer.surface_point(tri[bad], bary[bad])
+            tex[bad] = self._nearest(p64, self.tracer.face_normals[tri[bad]])
+            self.remapped += len(bad)
+        return tex
+
+    def _nearest(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Nearest texel in 3-D whose geometric normal faces the same way (of the 8
+        nearest), else the nearest."""
+        if self._tree is None:
+            self._tree = cKDTree(self.texels.position)
+        k = min(8, self.texels.count)
+        _, idx = self._tree.query(points, k=k)
+        idx = idx.reshape(len(points), k)
+        facing = np.einsum("nkj,nj->nk", self.texels.geometric_normal[idx], normals) > 0.5
+        first = np.where(facing.any(axis=1), facing.argmax(axis=1), 0)
+        return idx[np.arange(len(points)), first]
+
+
+def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
+                    seed: int, timer: StageTimer | None = None, near_field: float = 0.0,
+                    direct_samples: int = 1) -> Gather:
+    """Trace the texel → texel gather operator G (see the module docstring).
+
+    rays : M gather rays per texel (≥ 1); seed : every random choice (same inputs + seed
+    → bit-identical operator).
+
+    Per texel: S = max(1, M // RAYS_PER_ORIGIN) origins on a shifted Fibonacci lattice
+    over the texel square, kept on the texel's triangle (:func:`_jittered_origins`),
+    offset along the geometric normal turned to the shading side
+    (:func:`prtcore.core.tolerances.offset_origins`); ray i leaves origin i mod S along point i
+    of a shifted Fibonacci lattice mapped to the cosine hemisphere about the shading
+    normal. A front-face hit at (triangle, barycentric) → TEXCOORD_1 → texel
+    (⌊u·W⌋, ⌊v·H⌋) → covered texel, or the dilation source of a padding texel; a lookup
+    that fails or lands more than MAP_SLACK_FOOTPRINTS footprints away goes to the
+    nearest same-facing texel in 3-D (counted in ``stats["remapped_hits"]``).
+
+    near_field : rays whose hit lies within this many footprints of their origin texel
+    (|dP/dx| + |dP/dy|)/2 are also listed in ``Gather.near`` (0: none).
+    direct_samples : J, the points per texel in ``Gather.direct_position`` (1: the
+    sample; J > 1: J of the texel's S origins, evenly spaced along its lattice).
+
+    Returns a :class:`Gather`; ``matrix`` is (T, T) float32 CSR with duplicate entries
+    summed, row sums ≤ 1.
+    """
+    if rays < 1:
+        raise ValueError(f"gather_operator: rays must be ≥ 1, got {rays}")
+    if scene.uv1 is None:
+        raise ValueError("gather_operator: the scene has no TEXCOORD_1")
+    ctx = timer.stage("gather operator") if timer is not None else nullcontext()
+    with ctx:
+        return _gather(scene, texels, tracer, int(rays), int(seed), timer,
+                       float(near_field), int(direct_samples))
+
+
+def build_gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
+                          seed: int, timer: StageTimer | None = None) -> sp.csr_matrix:
+    """(T, T) float32 CSR gather operator, rows = receiving texel, weights 1/M (1/M_valid
+    for partly buried texels; see :func:`gather_operator`, which also returns the
+    buried-texel handling)."""
+    return gather_operator(scene, texels, tracer, rays, seed, timer).matrix
+
+
+def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: int,
+            timer: StageTimer | None, near_field: float = 0.0, direct_samples: int = 1
+            ) -> Gather:
+    t = texels.count
+    s = max(1, m // RAYS_PER_ORIGIN)
+    rng = np.random.default_rng(seed)
+    origins, jittered = _jittered_origins(scene, texels, s, rng)
+    dir_shift = rng.random((t, 2), dtype=np.float32)
+    shade = np.asarray(texels.normal, dtype=np.float64)
+    geo = np.asarray(texels.geometric_normal, dtype=np.float64)
+    geo = geo * np.where(np.einsum("ij,ij->i", shade, geo) < 0, -1.0, 1.0)[:, None]
+    start = offset_origins(origins.reshape(-1, 3), np.repeat(geo, s, axis=0),
+                           tracer.scale).reshape(t, s, 3)
+    tan, bit = orthonormal_frame(shade)
+    # frame rows (tangent, bitangent, normal) in float32 for the Embree-bound directions
+    frame = np.stack([tan, bit, shade], axis=1).astype(np.float32)  # (T, 3, 3)
+    up = np.einsum("tij,tj->ti", np.stack([tan, bit, shade], axis=1), geo)  # (T, 3)
+    flat = bool((np.abs(up[:, :2]).max(initial=0.0) < 1e-12) and (up[:, 2].min(
+        initial=1.0) > 0))
+    mapper = _HitMapper(scene, texels, tracer)
+    # near-field reach of each texel: near_field × its footprint, in world units
+    reach = near_field * 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
+    near_parts: list[tuple[np.ndarray, ...]] = []
+
+    i = np.arange(m, dtype=np.float64)
+    lattice = np.stack([(i + 0.5) / m, np.mod(i * PHI, 1.0)], axis=1).astype(np.float32)
+    ray_o = np.arange(m) % s  # origin of each ray within its texel
+    per_batch = max(1, GATHER_BATCH // m)
+    valid_rays = np.zeros(t, dtype=np.int32)
+    inside_origin = np.zeros((t, s), dtype=bool)
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    n_traced = n_back = n_miss = n_below = 0
+    starts = range(0, t, per_batch)
+    if timer is not None:
+        starts = timer.bar(starts, "gather", total=len(starts))
+    for b0 in starts:
+        b1 = min(t, b0 + per_batch)
+        nt = b1 - b0
+        # shifted lattice in float32 (the directions go to Embree as float32 anyway)
+        u = lattice[None, :, :] + dir_shift[b0:b1, None, :]  # (nt, m, 2) in [0, 2)
+        u -= (u >= 1.0).astype(np.float32)
+        rr = np.sqrt(u[..., 0])
+        phi = np.float32(2.0 * math.pi) * u[..., 1]
+        local = np.stack([rr * np.cos(phi), rr * np.sin(phi),
+                          np.sqrt(np.clip(1.0 - u[..., 0], 0.0, None))], axis=2)
+        del u, rr, phi
+        d = np.matmul(local, frame[b0:b1])  # (nt, m, 3) float32 world
+        if flat:
+            above = np.ones((nt, m), dtype=bool)
+        else:
+            above = np.einsum("tmk,tk->tm", local, up[b0:b1].astype(np.float32)) > 0
+        del local
+        o = start[b0:b1][:, ray_o]  # (nt, m, 3) float32
+        sel = np.flatnonzero(above.reshape(-1))
+        traced_all = len(sel) == nt * m
+        d = d.reshape(-1, 3)
+        o = o.reshape(-1, 3)
+        hits = tracer.intersect(o, d) if traced_all else tracer.intersect(o[sel], d[sel])
+        hit = np.zeros(nt * m, dtype=bool)
+        front = np.zeros(nt * m, dtype=bool)
+        hit[sel] = hits.hit
+        front[sel] = hits.front
+        back = hit & ~front
+        n_traced += len(sel)
+        n_back += int(back.sum())
+        n_miss += len(sel) - int(hit.sum())
+        n_below += nt * m - len(sel)
+        # An origin is inside geometry when most of its traced rays hit back faces.
+        key_o = (np.arange(nt)[:, None] * s + ray_o[None, :]).reshape(-1)
+        traced_o = np.bincount(key_o, weights=above.reshape(-1), minlength=nt * s)
+        back_o = np.bincount(key_o, weights=back, minlength=nt * s)
+        inside = (2 * back_o > traced_o).reshape(nt, s)
+        inside_origin[b0:b1] = inside
+        ray_ok = ~inside[:, ray_o]  # (nt, m)
+        valid_rays[b0:b1] = ray_ok.sum(axis=1)
+        use = np.flatnonzero(front & ray_ok.reshape(-1))
+        pos = use if traced_all else np.searchsorted(sel, use)  # among the traced rays
+        cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
+        cols[use] = mapper(hits.triangle[pos], hits.barycentric[pos], use, o, d, hits.t[pos])
+        parts.append(_row_counts(cols.reshape(nt, m), b0, t))
+        if near_field > 0:
+            r_use = use // m  # receiving texel - b0
+            close = hits.t[pos] < reach[b0 + r_use]
+            nu, npos, nr = use[close], pos[close], r_use[close]
+            near_parts.append((b0 + nr, cols[nu], hits.triangle[npos],
+                               hits.barycentric[npos],
+                               (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32)))
+        del hits, d, o, cols
+
+    row = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+    col = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
+    cnt = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.int64)
+    weight = (cnt / valid_rays[row]).astype(np.float32)
+    indptr = np.zeros(t + 1, dtype=np.int64)
+    np.cumsum(np.bincount(row, minlength=t), out=indptr[1:])
+    matrix = sp.csr_matrix((weight, col, indptr), shape=(t, t))
+    matrix.has_sorted_indices = True
+    matrix.has_canonical_format = True
+
+    # Where the texel's direct light is evaluated. A partly covered texel's sample may lie
+    # on its chart's border — on a concave edge that is also the neighbouring face's
+    # plane, where shadow rays hit that face at t ≈ 0 — and a partly buried texel's
+    # sample may be inside geometry: both use their visible jittered origin (strictly
+    # inside the triangle) nearest to the centroid of those origins.
+    sample = np.asarray(texels.position, dtype=np.float64).copy()
+    partial = np.asarray(texels.coverage) < 1.0 - PARTIAL_COVERAGE_EPS
+    moved = (partial | inside_origin.any(axis=1)) & (valid_rays > 0)
+    mv = np.flatnonzero(moved)
+    if len(mv):
+        good = ~inside_origin[mv] & jittered[mv]
+        good[~good.any(axis=1)] = ~inside_origin[mv][~good.any(axis=1)]
+        w = good[:, :, None].astype(np.float64)
+        centroid = (origins[mv] * w).sum(axis=1) / w.sum(axis=1)
+        dist = np.linalg.norm(origins[mv] - centroid[:, None, :], axis=2)
+        dist[~good] = np.inf
+        # Symmetric origin sets have exactly tied distances; rounding decided the tie,
+        # differently at another scene scale (tests/stability). Ties within 1e-6 of the
+        # texel's footprint go to the first origin.
+        tie = 1e-6 * np.linalg.norm(texels.footprint[mv], axis=2).mean(axis=1)
+        near = dist <= dist.min(axis=1, keepdims=True) + tie[:, None]
+        sample[mv] = origins[mv, near.argmax(axis=1)]
+    # Where the texel's direct light is evaluated and averaged: J origins spread over the
+    # texel (every S/J-th point of its lattice), each buried one replaced by the sample.
+    # One point aliases: a shadow edge along a texel column leaves every centre lit.
+    j = max(1, min(int(direct_samples), s))
+    if j == 1:
+        direct_position = sample[:, None, :].copy()
+    else:
+        pick = (np.arange(j) * s) // j
+        direct_position = origins[:, pick].copy()
+        off = inside_origin[:, pick] | ~jittered[:, pick] | (valid_rays == 0)[:, None]
+        direct_position[off] = np.broadcast_to(sample[:, None, :], direct_position.shape)[off]
+    stats = {
+        "gather_rays": m, "origins_per_texel": s, "rays_traced": n_traced,
+        "rays_below_surface": n_below, "back_face_hits": n_back, "misses": n_miss,
+        "back_face_fraction": n_back / max(n_traced, 1),
+        "remapped_hits": mapper.remapped, "jitter_fallbacks": int((~jittered).sum()),
+        "buried_texels": int((valid_rays == 0).sum()), "moved_texels": int(moved.sum()),
+        "nnz": int(matrix.nnz),
+    }
+    near = None
+    if near_field > 0:
+        empty = (np.zeros(0, np.int64),) * 3 + (np.zeros((0, 3)), np.zeros(0, np.float32))
+        near = NearField(*(np.concatenate(a) for a in zip(empty, *near_parts, strict=True)))
+        stats["near_field_hits"] = near.count
+    return Gather(matrix=matrix, sample_position=sample, valid_rays=valid_rays, moved=moved,
+                  stats=stats, direct_position=direct_position, near=near)
+
+
+def _row_counts(cols: np.ndarray, row0: int, sentinel: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct column indices per row and how often each occurs.
+
+    cols : (n, m) int64 column of each ray of rows row0 … row0 + n − 1, ``sentinel`` for
+    rays that bring nothing. Returns rows (k,) int64, columns (k,) int32 (ascending within a
+    row) and counts (k,) int64, rows ascending.
+    """
+    n, m = cols.shape
+    c = np.sort(cols, axis=1).reshape(-1)
+    new = np.ones(n * m, dtype=bool)
+    new[1:] = c[1:] != c[:-1]
+    new[::m] = True  # every row starts a run
+    run = np.flatnonzero(new)
+    length = np.diff(np.append(run, n * m))
+    value = c[run]
+    keep = value != sentinel
+    return (run[keep] // m + row0).astype(np.int64), value[keep].astype(np.int32), \
+        length[keep]
+
+
+# ---------------------------------------------------------------------------------------
+
+def spec_gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, spec: TransportSpec,
+                timer: StageTimer | None = None) -> Gather:
+    """:func:`gather_operator` with the spec's rays, seed, near field and direct samples."""
+    return gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
+                           near_field=spec.near_field, direct_samples=spec.direct_samples)
+
