@@ -70,10 +70,7 @@ def run_intake(asset: str | Path, spec: BakeSpec, *, quiet: bool = False,
 
     timer = timer or StageTimer(quiet=quiet, callback=callback)
     limits = limits or IntakeLimits.from_env()
-    if spec.atlas.resolution > limits.max_atlas_resolution:
-        from prtcore.core.errors import SpecError
-        raise SpecError("atlas.resolution", f"{spec.atlas.resolution} exceeds the configured "
-                        f"limit max_atlas_resolution={limits.max_atlas_resolution}")
+    limits.check_spec(spec)
     with timer.stage("load"):
         scene = load_asset(asset, limits)
     with timer.stage("plan"):
@@ -96,32 +93,26 @@ def run_intake(asset: str | Path, spec: BakeSpec, *, quiet: bool = False,
 RUN_FILES = ("report.json", "report.png", "report.txt", "manifest.json")
 
 
+#: the method every bake uses until the spec chooses one (issue 17 adds sh_prt)
+METHOD = "data_driven"
+
+
 def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
          force: bool = False, limits: IntakeLimits | None = None,
          callback: ProgressCallback | None = None) -> Path:
-    """asset + spec → bundle directory ``out`` (DESIGN 3.4). Returns ``out``."""
+    """asset + spec → bundle directory ``out`` (docs/bundle.md). Returns ``out``.
+
+    Stages: intake → lights → keyframes → transport → the method's fit and report →
+    export. The method (:mod:`prtcore.methods`) writes its own files and manifest
+    sections; this function writes the asset and the sections every bundle has.
+    """
     import time
 
-    from prtcore.core.materials import clamp_albedo
     from prtcore.core.spec import spec_hash, spec_to_dict
     from prtcore.emitters.families import sample_configurations
-    from prtcore.emitters.lightfile import save_light_file
-    from prtcore.fit.transfer import fit_transfer
-    from prtcore.io.bundle import (
-        RUNTIME_FORMULA,
-        basis_planes,
-        check_output,
-        manifest_base,
-        planes_layout,
-        points_files,
-        write_basis_files,
-        write_bundle,
-    )
+    from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
     from prtcore.io.gltf.export import write_glb
-    from prtcore.io.imageio import write_exr
-    from prtcore.keyframes.pose import keyframe_files
-    from prtcore.receivers.texels import texels_to_image
-    from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
+    from prtcore.methods.base import BakeInputs, method
     from prtcore.transport.dataset import bake_dataset, check_bake_memory
 
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
@@ -141,112 +132,69 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         from prtcore.keyframes.pose import bake_keyframe_dataset
 
         data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
-    K = len(train)
-    D, I = data.direct_points[:, :K], data.indirect[:, :K]
-    Dh, Ih = data.direct_points[:, K:], data.indirect[:, K:]
-    holdout = (Dh, Ih) if len(hold) else None
-    per_group = kfs is not None and kfs.transfer == "per_keyframe"
-    if per_group and holdout is not None:
-        holdout = (Dh, Ih, kfs.holdout)
-
-    with timer.stage("fit"):
-        n_table = max(TABLE_N)
-        fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
-                  "gamma": spec.fit.gamma}
-        if kfs is not None:  # one basis for all keyframes (paper 5.4)
-            fit_kw.update(groups=kfs.train, per_group=per_group)
-        if spec.fit.basis == "auto":
-            model = fit_transfer(D, I, basis="auto", holdout=holdout, **fit_kw)
-            full = model if model.n_basis >= n_table else fit_transfer(
-                D, I, basis=n_table, **fit_kw)
-        else:
-            full = fit_transfer(D, I, basis=max(spec.fit.basis, n_table), **fit_kw)
-            model = truncate(full, spec.fit.basis)
-    diag = model.diagnostics.to_dict()
-    if per_group and model.group_ids != tuple(range(kfs.count)):
-        from prtcore.core.errors import PrtError
-        raise PrtError(f"fit: per-keyframe transfers for keyframes {model.group_ids}, "
-                       f"expected all {kfs.count}")
-
-    with timer.stage("report"):
-        dtype_bytes = 2 if spec.output.dtype == "half" else 4
-        if holdout is not None:
-            table = error_vs_runtime(full, Dh, Ih, texels.width * texels.height,
-                                     texels.width * texels.height * dtype_bytes,
-                                     reference="fast transport of the held-out lights",
-                                     groups=kfs.holdout if per_group else None)
-        else:
-            table = {"reference": None, "heldout_configurations": 0, "rows": []}
+    inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
+                        data=data)
+    m = method(METHOD)
+    result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:
         write_glb(scene, tmp / "asset.glb")
-        planes = basis_planes(model.mean, model.basis, model.channels)
-        img = texels_to_image(texels, planes, dilate=True)
-        files = write_basis_files(tmp, img[:, :, :planes.shape[1]], spec.output.dtype)
-        write_exr(tmp / "coverage.exr", img[:, :, -1:], dtype="half", channel_names=("Y",))
-        el, ch = planes_layout(model.channels, model.basis.shape[1])
-        cl_albedo, _ = clamp_albedo(points.cluster_albedo)
-        pts = points_files(tmp, points, cl_albedo)
-        transfer = {
-            "matrix": _raw_desc(tmp / "transfer.bin", model.transfer),
-            "offset": _raw_desc(tmp / "transfer_offset.bin", model.offset),
-            "layout": "matrix[c, i, p]: channel c (R, G, B), element i+1, point p; "
-                      "offset[c, i]" + ("; leading axis: keyframe" if
-                                        model.transfer.ndim == 4 else ""),
+        sections, report = m.write(tmp, inputs, result)
+        _write_run_files(tmp, m, result, report, dict(timer.seconds), t_start)
+        common = {
+            "asset": {"source": Path(str(asset)).name, "sha256": sha256_file(Path(asset)),
+                      "file": "asset.glb", "triangles": scene.triangle_count},
+            "units": {"length": "m", "up": "+Y", "handedness": "right",
+                      "radiance": "linear RGB outgoing radiance (albedo/pi * E)",
+                      "light_intensity": "KHR_lights_punctual: cd (point/spot), lux "
+                                         "(directional), no 683 lm/W conversion"},
+            "atlas": {"width": texels.width, "height": texels.height,
+                      "padding": spec.atlas.padding, "uv": "TEXCOORD_1",
+                      "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
+                      "covered_texels": texels.count, "coverage": "coverage.exr"},
         }
-        save_light_file(hold, tmp / "holdout_lights.json")
-        seconds = dict(timer.seconds)
-        report = {"table": table, "stage_seconds": seconds,
-                  "transport": data.stats, "fit": diag,
-                  "total_seconds": time.perf_counter() - t_start}
-        (tmp / "report.json").write_text(json.dumps(_jsonable(report), indent=2) + "\n")
-        plot(table, tmp / "report.png")
-        (tmp / "report.txt").write_text(format_table(table, seconds) + "\n")
-        return manifest_base(
-            asset={"source": Path(str(asset)).name, "sha256": _file_sha256(Path(asset)),
-                   "file": "asset.glb", "triangles": scene.triangle_count},
-            units={"length": "m", "up": "+Y", "handedness": "right",
-                   "radiance": "linear RGB outgoing radiance (albedo/pi * E)",
-                   "light_intensity": "KHR_lights_punctual: cd (point/spot), lux "
-                                      "(directional), no 683 lm/W conversion"},
-            atlas={"width": texels.width, "height": texels.height,
-                   "padding": spec.atlas.padding, "uv": "TEXCOORD_1",
-                   "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
-                   "covered_texels": texels.count, "coverage": "coverage.exr"},
-            basis={"count": model.n_basis, "channels": model.channels,
-                   "files": files, "planes": int(planes.shape[1]),
-                   "plane_element": el.tolist(), "plane_channel": ch.tolist(),
-                   "packing": "4 planes per RGBA file in order; planes 0-2 are the mean "
-                              "(element 0) for R, G, B; plane_channel -1 = shared by R, G, B",
-                   "dtype": spec.output.dtype, "dilated": True},
-            fit={"channels": model.channels, "gamma": model.gamma, "ridge": model.ridge,
-                 "n_basis": model.n_basis, "n_method": diag.get("n_basis_method"),
-                 "ridge_method": diag.get("ridge_method"),
-                 "energy_kept": diag.get("energy_kept"), "warnings": diag.get("warnings"),
-                 "configurations": K, "used": diag.get("used")},
-            transfer=transfer,
-            points=pts,
-            keyframes=None if kfs is None else keyframe_files(tmp, kfs, scene),
-            runtime={"formula": RUNTIME_FORMULA},
-            spec=spec_to_dict(spec), spec_sha256=spec_hash(spec),
-            plan=[{"stage": s.name, "action": s.action, "reason": s.reason}
-                  for s in intake.plan.stages],
-            prepare=_jsonable(intake.prepare.__dict__),
-            timings=seconds,
-            diagnostics=diag,
-            metrics={"error_vs_runtime": table["rows"],
-                     "transport_iterations": data.iterations,
-                     "transport_residual": data.residual},
-            validation={"holdout_lights": "holdout_lights.json",
-                        "reference": table["reference"]},
-            run_files=list(RUN_FILES),
-        )
+        run = {
+            "spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
+            "plan": [{"stage": s.name, "action": s.action, "reason": s.reason}
+                     for s in intake.plan.stages],
+            "prepare": _jsonable(intake.prepare.__dict__),
+            "timings": dict(timer.seconds),
+        }
+        return manifest_base(method=m.name, **common, **sections, **run,
+                             run_files=list(RUN_FILES))
 
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
+    seconds = dict(timer.seconds)
+    _finish_run_files(out, m, result, seconds)  # export's own time, once it has ended
     if not quiet:
-        print(format_table(table, dict(timer.seconds)))
+        print(m.summary(result, seconds))
     return out
+
+
+def _write_run_files(directory: Path, m, result, report: dict, seconds: dict[str, float],
+                     t_start: float) -> None:
+    """report.json / .txt / .png: what the run measured (not checksummed: RUN_FILES)."""
+    import time
+
+    full = {**report, "stage_seconds": seconds, "total_seconds": time.perf_counter() - t_start}
+    (directory / "report.json").write_text(json.dumps(_jsonable(full), indent=2) + "\n")
+    m.plot(result, directory / "report.png")
+    (directory / "report.txt").write_text(m.summary(result, seconds) + "\n")
+
+
+def _finish_run_files(out: Path, m, result, seconds: dict[str, float]) -> None:
+    """Put the final stage times (export included) into the bundle's run files."""
+    import os
+
+    manifest = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+    report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    manifest["timings"] = report["stage_seconds"] = _jsonable(seconds)
+    for name, doc in (("manifest.json", manifest), ("report.json", report)):
+        tmp = out / f".{name}.tmp"
+        tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        os.replace(tmp, out / name)
+    (out / "report.txt").write_text(m.summary(result, seconds) + "\n", encoding="utf-8")
 
 
 def _keyframe_set(intake: IntakeResult, n_train: int, n_holdout: int, timer: StageTimer):
@@ -257,24 +205,6 @@ def _keyframe_set(intake: IntakeResult, n_train: int, n_holdout: int, timer: Sta
 
     with timer.stage("keyframes"):
         return build_keyframes(intake.scene, intake.points, intake.spec, n_train, n_holdout)
-
-
-def _raw_desc(path: Path, array) -> dict:
-    import numpy as np
-
-    a = np.ascontiguousarray(array, dtype="<f4")
-    path.write_bytes(a.tobytes())
-    return {"file": path.name, "dtype": "<f4", "shape": list(a.shape)}
-
-
-def _file_sha256(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _jsonable(x):

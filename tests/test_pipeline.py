@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 from prtcore import STAGES
 from prtcore.core.progress import StageTimer
 from prtcore.core.spec import parse_spec
@@ -29,6 +31,13 @@ def test_bake_times_its_stages_in_the_listed_order(tmp_path):
                            {"type": "point", "position": {"box": [[-0.5, 1.3, -0.5],
                                                                   [0.5, 1.7, 0.5]]}}]},
                        "transport": {"gather_rays": 8}, "fit": {"basis": 4}})
-    timings = read_manifest(bake(asset, spec, tmp_path / "b", quiet=True))["timings"]
+    out = bake(asset, spec, tmp_path / "b", quiet=True)
+    manifest = read_manifest(out)
+    timings = manifest["timings"]
     assert list(timings) == sorted(timings, key=STAGES.index)
-    assert {"gather operator", "indirect solve", "fit", "report"} <= set(timings)
+    assert {"gather operator", "indirect solve", "fit", "report", "export"} <= set(timings)
+    assert manifest["method"] == "data_driven"
+    # the run files carry the export stage too (it ends after they are first written)
+    report = json.loads((out / "report.json").read_text())
+    assert report["stage_seconds"] == timings
+    assert "export" in (out / "report.txt").read_text().split("bake stages:")[1]

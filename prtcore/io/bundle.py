@@ -1,4 +1,4 @@
-"""The bundle (DESIGN 3.4): what an engine loads, described entirely by manifest.json.
+"""The bundle (docs/bundle.md): what an engine loads, described entirely by manifest.json.
 
 Written atomically: everything goes to a temporary sibling directory that is renamed into
 place at the end, so a failed bake leaves no partial bundle (and an existing bundle is only
@@ -70,7 +70,7 @@ class RuntimeData:
         return int(self.plane_element.max()) + 1
 
 
-def _sha256(path: Path) -> str:
+def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -78,7 +78,9 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _raw(path: Path, array: np.ndarray, dtype: str) -> dict:
+def raw_file(path: Path, array: np.ndarray, dtype: str = "<f4") -> dict:
+    """Write ``array`` as raw little-endian ``dtype`` to ``path``; returns its manifest
+    description {"file", "dtype", "shape"}."""
     a = np.ascontiguousarray(array, dtype=dtype)
     path.write_bytes(a.tobytes())
     return {"file": path.name, "dtype": dtype, "shape": list(a.shape)}
@@ -163,7 +165,7 @@ def write_bundle(out: Path, writer: Callable[[Path], dict[str, Any]], force: boo
         files = {}
         for p in sorted(tmp.iterdir()):
             if p.is_file() and p.name not in exclude:
-                files[p.name] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+                files[p.name] = {"bytes": p.stat().st_size, "sha256": sha256_file(p)}
         manifest["checksums"] = files
         umask = os.umask(0)
         os.umask(umask)
@@ -217,12 +219,12 @@ def points_files(directory: Path, points, cluster_albedo: np.ndarray) -> dict:
         "count": int(points.count),
         "placement": points.placement,
         "columns": cols,
-        "points": _raw(directory / "points.bin", pts, "<f4"),
-        "points_triangle": _raw(directory / "points_triangle.bin", points.triangle, "<i4"),
-        "clusters": _raw(directory / "clusters.bin", cl, "<f4"),
-        "clusters_triangle": _raw(directory / "clusters_triangle.bin",
+        "points": raw_file(directory / "points.bin", pts, "<f4"),
+        "points_triangle": raw_file(directory / "points_triangle.bin", points.triangle, "<i4"),
+        "clusters": raw_file(directory / "clusters.bin", cl, "<f4"),
+        "clusters_triangle": raw_file(directory / "clusters_triangle.bin",
                                   points.cluster_triangle, "<i4"),
-        "clusters_owner": _raw(directory / "clusters_owner.bin", points.cluster_owner, "<i4"),
+        "clusters_owner": raw_file(directory / "clusters_owner.bin", points.cluster_owner, "<i4"),
     }
 
 
@@ -255,7 +257,7 @@ def verify_bundle(path: Path, manifest: dict | None = None) -> None:
         p = path / name
         if not p.is_file():
             raise BundleError(f"{path}: {name} listed in manifest.json is missing")
-        if p.stat().st_size != info["bytes"] or _sha256(p) != info["sha256"]:
+        if p.stat().st_size != info["bytes"] or sha256_file(p) != info["sha256"]:
             raise BundleError(f"{path}: {name} does not match its manifest checksum")
 
 
@@ -275,6 +277,8 @@ def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
     """Everything the runtime needs, from the bundle files as the manifest describes them."""
     path = Path(path)
     m = manifest or read_manifest(path)
+    if m.get("method", "data_driven") != "data_driven":
+        raise BundleError(f"{path}: method {m['method']!r} has no data-driven runtime data")
     basis = m["basis"]
     imgs = [read_image(path / f) for f in basis["files"]]
     planes = np.concatenate(imgs, axis=2)[:, :, :basis["planes"]]

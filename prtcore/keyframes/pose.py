@@ -342,7 +342,7 @@ def bake_keyframe_dataset(kfs: KeyframeSet, texels: TexelSpace,
 def keyframe_files(directory: Path, kfs: KeyframeSet, rest: Scene) -> dict:
     """Write the per-keyframe posed arrays of a bundle and return the manifest's
     ``keyframes`` section (everything an engine needs to pick and pose a keyframe)."""
-    from prtcore.io.bundle import _raw
+    from prtcore.io.bundle import raw_file
 
     order = export_vertex_order(rest)
     verts = np.stack([np.concatenate([s.positions[order], s.normals[order]], 1)
@@ -357,11 +357,11 @@ def keyframe_files(directory: Path, kfs: KeyframeSet, rest: Scene) -> dict:
         "selection": "nearest keyframe to the requested time; transfer.matrix has a leading "
                      "keyframe axis when transfer is per_keyframe, else one matrix for all",
         "columns": ["px", "py", "pz", "nx", "ny", "nz"],
-        "vertices": _raw(directory / "keyframe_vertices.bin", verts, "<f4"),
+        "vertices": raw_file(directory / "keyframe_vertices.bin", verts, "<f4"),
         "vertex_order": "asset.glb vertices in file order (primitives in order, then "
                         "accessor order); faces, UVs and materials are the rest pose's",
-        "clusters": _raw(directory / "keyframe_clusters.bin", clusters, "<f4"),
-        "points": _raw(directory / "keyframe_points.bin", pts, "<f4"),
+        "clusters": raw_file(directory / "keyframe_clusters.bin", clusters, "<f4"),
+        "points": raw_file(directory / "keyframe_points.bin", pts, "<f4"),
         "train_keyframe": [int(k) for k in kfs.train],
         "holdout_keyframe": [int(k) for k in kfs.holdout],
     }

@@ -1,0 +1,71 @@
+"""The method interface: what turns a transport dataset into a bundle an engine can use.
+
+A method owns its fit, the files and manifest sections it writes, and its runtime; the
+manifest's ``method`` key names it, and an engine reads that key first. The pipeline
+never branches on a method's name: it asks :func:`method`.
+
+Members register themselves (``@register``) and are imported by ``prtcore.methods``
+(one line each). Data-driven PRT (:mod:`prtcore.methods.data_driven`) is the one member
+today; classic SH-PRT and transfer textures, and learnt transfer, are new modules here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from prtcore.core.progress import StageTimer
+from prtcore.core.registry import Registry
+from prtcore.core.scene import Light
+from prtcore.core.spec import BakeSpec
+
+
+@dataclass(frozen=True, eq=False)
+class BakeInputs:
+    """What every method fits from.
+
+    intake : the pipeline's IntakeResult (scene, texels, points, plan, prepare)
+    train, hold : the training and held-out lights; keyframes : the KeyframeSet or None
+    data : the transport Dataset (direct at points and indirect per texel for train + hold)
+    """
+
+    spec: BakeSpec
+    intake: Any
+    train: tuple[Light, ...]
+    hold: tuple[Light, ...]
+    keyframes: Any
+    data: Any
+
+
+class Method:
+    """One kind of precomputed transfer."""
+
+    name: ClassVar[str]
+
+    def fit(self, inputs: BakeInputs, timer: StageTimer) -> Any:
+        """Fit the model (timed stages "fit" and "report"); returns the method's result."""
+        raise NotImplementedError
+
+    def write(self, directory: Path, inputs: BakeInputs, result: Any) -> tuple[dict, dict]:
+        """Write the method's files into ``directory``. Returns (manifest sections, report
+        fields): the sections the method owns (e.g. basis, fit, transfer, points,
+        keyframes, runtime, diagnostics, metrics, validation) and its part of report.json.
+        """
+        raise NotImplementedError
+
+    def summary(self, result: Any, seconds: dict[str, float]) -> str:
+        """The text printed at the end of a bake and written to report.txt."""
+        raise NotImplementedError
+
+    def plot(self, result: Any, path: Path) -> None:
+        """The report's figure (report.png)."""
+        raise NotImplementedError
+
+
+_REGISTRY: Registry[Method] = Registry("method", "name")
+
+#: class decorator: register a method under its ``name``
+register = _REGISTRY.register
+#: the registered method called ``name`` (KeyError names the known ones)
+method = _REGISTRY.get

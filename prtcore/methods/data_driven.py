@@ -1,0 +1,148 @@
+"""Data-driven PRT (Belcour et al. 2022): mean + basis of indirect lightmaps, a transfer
+matrix from the direct light at the measurement points, and the error-vs-run-time table.
+
+Files: basis_XX.exr (4 planes per RGBA file), coverage.exr, transfer.bin and
+transfer_offset.bin, the points files, per-keyframe files for animated bakes. The runtime
+is :mod:`prtcore.runtime.cpu` (and the GLSL of :mod:`prtcore.runtime.gl`); its formula is
+written into the manifest's ``runtime`` section.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from prtcore.core.errors import PrtError
+from prtcore.core.materials import clamp_albedo
+from prtcore.core.progress import StageTimer
+from prtcore.emitters.lightfile import save_light_file
+from prtcore.fit.model import TransferModel
+from prtcore.fit.transfer import fit_transfer
+from prtcore.io.bundle import (
+    RUNTIME_FORMULA,
+    basis_planes,
+    planes_layout,
+    points_files,
+    raw_file,
+    write_basis_files,
+)
+from prtcore.io.imageio import write_exr
+from prtcore.keyframes.pose import keyframe_files
+from prtcore.methods.base import BakeInputs, Method, register
+from prtcore.receivers.texels import texels_to_image
+from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
+
+
+@dataclass(frozen=True, eq=False)
+class DataDrivenResult:
+    """model : the shipped model (the spec's n); full : the fit the report table uses
+    (≥ max(TABLE_N) elements where the data allows); table : error vs run time;
+    diagnostics : the shipped model's fit diagnostics as JSON data."""
+
+    model: TransferModel
+    full: TransferModel
+    table: dict[str, Any]
+    diagnostics: dict[str, Any]
+
+
+@register
+class DataDriven(Method):
+    name = "data_driven"
+
+    def fit(self, inputs: BakeInputs, timer: StageTimer) -> DataDrivenResult:
+        spec, kfs, data = inputs.spec, inputs.keyframes, inputs.data
+        texels = inputs.intake.texels
+        K = len(inputs.train)
+        D, I = data.direct_points[:, :K], data.indirect[:, :K]
+        Dh, Ih = data.direct_points[:, K:], data.indirect[:, K:]
+        holdout = (Dh, Ih) if len(inputs.hold) else None
+        per_group = kfs is not None and kfs.transfer == "per_keyframe"
+        if per_group and holdout is not None:
+            holdout = (Dh, Ih, kfs.holdout)
+
+        with timer.stage("fit"):
+            n_table = max(TABLE_N)
+            fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
+                      "gamma": spec.fit.gamma}
+            if kfs is not None:  # one basis for all keyframes (paper 5.4)
+                fit_kw.update(groups=kfs.train, per_group=per_group)
+            if spec.fit.basis == "auto":
+                model = fit_transfer(D, I, basis="auto", holdout=holdout, **fit_kw)
+                full = model if model.n_basis >= n_table else fit_transfer(
+                    D, I, basis=n_table, **fit_kw)
+            else:
+                full = fit_transfer(D, I, basis=max(spec.fit.basis, n_table), **fit_kw)
+                model = truncate(full, spec.fit.basis)
+        if per_group and model.group_ids != tuple(range(kfs.count)):
+            raise PrtError(f"fit: per-keyframe transfers for keyframes {model.group_ids}, "
+                           f"expected all {kfs.count}")
+
+        with timer.stage("report"):
+            dtype_bytes = 2 if spec.output.dtype == "half" else 4
+            if holdout is not None:
+                table = error_vs_runtime(full, Dh, Ih, texels.width * texels.height,
+                                         texels.width * texels.height * dtype_bytes,
+                                         reference="fast transport of the held-out lights",
+                                         groups=kfs.holdout if per_group else None)
+            else:
+                table = {"reference": None, "heldout_configurations": 0, "rows": []}
+        return DataDrivenResult(model=model, full=full, table=table,
+                                diagnostics=model.diagnostics.to_dict())
+
+    def write(self, directory: Path, inputs: BakeInputs, result: DataDrivenResult
+              ) -> tuple[dict, dict]:
+        spec, kfs, data = inputs.spec, inputs.keyframes, inputs.data
+        texels, points = inputs.intake.texels, inputs.intake.points
+        model, diag, table = result.model, result.diagnostics, result.table
+        planes = basis_planes(model.mean, model.basis, model.channels)
+        img = texels_to_image(texels, planes, dilate=True)
+        files = write_basis_files(directory, img[:, :, :planes.shape[1]], spec.output.dtype)
+        write_exr(directory / "coverage.exr", img[:, :, -1:], dtype="half",
+                  channel_names=("Y",))
+        el, ch = planes_layout(model.channels, model.basis.shape[1])
+        cl_albedo, _ = clamp_albedo(points.cluster_albedo)
+        pts = points_files(directory, points, cl_albedo)
+        transfer = {
+            "matrix": raw_file(directory / "transfer.bin", model.transfer),
+            "offset": raw_file(directory / "transfer_offset.bin", model.offset),
+            "layout": "matrix[c, i, p]: channel c (R, G, B), element i+1, point p; "
+                      "offset[c, i]" + ("; leading axis: keyframe" if
+                                        model.transfer.ndim == 4 else ""),
+        }
+        save_light_file(inputs.hold, directory / "holdout_lights.json")
+        sections = {
+            "basis": {"count": model.n_basis, "channels": model.channels,
+                      "files": files, "planes": int(planes.shape[1]),
+                      "plane_element": el.tolist(), "plane_channel": ch.tolist(),
+                      "packing": "4 planes per RGBA file in order; planes 0-2 are the mean "
+                                 "(element 0) for R, G, B; plane_channel -1 = shared by R, "
+                                 "G, B",
+                      "dtype": spec.output.dtype, "dilated": True},
+            "fit": {"channels": model.channels, "gamma": model.gamma, "ridge": model.ridge,
+                    "n_basis": model.n_basis, "n_method": diag.get("n_basis_method"),
+                    "ridge_method": diag.get("ridge_method"),
+                    "energy_kept": diag.get("energy_kept"), "warnings": diag.get("warnings"),
+                    "configurations": len(inputs.train), "used": diag.get("used")},
+            "transfer": transfer,
+            "points": pts,
+            "keyframes": None if kfs is None else keyframe_files(directory, kfs,
+                                                                 inputs.intake.scene),
+            "runtime": {"formula": RUNTIME_FORMULA},
+            "diagnostics": diag,
+            "metrics": {"error_vs_runtime": table["rows"],
+                        "transport_iterations": data.iterations,
+                        "transport_residual": data.residual},
+            "validation": {"holdout_lights": "holdout_lights.json",
+                           "reference": table["reference"]},
+        }
+        report = {"table": table, "transport": data.stats, "fit": diag}
+        return sections, report
+
+    def summary(self, result: DataDrivenResult, seconds: dict[str, float]) -> str:
+        return format_table(result.table, seconds)
+
+    def plot(self, result: DataDrivenResult, path: Path) -> None:
+        plot(result.table, path)
+
+
