@@ -1,7 +1,7 @@
 """Where a job's files live under the artifact location (shared by API and workers).
 
 ``ARTIFACTS/<job id>/input/<asset>``  the upload as received (read by the worker)
-``ARTIFACTS/<job id>/bundle/``        the bundle (DESIGN 3.4), written atomically by bake
+``ARTIFACTS/<job id>/bundle/``        the bundle (docs/bundle.md), written atomically by bake
 ``ARTIFACTS/<job id>/bundle.zip``     the whole bundle as one download (temp + rename)
 """
 

@@ -1,4 +1,4 @@
-"""The durable job table: the source of truth for every bake (DESIGN 6).
+"""The durable job table: the source of truth for every bake (README, Service).
 
 One small interface (:class:`JobStore`) over SQLAlchemy Core, so the same statements run on
 SQLite (embedded default) and PostgreSQL (``PRT_DATABASE_URL``). Core rather than raw

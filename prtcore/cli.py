@@ -1,4 +1,4 @@
-"""The ``prtcore`` command: a thin shell over the library (DESIGN 3.3).
+"""The ``prtcore`` command: a thin shell over the library (README, "The command line").
 
 Every :class:`prtcore.core.errors.PrtError` becomes exit status 2 and one line on stderr.
 """
@@ -225,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("relight", help="runtime algorithm on the CPU from a bundle")
     sp.add_argument("bundle", help="bundle directory")
-    sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
+    sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
     sp.add_argument("--out", required=True, help="output .exr (RGBA float, atlas size)")
     sp.add_argument("--time", type=float, default=None,
                     help="keyframe bundles: seconds into the animation (nearest keyframe; "
@@ -243,8 +243,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--reference-lights", type=int, default=None,
                     help="how many held-out lights to path-trace (default: all)")
     sp.add_argument("--light", default=None,
-                    help="with --reference-spp: validate the lights of this file (DESIGN "
-                         "3.2) instead of the held-out ones, e.g. another light family")
+                    help="with --reference-spp: validate the lights of this file "
+                         "(docs/lights.md) instead of the held-out ones, e.g. another light family")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--gpu", action="store_true",
                     help="also time the GPU runtime (GL timer queries, EGL) for the table's "
@@ -254,7 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("render", help="headless OpenGL render of a bundle (EGL)")
     sp.add_argument("bundle", help="bundle directory")
-    sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
+    sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
     sp.add_argument("--camera", required=True, help="camera JSON (prtcore/camera.py)")
     sp.add_argument("--out", required=True, help="output .png (tone-mapped) or .exr (linear)")
     sp.add_argument("--time", type=float, default=None,
@@ -273,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("reference", help="indirect lightmap by the independent path tracer")
     sp.add_argument("source", help="asset file or bundle directory")
-    sp.add_argument("--light", required=True, help="light file (DESIGN 3.2)")
+    sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
     sp.add_argument("--out", required=True, help="output .exr")
     sp.add_argument("--spp", type=int, default=256)
     sp.add_argument("--seed", type=int, default=0)

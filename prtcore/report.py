@@ -1,4 +1,4 @@
-"""Error against run time (DESIGN 5): the table every bake reports.
+"""Error against run time: the table every bake reports (paper section 5).
 
 For n ∈ {4, 8, 16, 32, 64} (≤ what the fit allows): relative RMSE of the held-out
 configurations against their reference, the projection bound (the reference projected

@@ -1,4 +1,4 @@
-"""Validation of a bundle against the independent reference path tracer (DESIGN 2, 5).
+"""Validation of a bundle against the independent reference path tracer (docs/architecture.md).
 
 Relights held-out lights with the runtime (from the bundle alone, as an engine would) and
 compares each with the path-traced indirect lightmap of the same light, for each basis
@@ -27,7 +27,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
                     timer: StageTimer | None = None, light_file: str | Path | None = None,
                     time: float | None = None) -> dict:
     """Runtime reconstruction vs path-traced reference for the bundle's held-out lights,
-    or for the lights of ``light_file`` (DESIGN 3.2: e.g. another family than the one the
+    or for the lights of ``light_file`` (docs/lights.md: e.g. another family than the one the
     bundle was trained on, paper Figure 8).
 
     A keyframe bundle is validated posed: each held-out light at the keyframe it was drawn

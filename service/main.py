@@ -36,7 +36,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(title="prtcore bake service", version=VERSION, lifespan=lifespan,
                   description="Data-driven PRT bakes as jobs: submit an asset and a spec, "
-                              "poll, download the bundle (DESIGN 6).")
+                              "poll, download the bundle (README, Service).")
     app.state.settings = settings or get_settings()
     app.add_exception_handler(ApiError, api_error_handler)
     app.add_exception_handler(RequestValidationError, validation_error_handler)

@@ -94,3 +94,17 @@ def test_load_spec_errors_name_the_file(tmp_path):
         load_spec(p)
     with pytest.raises(SpecError, match="cannot read"):
         load_spec(tmp_path / "missing.json")
+
+
+def test_spec_reference_documents_every_key_and_is_up_to_date():
+    """docs/spec.md is generated from the spec's definitions (issue 12)."""
+    from pathlib import Path
+
+    from prtcore.core.spec import BakeSpec
+    from prtcore.core.spec_reference import DOCS, keys, reference
+
+    assert set(keys()) == set(DOCS), set(keys()) ^ set(DOCS)
+    assert parse_spec({}) == BakeSpec()  # the parser's defaults are the dataclasses'
+    doc = Path(__file__).resolve().parents[1] / "docs" / "spec.md"
+    assert doc.read_text(encoding="utf-8") == reference(), (
+        "docs/spec.md is stale: .venv/bin/python -m prtcore.core.spec_reference > docs/spec.md")

@@ -62,7 +62,7 @@ class SpecError(PrtError):
 
 
 class LightFileError(PrtError):
-    """A light file (DESIGN 3.2) is invalid."""
+    """A light file (docs/lights.md) is invalid."""
 
 
 class BundleError(PrtError):

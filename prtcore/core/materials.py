@@ -1,4 +1,4 @@
-"""Surface albedo for transport: baseColorFactor × baseColorTexture (DESIGN 3.1).
+"""Surface albedo for transport: baseColorFactor × baseColorTexture (docs/bundle.md).
 
 The one place where albedo is evaluated; texels, measurement points, the fast transport
 and the reference tracer all call :func:`albedo_at`.

@@ -50,7 +50,7 @@ class Material:
 
 @dataclass(frozen=True)
 class Light:
-    """A KHR_lights_punctual light in world space (DESIGN 3.1/3.2).
+    """A KHR_lights_punctual light in world space (docs/lights.md).
 
     color : (3,) float64 linear RGB; intensity in cd (point/spot) or lux (directional)
     position : (3,) float64; direction : (3,) float64 unit, the direction light travels

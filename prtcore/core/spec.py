@@ -1,4 +1,4 @@
-"""The bake spec (DESIGN 3.5): strict validation, defaults, and a canonical JSON echo.
+"""The bake spec (docs/spec.md): strict validation, defaults, and a canonical JSON echo.
 
 Every key is optional; unknown keys are rejected with their JSON path. The result is a
 tree of frozen dataclasses; :func:`spec_to_dict` gives back the complete spec with all

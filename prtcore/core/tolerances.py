@@ -24,7 +24,7 @@ UV_TEXEL_EPS = 1e-3
 BARY_EPS = 1e-9
 #: Length below which a normal is considered zero.
 NORMAL_EPS = 1e-12
-#: Albedo clamp for transport (DESIGN 3.1): per channel ≤ this.
+#: Albedo clamp for transport (docs/bundle.md): per channel ≤ this.
 ALBEDO_MAX = 0.99
 
 

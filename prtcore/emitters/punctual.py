@@ -1,6 +1,6 @@
 """Light evaluation: the one formula every stage uses, dispatched to each light's emitter.
 
-Conventions (DESIGN 3.1): KHR_lights_punctual; ``color`` linear RGB; ``intensity`` in cd
+Conventions (docs/bundle.md): KHR_lights_punctual; ``color`` linear RGB; ``intensity`` in cd
 (point/spot) or lux (directional), used directly as radiometric units. Irradiance at a
 surface point with unit normal n:
 

@@ -20,7 +20,7 @@ AUTO_ENERGY = 0.999
 #: relative margin of the best.
 AUTO_HOLDOUT_MARGIN = 0.01
 #: basis="auto" never goes beyond this many elements (mean included): 16 RGBA textures,
-#: the top of the DESIGN 5 report table.
+#: the top of the prtcore/fit report table.
 AUTO_BASIS_MAX = 64
 #: Allowed gamma g (values fitted as |v|^(1/g)). g < 1 would expand the dynamic range:
 #: at g = 0.05 a direct radiance of 1e6 becomes 1e120 and the float32 model overflows

@@ -5,7 +5,7 @@ The steps live in their own modules: :mod:`~prtcore.fit.normalise` (1–2),
 registered in :mod:`~prtcore.fit.regressor`) and :mod:`~prtcore.fit.select` (basis count);
 this module runs them (:func:`fit_transfer`) and holds the model-side runtime.
 
-Data-driven PRT, Belcour et al. 2022, sections 3–5 (DESIGN 5).
+Data-driven PRT, Belcour et al. 2022, sections 3–5.
 
 Input layout (K lighting configurations, P measurement points, T texels, channels R, G, B)::
 

@@ -1,4 +1,4 @@
-"""The planner: which stages an asset needs under a spec, and why (DESIGN 2).
+"""The planner: which stages an asset needs under a spec, and why (docs/architecture.md).
 
 Cheap: it inspects the mesh (:func:`prtcore.intake.mesh.inspect_mesh`), checks TEXCOORD_1
 (:func:`prtcore.intake.uv.check_uv1`, on the repaired mesh when repair will run) and looks at

@@ -1,4 +1,4 @@
-"""Texel space: a G-buffer per lightmap texel in TEXCOORD_1 space (DESIGN 3.1).
+"""Texel space: a G-buffer per lightmap texel in TEXCOORD_1 space (docs/bundle.md).
 
 Texel (x, y), y counted from the image's top row, has its centre at
 TEXCOORD_1 = ((x + 0.5) / W, (y + 0.5) / H).

@@ -5,7 +5,7 @@ Camera JSON (``--camera FILE``)::
     {"position": [x, y, z], "target": [x, y, z], "up": [0, 1, 0],
      "fov_y_deg": 40.0, "width": 256, "height": 256}
 
-World space (DESIGN 3.1), ``fov_y_deg`` the *vertical* field of view in degrees, ``up``
+World space (docs/bundle.md), ``fov_y_deg`` the *vertical* field of view in degrees, ``up``
 optional (default +Y). Pixel (i, j), j counted from the image's top row, looks through
 normalised device coordinates ``((i + 0.5)/W·2 − 1, 1 − (j + 0.5)/H·2)``: exactly the
 pixel centres OpenGL rasterises, so a render and this module's reference see the same

@@ -1,4 +1,4 @@
-"""Independent Monte Carlo reference for the indirect lightmap (DESIGN 3.1, 3.3, 4).
+"""Independent Monte Carlo reference for the indirect lightmap (`prtcore reference`).
 
 The ground truth the fast transport is checked against, so it shares none of the fast
 path's shortcuts: no gather operator, no texel→texel mapping, no iteration to a fixed
@@ -41,11 +41,11 @@ covers of its triangle. The intersection is clipped exactly
 (:func:`~prtcore.receivers.texels.texel_regions`) and sampled directly: a texel that covers 1 % of
 its square is sampled as uniformly as a full one. Each origin gets the interpolated
 normal at that point and is offset along the geometric normal by the tracer's offset.
-ρ0 is the texel's albedo (DESIGN 3.1: albedo sampled at the texel). All albedos are
+ρ0 is the texel's albedo (docs/bundle.md: albedo sampled at the texel). All albedos are
 clamped for transport (:func:`~prtcore.core.materials.clamp_albedo`). Origins inside other
 geometry (a floor texel under a block: most probe rays from it hit back faces) are left
 out of the texel's mean, which is then the mean over the texel's visible part
-(``buried_probes``; DESIGN 4).
+(``buried_probes``).
 
 The paths do not depend on the lights, so :func:`reference_lightmaps` traces them once
 for any number of light configurations; light sampling and next-event estimation run per
@@ -325,7 +325,7 @@ def reference_lightmaps(scene: Scene, texels: TexelSpace,
     buried_probes : n > 0 (default BURIED_PROBES) — each origin is first probed with n
     cosine rays and, when most of them hit back faces, it lies inside other geometry (a
     floor texel partly under a block) and its path is left out, so a partly buried texel
-    averages over its visible part, the part that is ever seen (DESIGN 4: drop samples
+    averages over its visible part, the part that is ever seen (drop samples
     inside geometry; the fast transport does the same; costs n rays per path); 0 — no
     probes: such paths see back faces and bring 0, so the texel averages over its whole
     footprint and comes out darker at contacts;

@@ -1,4 +1,4 @@
-"""The runtime algorithm on the CPU, from bundle data alone (DESIGN 3.3 ``relight``).
+"""The runtime algorithm on the CPU, from bundle data alone (``prtcore relight``).
 
 Per frame, exactly what an engine does:
 

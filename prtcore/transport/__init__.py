@@ -16,7 +16,7 @@ against them at once:
 :mod:`~prtcore.transport.dataset` is the stage: :func:`~prtcore.transport.dataset.bake_dataset`
 runs the operators, the direct light and the solve, and the memory check before it.
 
-Radiometry (DESIGN 3.1): every stored value is outgoing radiance ``L = ρ/π · E``;
+Radiometry (docs/bundle.md): every stored value is outgoing radiance ``L = ρ/π · E``;
 the indirect counts light that bounced at least once (all bounces).
 """
 

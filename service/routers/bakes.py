@@ -37,7 +37,7 @@ _MULTIPART_BODY = {
             "properties": {
                 "asset": {"type": "string", "format": "binary",
                           "description": ".glb or self-contained .gltf"},
-                "spec": {"type": "string", "description": "bake spec JSON (DESIGN 3.5); "
+                "spec": {"type": "string", "description": "bake spec JSON (docs/spec.md); "
                          "every key optional, unknown keys rejected"},
             },
         }}},

@@ -1,0 +1,112 @@
+"""The bake-spec reference (docs/spec.md), generated from the spec's own definitions.
+
+Every key of :class:`~prtcore.core.spec.BakeSpec` has an entry in :data:`DOCS`; the
+defaults come from the dataclasses themselves, so the reference cannot drift from the
+code (``tests/test_spec.py`` checks both: every key documented, the file up to date).
+Regenerate with ``.venv/bin/python -m prtcore.core.spec_reference > docs/spec.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+from prtcore.core.spec import BakeSpec, LightFamily
+
+#: "section.key" → what it means, its unit or choices, its range
+DOCS: dict[str, str] = {
+    "atlas.resolution": "lightmap width = height in texels, 8–16384 (limit: "
+                        "`PRT_LIMIT_MAX_ATLAS_RESOLUTION`, default 4096)",
+    "atlas.padding": "texels kept free around UV charts, 0–64",
+    "prepare.repair": "`auto` (repair only what needs it) · `always` · `never`",
+    "prepare.remesh": "isotropic remeshing target edge length as a fraction of the "
+                      "bounding-box diagonal (1e-4–0.5), or null for none",
+    "prepare.uv": "`auto` (keep a valid TEXCOORD_1, else generate) · `generate` · `keep` "
+                  "(refuse when TEXCOORD_1 is missing or invalid)",
+    "measurement_points.count": "P, measurement points, 1–1048576",
+    "measurement_points.placement": "`surface` (blue noise on the asset) · `hull` (on "
+                                    "its convex hull)",
+    "measurement_points.supersample": "samples averaged per measurement point, 1–256",
+    "measurement_points.seed": "seed of the placement",
+    "lights.count": "K, training lighting configurations, 1–65536",
+    "lights.holdout": "held-out validation configurations, 0–65536",
+    "lights.seed": "seed of the light draws (training and held-out streams are "
+                   "independent)",
+    "lights.families": "list of light families (below); one is drawn per configuration "
+                       "by weight",
+    "transport.gather_rays": "M, cosine gather rays per texel, 1–4096",
+    "transport.max_bounces": "indirect bounces at most, 0–1000",
+    "transport.tolerance": "relative change that ends the bounce iteration, (0, 1]",
+    "transport.seed": "seed of the gather and direct sampling",
+    "transport.direct_samples": "points per texel whose direct light is averaged, 1–64",
+    "transport.near_field": "gather hits closer than this many texel footprints take the "
+                            "direct light of the hit point in the first bounce (0: off), "
+                            "0–16",
+    "fit.basis": "n, basis elements including the mean (1–4096), or `auto`",
+    "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
+    "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
+    "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",
+    "keyframes.animation": "animation index or name to bake keyframes of; null: static",
+    "keyframes.count": "keyframes drawn (stratified) when `times` is not given, 1–4096",
+    "keyframes.times": "explicit keyframe times in seconds",
+    "keyframes.transfer": "`shared` (one transfer for all keyframes) · `per_keyframe`",
+    "keyframes.seed": "seed of the keyframe draws",
+    "output.dtype": "basis EXR pixels: `half` · `float`",
+    "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual)",
+    "family.weight": "relative probability of this family",
+    "family.position": "`{\"shell\": [a, b]}` (radii in units of the asset's bounding "
+                       "radius) · `{\"box\": [[x,y,z], [x,y,z]]}` (world) · "
+                       "`{\"fixed\": [x,y,z]}`",
+    "family.aim": "`{\"jitter\": j}` toward the asset's centre, `{\"target\": [x,y,z]}`, "
+                  "or `{\"direction\": [x,y,z]}` (spot, directional)",
+    "family.intensity": "`{\"uniform\": [a, b]}` · `{\"log_uniform\": [a, b]}` · "
+                        "`{\"constant\": v}` — cd (point, spot) or lux (directional)",
+    "family.color": "`white` · `random` · `[r, g, b]` linear",
+    "family.inner_cone_angle": "spot inner cone (radians, a distribution as above), "
+                               "default 0",
+    "family.outer_cone_angle": "spot outer cone (radians, a distribution as above)",
+    "family.range": "KHR range in metres, or null (infinite)",
+    "family.from_asset": "jitter around the asset's own KHR_lights_punctual lights of "
+                         "this type",
+}
+
+
+def _default(v) -> str:
+    if dataclasses.is_dataclass(v):
+        v = dataclasses.asdict(v)
+    if isinstance(v, tuple):
+        v = [dataclasses.asdict(x) if dataclasses.is_dataclass(x) else x for x in v]
+    return "`" + json.dumps(v) + "`"
+
+
+def keys() -> list[str]:
+    """Every documented key: "section.key" of BakeSpec, "family.key" of a light family."""
+    out = []
+    for sec in dataclasses.fields(BakeSpec):
+        out += [f"{sec.name}.{f.name}" for f in dataclasses.fields(sec.default)]
+    out += [f"family.{f.name}" for f in dataclasses.fields(LightFamily)]
+    return out
+
+
+def reference() -> str:
+    """docs/spec.md as text."""
+    spec, fam = BakeSpec(), LightFamily()
+    lines = ["# The bake spec", "",
+             "JSON; every key optional; unknown keys are refused with their path. "
+             "Generated from `prtcore/core/spec.py` by `prtcore/core/spec_reference.py`.", ""]
+    for sec in dataclasses.fields(BakeSpec):
+        lines += [f"## `{sec.name}`", "", "| key | default | meaning |", "|---|---|---|"]
+        for f in dataclasses.fields(sec.default):
+            d = _default(getattr(getattr(spec, sec.name), f.name))
+            lines.append(f"| `{f.name}` | {d} | {DOCS[f'{sec.name}.{f.name}']} |")
+        lines.append("")
+    lines += ["## A light family (`lights.families[i]`)", "",
+              "| key | default | meaning |", "|---|---|---|"]
+    for f in dataclasses.fields(LightFamily):
+        lines.append(f"| `{f.name}` | {_default(getattr(fam, f.name))} | "
+                     f"{DOCS['family.' + f.name]} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(reference(), end="")
