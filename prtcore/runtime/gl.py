@@ -26,14 +26,16 @@ never a fixed world epsilon. Each pass is timed with GL timer queries (GL_TIME_E
 
 Images: float RGBA, row 0 at the top; A = 1 where the pixel centre sees the front of a
 surface. Back faces (inside geometry, as in the path tracer) and background are black.
+
+Modules: the passes here (:class:`BundleRenderer`), the shadow maps in
+:mod:`prtcore.runtime.shadows`, the GL plumbing (context, uniforms, pass timing) in
+:mod:`prtcore.runtime.glcontext`, the GLSL as package data in ``prtcore/runtime/shaders/``
+(read by :mod:`prtcore.runtime.glsl`).
 """
 
 from __future__ import annotations
 
-import math
-import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,326 +43,29 @@ import numpy as np
 
 from prtcore.core.errors import PrtError
 from prtcore.core.scene import Light
-from prtcore.emitters.base import emitter_for
-from prtcore.reference.camera import Camera, look_at, orthographic, perspective
+from prtcore.reference.camera import Camera
+from prtcore.runtime.glcontext import (
+    PassTimer,
+    check_gl,
+    create_context,
+    current,
+    make_current,
+    matrix_bytes,
+    renderer_label,
+    set_uniform,
+    unbind_framebuffer,
+)
+from prtcore.runtime.glsl import shader_source
+from prtcore.runtime.shadows import SHADOW_RESOLUTION, ShadowMaps
 
-#: Lights drawn at once (each gets a row of the shadow atlas).
-MAX_LIGHTS = 16
-#: Shadow-map side per view (a point light has six views).
-SHADOW_RESOLUTION = 1024
-#: Normal offset of a shadow lookup, in shadow texels at the point.
-SHADOW_NORMAL_OFFSET = 1.5
-#: Constant depth bias of a shadow lookup, in shadow texels at the point.
-SHADOW_DEPTH_BIAS = 1.0
 #: Render modes: which terms the camera pass adds.
 MODES = {"full": 3, "direct": 1, "indirect": 2}
 #: Work-group size of the coefficient pass.
-_COEFF_GROUP = 256
-_FLOATS_PER_LIGHT = 4 * 4 + 6 * 16
-
-GL_LIGHTS = r"""
-struct Light {
-    vec4 pos_type;   // xyz position, w type: 0 point, 1 spot, 2 directional
-    vec4 dir_range;  // xyz unit direction light travels, w range (0: none)
-    vec4 color;      // rgb colour * intensity, w unused
-    vec4 params;     // x spot scale, y spot offset, z atlas row, w texel size (directional)
-    mat4 views[6];   // clip_from_world of each shadow view
-};
-layout(std430, binding = 0) readonly buffer Lights { Light lights[]; };
-uniform int n_lights;
-uniform int use_shadows;
-uniform sampler2D shadow_atlas;
-uniform int shadow_res;
-uniform float bias_normal;
-uniform float bias_const;
-const float PI = 3.14159265358979323846;
-
-int cube_face(vec3 v) {
-    vec3 a = abs(v);
-    if (a.x >= a.y && a.x >= a.z) return v.x > 0.0 ? 0 : 1;
-    if (a.y >= a.z) return v.y > 0.0 ? 2 : 3;
-    return v.z > 0.0 ? 4 : 5;
-}
-
-float visibility(int l, vec3 p, vec3 ng) {
-    Light L = lights[l];
-    int type = int(L.pos_type.w);
-    vec3 to_light = type == 2 ? -L.dir_range.xyz : normalize(L.pos_type.xyz - p);
-    float side = dot(ng, to_light) >= 0.0 ? 1.0 : -1.0;
-    float texel = type == 2 ? L.params.w
-                            : 2.0 * length(L.pos_type.xyz - p) / float(shadow_res);
-    vec3 q = p + ng * (side * bias_normal * texel);
-    int face = 0;
-    float dq;
-    if (type == 2) {
-        dq = dot(q, L.dir_range.xyz);
-    } else {
-        vec3 v = q - L.pos_type.xyz;
-        dq = length(v);
-        face = cube_face(v);
-    }
-    vec4 clip = L.views[face] * vec4(q, 1.0);
-    vec2 ndc = clip.xy / clip.w;
-    ivec2 t = clamp(ivec2(floor((ndc * 0.5 + 0.5) * float(shadow_res))), ivec2(0),
-                    ivec2(shadow_res - 1));
-    t += ivec2(face * shadow_res, int(L.params.z) * shadow_res);
-    float stored = texelFetch(shadow_atlas, t, 0).r;
-    return dq <= stored + bias_const * texel ? 1.0 : 0.0;
-}
-
-// KHR_lights_punctual irradiance (prtcore.emitters.punctual.unshadowed_irradiance) times visibility
-vec3 irradiance(int l, vec3 p, vec3 n, vec3 ng) {
-    Light L = lights[l];
-    int type = int(L.pos_type.w);
-    float att;
-    if (type == 2) {
-        att = max(dot(n, -L.dir_range.xyz), 0.0);
-    } else {
-        vec3 d = L.pos_type.xyz - p;
-        float r2 = dot(d, d);
-        if (!(r2 > 0.0)) return vec3(0.0);
-        float r = sqrt(r2);
-        vec3 w = d / r;
-        att = max(dot(n, w), 0.0);
-        if (L.dir_range.w > 0.0) {
-            float x = clamp(1.0 - pow(r / L.dir_range.w, 4.0), 0.0, 1.0);
-            att *= x * x;
-        }
-        if (type == 1) {
-            float a = clamp(dot(-w, L.dir_range.xyz) * L.params.x + L.params.y, 0.0, 1.0);
-            att *= a * a;
-        }
-        att /= r2;
-    }
-    if (att > 0.0 && use_shadows != 0) att *= visibility(l, p, ng);
-    return att * L.color.rgb;
-}
-"""
-
-SHADOW_VS = r"""
-#version 430
-in vec3 in_pos;
-uniform mat4 clip_from_world;
-out vec3 v_pos;
-void main() {
-    v_pos = in_pos;
-    gl_Position = clip_from_world * vec4(in_pos, 1.0);
-}
-"""
-
-SHADOW_FS = r"""
-#version 430
-in vec3 v_pos;
-uniform vec4 light_pos_type;
-uniform vec3 light_dir;
-out float f_dist;
-void main() {
-    f_dist = int(light_pos_type.w) == 2 ? dot(v_pos, light_dir)
-                                        : length(v_pos - light_pos_type.xyz);
-}
-"""
-
-CAMERA_VS = r"""
-#version 430
-in vec3 in_pos;
-in vec3 in_nrm;
-in vec2 in_uv0;
-in vec2 in_uv1;
-uniform mat4 clip_from_world;
-out vec3 v_pos;
-out vec3 v_nrm;
-out vec2 v_uv0;
-out vec2 v_uv1;
-void main() {
-    v_pos = in_pos;
-    v_nrm = in_nrm;
-    v_uv0 = in_uv0;
-    v_uv1 = in_uv1;
-    gl_Position = clip_from_world * vec4(in_pos, 1.0);
-}
-"""
-
-BLEND = r"""
-layout(std430, binding = 4) readonly buffer Weights { vec4 w[]; };
-uniform sampler2DArray basis;
-uniform int n_layers;
-uniform float gamma;  // 0: none
-
-// paper 5.2: one 4x3 coefficient matrix per RGBA texture of 4 basis planes
-vec3 indirect_at(vec2 uv) {
-    vec3 c = vec3(0.0);
-    for (int f = 0; f < n_layers; ++f) {
-        mat4x3 W = mat4x3(w[4 * f].xyz, w[4 * f + 1].xyz, w[4 * f + 2].xyz, w[4 * f + 3].xyz);
-        c += W * texture(basis, vec3(uv, float(f)));
-    }
-    if (gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(gamma));
-    return c;
-}
-"""
-
-CAMERA_FS = "#version 430\n" + GL_LIGHTS + BLEND + r"""
-in vec3 v_pos;
-in vec3 v_nrm;
-in vec2 v_uv0;
-in vec2 v_uv1;
-uniform vec3 eye;
-uniform vec4 base_color;
-uniform int has_texture;
-uniform int texture_uv;
-uniform mat3 uv_transform;
-uniform sampler2D albedo_texture;
-uniform int mode;  // bit 0: direct, bit 1: indirect
-layout(location = 0) out vec4 f_color;
-layout(location = 1) out vec4 f_aux;
-void main() {
-    if (!gl_FrontFacing) {  // inside geometry: no light (as the path tracer)
-        f_color = vec4(0.0);
-        f_aux = vec4(v_uv1, 0.0, 1.0);
-        return;
-    }
-    vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-    if (dot(ng, eye - v_pos) < 0.0) ng = -ng;
-    vec3 n = normalize(v_nrm);
-    if (!(dot(n, ng) > 0.0)) n = ng;  // as prtcore.core.geometry.shading_normals
-    vec3 col = vec3(0.0);
-    if ((mode & 1) != 0) {
-        vec3 albedo = base_color.rgb;
-        if (has_texture != 0) {
-            vec2 uv = texture_uv == 1 ? v_uv1 : v_uv0;
-            albedo *= texture(albedo_texture, (uv_transform * vec3(uv, 1.0)).xy).rgb;
-        }
-        albedo = clamp(albedo, 0.0, 0.99);
-        vec3 e = vec3(0.0);
-        for (int l = 0; l < n_lights; ++l) e += irradiance(l, v_pos, n, ng);
-        col += albedo / PI * e;
-    }
-    if ((mode & 2) != 0) col += indirect_at(v_uv1);
-    f_color = vec4(col, 1.0);
-    f_aux = vec4(v_uv1, 1.0, 1.0);
-}
-"""
-
-POINTS_CS = "#version 430\nlayout(local_size_x = 64) in;\n" + GL_LIGHTS + r"""
-layout(std430, binding = 1) readonly buffer Clusters { vec4 cl[]; };  // pos, normal, albedo
-layout(std430, binding = 2) readonly buffer Starts { int start[]; };  // P + 1
-layout(std430, binding = 3) writeonly buffer X { vec4 x[]; };         // x' per point
-layout(std430, binding = 5) writeonly buffer CE { vec4 ce[]; };       // E per supersample
-uniform int n_points;
-uniform float gamma;
-void main() {
-    int p = int(gl_GlobalInvocationID.x);
-    if (p >= n_points) return;
-    int a = start[p], b = start[p + 1];
-    vec3 sum = vec3(0.0);
-    for (int k = a; k < b; ++k) {
-        vec3 pos = cl[3 * k].xyz, n = cl[3 * k + 1].xyz, albedo = cl[3 * k + 2].xyz;
-        vec3 e = vec3(0.0);
-        for (int l = 0; l < n_lights; ++l) e += irradiance(l, pos, n, n);
-        ce[k] = vec4(e, 0.0);
-        sum += albedo / PI * e;
-    }
-    vec3 v = sum / float(max(b - a, 1));
-    if (gamma > 0.0) v = sign(v) * pow(abs(v), vec3(1.0 / gamma));
-    x[p] = vec4(v, 0.0);
-}
-"""
-
-COEFF_CS = r"""
-#version 430
-layout(local_size_x = %(group)d) in;
-layout(std430, binding = 3) readonly buffer X { vec4 x[]; };
-layout(std430, binding = 6) readonly buffer M { float m[]; };       // [c][i][p]
-layout(std430, binding = 7) readonly buffer B { float b[]; };       // [c][i]
-layout(std430, binding = 8) readonly buffer Planes { ivec2 plane[]; };  // element, channel
-layout(std430, binding = 4) writeonly buffer Weights { vec4 w[]; };
-uniform int n_points;
-uniform int n_b;
-uniform int use;
-uniform int n_planes;
-shared float partial[%(group)d];
-shared float u[%(nu)d];
-void main() {
-    int t = int(gl_LocalInvocationID.x);
-    float acc = 0.0;
-    for (int p = t; p < n_points; p += %(group)d) acc += dot(x[p].xyz, x[p].xyz);
-    partial[t] = acc;
-    memoryBarrierShared();
-    barrier();
-    for (int s = %(group)d / 2; s > 0; s >>= 1) {
-        if (t < s) partial[t] += partial[t + s];
-        memoryBarrierShared();
-        barrier();
-    }
-    float s = sqrt(partial[0]);
-    for (int k = t; k < 3 * n_b; k += %(group)d) {
-        int c = k / n_b, i = k - c * n_b;
-        float v = 0.0;
-        if (i < use) {
-            int row = (c * n_b + i) * n_points;
-            for (int p = 0; p < n_points; ++p) v += m[row + p] * x[p][c];
-            v += s * b[c * n_b + i];
-        }
-        u[k] = v;
-    }
-    memoryBarrierShared();
-    barrier();
-    for (int j = t; j < n_planes; j += %(group)d) {
-        int el = plane[j].x, ch = plane[j].y;
-        vec3 wj = vec3(0.0);
-        if (el == 0) wj[ch] = s;
-        else if (el <= use) {
-            if (ch < 0) wj = vec3(u[el - 1], u[n_b + el - 1], u[2 * n_b + el - 1]);
-            else wj[ch] = u[ch * n_b + el - 1];
-        }
-        w[j] = vec4(wj, 0.0);
-    }
-}
-"""
-
-ATLAS_VS = r"""
-#version 430
-void main() {
-    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);
-    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
-}
-"""
-
-ATLAS_FS = "#version 430\n" + BLEND + r"""
-uniform sampler2D coverage;
-out vec4 f_color;
-void main() {
-    ivec2 size = textureSize(coverage, 0);
-    // FBO row r (from the bottom) becomes image row H-1-r after the read-back flip
-    ivec2 t = ivec2(int(gl_FragCoord.x), size.y - 1 - int(gl_FragCoord.y));
-    vec2 uv = (vec2(t) + 0.5) / vec2(size);
-    f_color = vec4(indirect_at(uv), texelFetch(coverage, t, 0).r);
-}
-"""
-
-
-def create_context(require: int = 430):
-    """A standalone headless OpenGL context through EGL (Mesa llvmpipe or a GPU driver)."""
-    import moderngl
-
-    try:
-        return moderngl.create_context(standalone=True, backend="egl", require=require)
-    except Exception as e:  # moderngl raises plain Exceptions for a missing EGL/driver
-        raise PrtError(f"render: cannot create an OpenGL {require // 100}.{require % 100 // 10} "
-                       f"context through EGL: {e}".replace("\n", " ")) from None
-
-
-def renderer_label(ctx) -> str:
-    """The GL renderer string, marked "(software)" for Mesa's CPU rasterisers."""
-    name = str(ctx.info["GL_RENDERER"])
-    soft = any(k in name.lower() for k in ("llvmpipe", "softpipe", "swrast", "lavapipe"))
-    return f"{name} (software)" if soft else name
-
-
-def check_gl(ctx, where: str) -> None:
-    """Raise if the context has a GL error pending (moderngl reads glGetError)."""
-    err = ctx.error
-    if err != "GL_NO_ERROR":
-        raise PrtError(f"render: {where}: OpenGL error {err}")
+COEFF_GROUP = 256
+#: The interleaved vertex of the scene buffer: position, normal, TEXCOORD_0, TEXCOORD_1.
+VERTEX_FORMAT = "3f 3f 2f 2f"
+#: The same buffer seen by the shadow pass: the position only.
+SHADOW_VERTEX_FORMAT = "3f 7x4"
 
 
 @dataclass(frozen=True)
@@ -378,50 +83,6 @@ class RenderResult:
     uv1: np.ndarray
     milliseconds: dict[str, float | None] = field(default_factory=dict)
     wall_milliseconds: dict[str, float] = field(default_factory=dict)
-
-
-def _mat(m: np.ndarray) -> bytes:
-    """Column-major float32 bytes of a (4, 4) matrix (GLSL's layout)."""
-    return np.ascontiguousarray(np.asarray(m, np.float64).T, dtype="<f4").tobytes()
-
-
-def _set(prog, name: str, value) -> None:
-    """Set a uniform if the compiler kept it (unused uniforms are optimised away)."""
-    try:
-        u = prog[name]
-    except KeyError:
-        return
-    if isinstance(value, bytes):
-        u.write(value)
-    else:
-        u.value = value
-
-
-def make_current(ctx) -> None:
-    """Make ``ctx`` the thread's current context and leave it current.
-
-    Several contexts may live in one process (a test session's and one the CLI creates);
-    creating one makes it current, and glcontext's ``with ctx:`` leaves *no* context
-    current on exit, so GL methods call this on entry instead of using ``with``.
-    """
-    ctx.__enter__()
-
-
-def _current(method):
-    """Run a GL method with the renderer's context current (see :func:`make_current`)."""
-    import functools
-
-    @functools.wraps(method)
-    def wrapper(self, *args, **kwargs):
-        make_current(self.ctx)
-        return method(self, *args, **kwargs)
-
-    return wrapper
-
-
-#: Cube-face axes and up vectors of the six views of a point or spot light.
-_FACES = [((1, 0, 0), (0, -1, 0)), ((-1, 0, 0), (0, -1, 0)), ((0, 1, 0), (0, 0, 1)),
-          ((0, -1, 0), (0, 0, -1)), ((0, 0, 1), (0, -1, 0)), ((0, 0, -1), (0, -1, 0))]
 
 
 class BundleRenderer:
@@ -462,6 +123,9 @@ class BundleRenderer:
         self._released = False
         self.shadow_resolution = int(shadow_resolution)
         self._objects: list = []
+        self._fbos: dict[tuple, tuple] = {}
+        self._shadows: ShadowMaps | None = None
+        self._timer = PassTimer(self.ctx)
         self._mgl = moderngl
         try:
             make_current(self.ctx)
@@ -469,8 +133,6 @@ class BundleRenderer:
             self._setup()
             check_gl(self.ctx, "setup")
         except BaseException:
-            self._lights_buf = self._shadow_fbo = self._shadow_tex = None
-            self._fbos, self._queries = {}, {}
             self.release()
             raise
 
@@ -480,22 +142,27 @@ class BundleRenderer:
         return obj
 
     def _setup(self) -> None:
-        moderngl = self._mgl
-        ctx, d, sc = self.ctx, self.data, self.scene
+        sc = self.scene
         self.center = np.asarray(sc.center, np.float64)
         self.radius = float(max(sc.radius, 1e-30))
         uv0 = sc.uv0 if sc.uv0 is not None else np.zeros((len(sc.positions), 2))
         verts = np.concatenate([sc.positions, sc.normals, uv0, sc.uv1], axis=1)
-        self._vbo = self._keep(ctx.buffer(np.ascontiguousarray(verts, dtype="<f4").tobytes()))
-        self._shadow_prog = self._keep(ctx.program(vertex_shader=SHADOW_VS,
-                                                   fragment_shader=SHADOW_FS))
-        self._camera_prog = self._keep(ctx.program(vertex_shader=CAMERA_VS,
-                                                   fragment_shader=CAMERA_FS))
-        ibo = self._keep(ctx.buffer(np.ascontiguousarray(sc.faces, dtype="<u4").tobytes()))
-        self._shadow_vao = self._keep(ctx.vertex_array(
-            self._shadow_prog, [(self._vbo, "3f 7x4", "in_pos")], index_buffer=ibo,
-            index_element_size=4))
-        # one draw per material (its factor and texture as uniforms)
+        self._vbo = self._keep(self.ctx.buffer(np.ascontiguousarray(verts, dtype="<f4")
+                                               .tobytes()))
+        self._shadows = ShadowMaps(self.ctx, self._vbo, SHADOW_VERTEX_FORMAT, sc.faces,
+                                   self.center, self.radius, self.shadow_resolution)
+        self._setup_draws()
+        self._setup_basis()
+        self._setup_points()
+        self._setup_coefficients()
+
+    def _setup_draws(self) -> None:
+        """The camera program and one draw per material (its factor and texture as
+        uniforms)."""
+        moderngl, ctx, sc = self._mgl, self.ctx, self.scene
+        self._camera_prog = self._keep(ctx.program(
+            vertex_shader=shader_source("camera_vs.glsl"),
+            fragment_shader=shader_source("camera_fs.glsl")))
         self._draws = []
         textures = {}
         for m in np.unique(sc.face_material):
@@ -503,7 +170,7 @@ class BundleRenderer:
             mat = sc.materials[int(m)]
             buf = self._keep(ctx.buffer(np.ascontiguousarray(faces, dtype="<u4").tobytes()))
             vao = self._keep(ctx.vertex_array(
-                self._camera_prog, [(self._vbo, "3f 3f 2f 2f", "in_pos", "in_nrm", "in_uv0",
+                self._camera_prog, [(self._vbo, VERTEX_FORMAT, "in_pos", "in_nrm", "in_uv0",
                                      "in_uv1")], index_buffer=buf, index_element_size=4))
             tex = None
             if mat.texture >= 0:
@@ -518,7 +185,11 @@ class BundleRenderer:
                     textures[mat.texture] = gt
                 tex = textures[mat.texture]
             self._draws.append((vao, mat, tex))
-        # basis planes: 4 per RGBA layer, row 0 = the EXR's top row = TEXCOORD_1 v ≈ 0
+
+    def _setup_basis(self) -> None:
+        """Basis planes, 4 per RGBA layer of a texture array (row 0 = the EXR's top row =
+        TEXCOORD_1 v ≈ 0), the coverage, and the atlas program that blends them."""
+        moderngl, ctx, d = self._mgl, self.ctx, self.data
         h, w, q = d.planes.shape
         layers = -(-q // 4)
         planes = np.zeros((layers, h, w, 4), np.float32)
@@ -532,7 +203,15 @@ class BundleRenderer:
         self._coverage = self._keep(ctx.texture((w, h), 1, np.ascontiguousarray(
             d.coverage, dtype="<f4").tobytes(), dtype="f4"))
         self._coverage.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        # measurement points: supersamples grouped by owner
+        self._weights = self._keep(ctx.buffer(reserve=4 * layers * 16))
+        self._atlas_prog = self._keep(ctx.program(
+            vertex_shader=shader_source("atlas_vs.glsl"),
+            fragment_shader=shader_source("atlas_fs.glsl")))
+        self._atlas_vao = self._keep(ctx.vertex_array(self._atlas_prog, []))
+
+    def _setup_points(self) -> None:
+        """Measurement points: supersamples grouped by owner, and the points pass."""
+        ctx, d = self.ctx, self.data
         order = np.argsort(d.cluster_owner, kind="stable")
         owner = d.cluster_owner[order]
         self._cluster_order = order
@@ -545,35 +224,28 @@ class BundleRenderer:
         self._starts = self._keep(ctx.buffer(starts.tobytes()))
         self._x = self._keep(ctx.buffer(reserve=max(1, d.point_count) * 16))
         self._ce = self._keep(ctx.buffer(reserve=max(1, len(order)) * 16))
+        self._points_cs = self._keep(ctx.compute_shader(shader_source("points_cs.glsl")))
+
+    def _setup_coefficients(self) -> None:
+        """The transfer (the first keyframe's for keyframe sets, as the CPU runtime's
+        default), the plane layout and the coefficients pass."""
+        ctx, d = self.ctx, self.data
         M, b = d.transfer, d.offset
-        if M.ndim == 4:  # keyframe sets: the first keyframe (as the CPU runtime's default)
+        if M.ndim == 4:
             M, b = M[0], b[0]
         self._n_b = int(M.shape[1])
         self._m = self._keep(ctx.buffer(np.ascontiguousarray(M, "<f4").tobytes() or b"\0" * 4))
         self._b = self._keep(ctx.buffer(np.ascontiguousarray(b, "<f4").tobytes() or b"\0" * 4))
         pl = np.stack([d.plane_element, d.plane_channel.astype(np.int32)], 1).astype("<i4")
         self._planes = self._keep(ctx.buffer(pl.tobytes()))
-        self._weights = self._keep(ctx.buffer(reserve=4 * layers * 16))
-        self._points_cs = self._keep(ctx.compute_shader(POINTS_CS))
-        self._coeff_cs = self._keep(ctx.compute_shader(COEFF_CS % {
-            "group": _COEFF_GROUP, "nu": max(1, 3 * self._n_b)}))
-        self._atlas_prog = self._keep(ctx.program(vertex_shader=ATLAS_VS,
-                                                  fragment_shader=ATLAS_FS))
-        self._atlas_vao = self._keep(ctx.vertex_array(self._atlas_prog, []))
-        self._lights_buf = None
-        self._shadow_tex = None
-        self._shadow_fbo = None
-        self._shadow_rows = 0
-        self._queries = {}
-        self._ran: set[str] = set()
-        self._wall: dict[str, float] = {}
-        self._fbos: dict[tuple, tuple] = {}
+        self._coeff_cs = self._keep(ctx.compute_shader(shader_source(
+            "coeff_cs.glsl", GROUP=COEFF_GROUP, N_U=max(1, 3 * self._n_b))))
 
     def _unbind(self) -> None:
-        """Bind framebuffer 0 before framebuffers are released: moderngl re-binds its
-        current framebuffer after creating one, and a deleted one then fails with
-        GL_INVALID_OPERATION (a shared context outlives this renderer)."""
-        self.ctx.detect_framebuffer(0).use()
+        """Bind framebuffer 0 before framebuffers are released (see
+        :func:`prtcore.runtime.glcontext.unbind_framebuffer`; a shared context outlives
+        this renderer)."""
+        unbind_framebuffer(self.ctx)
 
     def release(self) -> None:
         """Free every GL object (and the context when this renderer created it)."""
@@ -584,7 +256,7 @@ class BundleRenderer:
         if self._own_ctx:
             self.ctx.release()
 
-    @_current
+    @current
     def _release_objects(self) -> None:
         self._unbind()
         for obj in reversed(self._objects):
@@ -594,11 +266,10 @@ class BundleRenderer:
             for o in fbo_objs:
                 o.release()
         self._fbos.clear()
-        for o in (self._lights_buf, self._shadow_fbo, self._shadow_tex):
-            if o is not None:
-                o.release()
-        self._lights_buf = self._shadow_fbo = self._shadow_tex = None
-        self._queries.clear()
+        if self._shadows is not None:
+            self._shadows.release()
+            self._shadows = None
+        self._timer.release()
 
     def __enter__(self) -> BundleRenderer:
         return self
@@ -611,135 +282,23 @@ class BundleRenderer:
         return self.data.n_basis
 
     # -- passes ------------------------------------------------------------------------
-    @contextmanager
-    def _timed(self, name: str) -> Iterator[None]:
-        """Time a pass twice: a GL timer query (GPU clock) and the wall clock between a
-        glFinish before and one after (what a CPU rasteriser actually spends; Mesa's
-        llvmpipe runs compute dispatches outside its timer queries, which then read ~0)."""
-        if name not in self._queries:  # moderngl queries are reused, never released
-            self._queries[name] = self.ctx.query(time=True)
-        q = self._queries[name]
-        self.ctx.finish()
-        t0 = time.perf_counter()
-        with q:
-            yield
-        self.ctx.finish()
-        self._wall[name] = (time.perf_counter() - t0) * 1e3
-        self._ran.add(name)
-
-    def _light_views(self, light: Light) -> tuple[list[np.ndarray], float]:
-        """Clip-from-world matrices of a light's shadow views, and the world texel size
-        for directional lights (0 otherwise)."""
-        R, c, res = self.radius, self.center, self.shadow_resolution
-        if not emitter_for(light).positioned:  # at infinity: one orthographic view
-            d = np.asarray(light.direction, np.float64)
-            d = d / np.linalg.norm(d)
-            up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-            half = 1.01 * R
-            view = look_at(c - 2.0 * R * d, c, up)
-            return [orthographic(half, half, 0.5 * R, 3.5 * R) @ view], 2.0 * half / res
-        pos = np.asarray(light.position, np.float64)
-        dist = float(np.linalg.norm(pos - c))
-        near, far = 1e-4 * (R + dist), dist + 1.5 * R
-        proj = perspective(math.pi / 2, 1.0, near, far)
-        return [proj @ look_at(pos, pos + np.asarray(a, float), np.asarray(u, float))
-                for a, u in _FACES], 0.0
-
-    def _upload_lights(self, lights: Sequence[Light]) -> None:
-        if len(lights) > MAX_LIGHTS:
-            raise PrtError(f"render: {len(lights)} lights; at most {MAX_LIGHTS} at once")
-        buf = np.zeros((max(1, len(lights)), _FLOATS_PER_LIGHT), np.float32)
-        self._views = []
-        for i, lt in enumerate(lights):
-            t = emitter_for(lt).gl_code
-            views, texel = self._light_views(lt)
-            self._views.append(views)
-            d = np.asarray(lt.direction, np.float64)
-            d = d / np.linalg.norm(d)
-            buf[i, 0:4] = [*np.asarray(lt.position, float), t]
-            buf[i, 4:8] = [*d, 0.0 if lt.range is None else lt.range]
-            buf[i, 8:11] = np.asarray(lt.color, float) * lt.intensity
-            if emitter_for(lt).coned:
-                ci, co = math.cos(lt.inner_cone_angle), math.cos(lt.outer_cone_angle)
-                scale = 1.0 / max(1e-3, ci - co)
-                buf[i, 12:14] = [scale, -co * scale]
-            buf[i, 14:16] = [i, texel]
-            for k, v in enumerate(views):
-                buf[i, 16 + 16 * k:32 + 16 * k] = np.asarray(v, np.float64).T.ravel()
-        data = buf.tobytes()
-        if self._lights_buf is None or self._lights_buf.size < len(data):
-            if self._lights_buf is not None:
-                self._lights_buf.release()
-            self._lights_buf = self.ctx.buffer(reserve=MAX_LIGHTS * _FLOATS_PER_LIGHT * 4)
-        self._lights_buf.write(data)
-        self._n_lights = len(lights)
-
-    def _shadow_target(self, rows: int) -> None:
-        res = self.shadow_resolution
-        limit = int(self.ctx.info["GL_MAX_TEXTURE_SIZE"])
-        if 6 * res > limit or rows * res > limit:
-            raise PrtError(f"render: shadow atlas {6 * res}×{rows * res} exceeds "
-                           f"GL_MAX_TEXTURE_SIZE {limit}; lower the shadow resolution")
-        if self._shadow_fbo is not None and self._shadow_rows >= rows:
-            return
-        self._unbind()
-        for o in (self._shadow_fbo, self._shadow_tex):
-            if o is not None:
-                o.release()
-        self._shadow_tex = self.ctx.texture((6 * res, rows * res), 1, dtype="f4")
-        self._shadow_tex.filter = (self._mgl.NEAREST, self._mgl.NEAREST)
-        self._shadow_fbo = self.ctx.framebuffer(color_attachments=[self._shadow_tex])
-        self._shadow_rows = rows
-
-    @_current
+    @current
     def shadow_pass(self, lights: Sequence[Light]) -> None:
         """Upload the lights and render their shadow maps."""
-        ctx, mgl = self.ctx, self._mgl
-        self._upload_lights(lights)
-        self._shadow_target(max(1, len(lights)))
-        res = self.shadow_resolution
-        prog = self._shadow_prog
-        with self._timed("shadow_maps"):
-            self._shadow_fbo.use()
-            self._shadow_fbo.viewport = (0, 0, *self._shadow_fbo.size)
-            self._shadow_fbo.clear(red=3.0e38)
-            ctx.disable(mgl.DEPTH_TEST | mgl.CULL_FACE)
-            ctx.enable(mgl.BLEND)
-            ctx.blend_equation = mgl.MIN
-            for i, lt in enumerate(lights):
-                d = np.asarray(lt.direction, np.float64)
-                _set(prog, "light_pos_type", (*map(float, lt.position),
-                                              float(emitter_for(lt).gl_code)))
-                _set(prog, "light_dir", tuple(float(v) for v in d / np.linalg.norm(d)))
-                for k, view in enumerate(self._views[i]):
-                    self._shadow_fbo.viewport = (k * res, i * res, res, res)
-                    _set(prog, "clip_from_world", _mat(view))
-                    self._shadow_vao.render(mgl.TRIANGLES)
-            ctx.blend_equation = mgl.FUNC_ADD
-            ctx.disable(mgl.BLEND)
+        self._shadows.render(lights, self._timer)
 
-    def _bind_lighting(self, prog, use_shadows: bool = True) -> None:
-        self._lights_buf.bind_to_storage_buffer(0)
-        self._shadow_tex.use(location=0)
-        _set(prog, "shadow_atlas", 0)
-        _set(prog, "n_lights", self._n_lights)
-        _set(prog, "use_shadows", int(use_shadows))
-        _set(prog, "shadow_res", self.shadow_resolution)
-        _set(prog, "bias_normal", SHADOW_NORMAL_OFFSET)
-        _set(prog, "bias_const", SHADOW_DEPTH_BIAS)
-
-    @_current
+    @current
     def points_pass(self, use_shadows: bool = True) -> None:
         """Fake G-buffer: shade the supersamples, average clusters → x' (after shadows)."""
         cs = self._points_cs
-        self._bind_lighting(cs, use_shadows)
+        self._shadows.bind(cs, use_shadows)
         self._clusters.bind_to_storage_buffer(1)
         self._starts.bind_to_storage_buffer(2)
         self._x.bind_to_storage_buffer(3)
         self._ce.bind_to_storage_buffer(5)
-        _set(cs, "n_points", self.data.point_count)
-        _set(cs, "gamma", float(self.data.gamma or 0.0))
-        with self._timed("points"):
+        set_uniform(cs, "n_points", self.data.point_count)
+        set_uniform(cs, "gamma", float(self.data.gamma or 0.0))
+        with self._timer.timed("points"):
             cs.run(group_x=max(1, -(-self.data.point_count // 64)))
         self.ctx.memory_barrier()
 
@@ -749,7 +308,7 @@ class BundleRenderer:
                            f"elements (mean included); use 1..{self.n_basis}")
         return self._n_b if n is None else max(0, min(n - 1, self._n_b))
 
-    @_current
+    @current
     def coefficients_pass(self, n: int | None = None) -> int:
         """u = M·x' per channel and the plane weights; returns the RGBA layers in use."""
         use = self._use(n)
@@ -760,11 +319,11 @@ class BundleRenderer:
         self._planes.bind_to_storage_buffer(8)
         self._weights.bind_to_storage_buffer(4)
         q = len(self.data.plane_element)
-        _set(cs, "n_points", self.data.point_count)
-        _set(cs, "n_b", self._n_b)
-        _set(cs, "use", use)
-        _set(cs, "n_planes", q)
-        with self._timed("coefficients"):
+        set_uniform(cs, "n_points", self.data.point_count)
+        set_uniform(cs, "n_b", self._n_b)
+        set_uniform(cs, "use", use)
+        set_uniform(cs, "n_planes", q)
+        with self._timer.timed("coefficients"):
             cs.run(group_x=1)
         self.ctx.memory_barrier()
         planes_used = int(np.count_nonzero(self.data.plane_element <= use))
@@ -773,9 +332,9 @@ class BundleRenderer:
     def _bind_blend(self, prog, layers: int) -> None:
         self._weights.bind_to_storage_buffer(4)
         self._basis.use(location=1)
-        _set(prog, "basis", 1)
-        _set(prog, "n_layers", layers)
-        _set(prog, "gamma", float(self.data.gamma or 0.0))
+        set_uniform(prog, "basis", 1)
+        set_uniform(prog, "n_layers", layers)
+        set_uniform(prog, "gamma", float(self.data.gamma or 0.0))
 
     def _target(self, width: int, height: int, attachments: int):
         key = (width, height, attachments)
@@ -787,7 +346,7 @@ class BundleRenderer:
             self._fbos[key] = (fbo, depth, *texs)
         return self._fbos[key][0]
 
-    @_current
+    @current
     def camera_pass(self, camera: Camera, mode: str, layers: int) -> None:
         ctx, mgl, prog = self.ctx, self._mgl, self._camera_prog
         if mode not in MODES:
@@ -798,30 +357,61 @@ class BundleRenderer:
             if dist > 1.01 * self.radius else 1e-4 * self.radius
         far = dist + 1.01 * self.radius
         clip = camera.clip_from_view(near, far) @ camera.view_from_world()
-        self._bind_lighting(prog)
+        self._shadows.bind(prog)
         self._bind_blend(prog, layers)
-        _set(prog, "clip_from_world", _mat(clip))
-        _set(prog, "eye", tuple(float(v) for v in camera.position))
-        _set(prog, "mode", MODES[mode])
-        _set(prog, "albedo_texture", 2)
-        with self._timed("camera"):
+        set_uniform(prog, "clip_from_world", matrix_bytes(clip))
+        set_uniform(prog, "eye", tuple(float(v) for v in camera.position))
+        set_uniform(prog, "mode", MODES[mode])
+        set_uniform(prog, "albedo_texture", 2)
+        with self._timer.timed("camera"):
             fbo.use()
             fbo.viewport = (0, 0, *fbo.size)
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             ctx.enable(mgl.DEPTH_TEST)
             ctx.disable(mgl.CULL_FACE | mgl.BLEND)
             for vao, mat, tex in self._draws:
-                _set(prog, "base_color", tuple(float(v) for v in mat.base_color_factor))
-                _set(prog, "has_texture", int(tex is not None))
-                _set(prog, "texture_uv", int(mat.texcoord == 1))
-                _set(prog, "uv_transform", _mat3(mat.uv_transform))
+                set_uniform(prog, "base_color", tuple(float(v) for v in mat.base_color_factor))
+                set_uniform(prog, "has_texture", int(tex is not None))
+                set_uniform(prog, "texture_uv", int(mat.texcoord == 1))
+                set_uniform(prog, "uv_transform", matrix_bytes(mat.uv_transform))
                 if tex is not None:
                     tex.use(location=2)
                 vao.render(mgl.TRIANGLES)
             ctx.disable(mgl.DEPTH_TEST)
 
+    @current
+    def atlas_pass(self, layers: int) -> None:
+        """The basis blend (blend.glsl) at every texel centre of the atlas with the plane
+        weights in the weights buffer (:meth:`coefficients_pass` or :meth:`upload_weights`)."""
+        h, w = self.data.coverage.shape
+        fbo = self._target(w, h, 1)
+        prog = self._atlas_prog
+        self._bind_blend(prog, layers)
+        self._coverage.use(location=3)
+        set_uniform(prog, "coverage", 3)
+        with self._timer.timed("atlas_blend"):
+            fbo.use()
+            fbo.viewport = (0, 0, *fbo.size)
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE | self._mgl.BLEND)
+            self._atlas_vao.render(self._mgl.TRIANGLES, vertices=3)
+
+    @current
+    def upload_weights(self, weights: np.ndarray) -> int:
+        """Write plane weights (q, 3) (:func:`prtcore.runtime.cpu.plane_weights`' layout)
+        into the weights buffer the blend reads, in place of :meth:`coefficients_pass`;
+        returns the RGBA layers they span."""
+        w = np.asarray(weights, np.float64)
+        q = len(self.data.plane_element)
+        if w.shape != (q, 3):
+            raise PrtError(f"render: plane weights of shape {w.shape}; expected ({q}, 3)")
+        buf = np.zeros((self._weights.size // 16, 4), "<f4")
+        buf[:q, :3] = w
+        self._weights.write(buf.tobytes())
+        return -(-q // 4)
+
     # -- frames ------------------------------------------------------------------------
-    @_current
+    @current
     def shade_points(self, lights: Sequence[Light], use_shadows: bool = True
                      ) -> tuple[np.ndarray, np.ndarray]:
         """GPU fake G-buffer: x' (P, 3) (gamma applied when the bundle has gamma) and the
@@ -836,7 +426,7 @@ class BundleRenderer:
         check_gl(self.ctx, "shade points")
         return x.astype(np.float64), e
 
-    @_current
+    @current
     def plane_weights(self, lights: Sequence[Light], n: int | None = None) -> np.ndarray:
         """GPU coefficients: the RGB weight of every basis plane, (q, 3) float64."""
         self.shadow_pass(lights)
@@ -847,15 +437,7 @@ class BundleRenderer:
         check_gl(self.ctx, "coefficients")
         return w.astype(np.float64)
 
-    def _timings(self) -> tuple[dict[str, float | None], dict[str, float]]:
-        gpu: dict[str, float | None] = {}
-        for k in self._ran:
-            ns = self._queries[k].elapsed
-            # a 32-bit result of all ones: no valid measurement (seen on a first frame)
-            gpu[k] = None if ns < 0 or ns >= 0xFFFFFFFF else ns / 1e6
-        return gpu, {k: self._wall[k] for k in self._ran}
-
-    @_current
+    @current
     def render(self, lights: Sequence[Light], camera: Camera, n: int | None = None,
                mode: str = "full") -> RenderResult:
         """One frame through ``camera``: mode "full" (direct + indirect), "direct" (the
@@ -863,7 +445,7 @@ class BundleRenderer:
         self._use(n)  # refuse a bad n before any GL work
         if mode not in MODES:
             raise PrtError(f"render: mode {mode!r}: expected one of {', '.join(MODES)}")
-        self._queries_reset()
+        self._timer.reset()
         self.shadow_pass(lights)
         self.points_pass()
         layers = self.coefficients_pass(n)
@@ -875,43 +457,38 @@ class BundleRenderer:
         img = img.reshape(h, w, 4)[::-1].copy()
         aux = aux.reshape(h, w, 4)[::-1]
         check_gl(self.ctx, "render")
-        gpu, wall = self._timings()
+        gpu, wall = self._timer.results()
         return RenderResult(image=img, uv1=np.ascontiguousarray(aux[:, :, :2]),
                             milliseconds=gpu, wall_milliseconds=wall)
 
-    @_current
+    @current
     def relight_atlas(self, lights: Sequence[Light], n: int | None = None) -> RenderResult:
         """The indirect lightmap at atlas size on the GPU (the fragment-shader blend at
         texel centres): image (h, w, 4), A = coverage — what ``prtcore relight`` writes."""
-        self._queries_reset()
+        self._timer.reset()
         self.shadow_pass(lights)
         self.points_pass()
         layers = self.coefficients_pass(n)
+        return self._read_atlas(layers, "relight atlas")
+
+    @current
+    def blend_atlas(self, weights: np.ndarray) -> RenderResult:
+        """The GPU blend (blend.glsl) of the basis planes with given plane weights (q, 3) at
+        every texel centre: what :func:`prtcore.runtime.cpu.blend` computes on the CPU.
+        image (h, w, 4), A = coverage."""
+        self._timer.reset()
+        return self._read_atlas(self.upload_weights(weights), "blend atlas")
+
+    def _read_atlas(self, layers: int, where: str) -> RenderResult:
+        self.atlas_pass(layers)
         h, w = self.data.coverage.shape
         fbo = self._target(w, h, 1)
-        prog = self._atlas_prog
-        self._bind_blend(prog, layers)
-        self._coverage.use(location=3)
-        _set(prog, "coverage", 3)
-        with self._timed("atlas_blend"):
-            fbo.use()
-            fbo.viewport = (0, 0, *fbo.size)
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.CULL_FACE | self._mgl.BLEND)
-            self._atlas_vao.render(self._mgl.TRIANGLES, vertices=3)
         img = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=0), "<f4")
-        check_gl(self.ctx, "relight atlas")
-        gpu, wall = self._timings()
+        check_gl(self.ctx, where)
+        gpu, wall = self._timer.results()
         return RenderResult(image=img.reshape(h, w, 4)[::-1].copy(),
                             uv1=np.zeros((h, w, 2), np.float32), milliseconds=gpu,
                             wall_milliseconds=wall)
-
-    def _queries_reset(self) -> None:
-        self._ran.clear()
-
-
-def _mat3(m: np.ndarray) -> bytes:
-    return np.ascontiguousarray(np.asarray(m, np.float64).T, dtype="<f4").tobytes()
 
 
 # ---------------------------------------------------------------------------------------

@@ -1,0 +1,18 @@
+// The basis blend: colour = sum_j plane_j * w_j, gamma undone; prtcore.runtime.cpu.blend
+// on the GPU (tests/test_render.py checks the two equal). Included by camera_fs.glsl and
+// atlas_fs.glsl.
+layout(std430, binding = 4) readonly buffer Weights { vec4 w[]; };
+uniform sampler2DArray basis;
+uniform int n_layers;
+uniform float gamma;  // 0: none
+
+// paper 5.2: one 4x3 coefficient matrix per RGBA texture of 4 basis planes
+vec3 indirect_at(vec2 uv) {
+    vec3 c = vec3(0.0);
+    for (int f = 0; f < n_layers; ++f) {
+        mat4x3 W = mat4x3(w[4 * f].xyz, w[4 * f + 1].xyz, w[4 * f + 2].xyz, w[4 * f + 3].xyz);
+        c += W * texture(basis, vec3(uv, float(f)));
+    }
+    if (gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(gamma));
+    return c;
+}
