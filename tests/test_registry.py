@@ -28,3 +28,18 @@ def test_the_shipped_members_are_registered():
     assert types() == ("directional", "point", "spot")
     assert [emitter_for(t).gl_code for t in ("point", "spot", "directional")] == [0, 1, 2]
     assert regressor("ridge").name == "ridge"
+
+
+def test_the_texel_space_is_a_receiver(tmp_path):
+    from prtcore.core.spec import parse_spec
+    from prtcore.pipeline import run_intake
+    from prtcore.receivers.base import Receiver
+    from prtcore.receivers.texels import texels_to_image
+    from prtcore.scenes.cornell import write_cornell_box
+
+    ts = run_intake(write_cornell_box(tmp_path / "b.glb"),
+                    parse_spec({"atlas": {"resolution": 16, "padding": 0},
+                                "measurement_points": {"count": 4}}), quiet=True).texels
+    assert isinstance(ts, Receiver) and ts.kind == "texels"
+    v = ts.position[:, :2]
+    assert (ts.to_image(v) == texels_to_image(ts, v)).all()

@@ -30,7 +30,6 @@ from prtcore.io.bundle import (
 from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
-from prtcore.receivers.texels import texels_to_image
 from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
 
 
@@ -64,7 +63,7 @@ class DataDriven(Method):
         with timer.stage("fit"):
             n_table = max(TABLE_N)
             fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
-                      "gamma": spec.fit.gamma}
+                      "gamma": spec.fit.gamma, "timer": timer}  # progress bars
             if kfs is not None:  # one basis for all keyframes (paper 5.4)
                 fit_kw.update(groups=kfs.train, per_group=per_group)
             if spec.fit.basis == "auto":
@@ -96,7 +95,7 @@ class DataDriven(Method):
         texels, points = inputs.intake.texels, inputs.intake.points
         model, diag, table = result.model, result.diagnostics, result.table
         planes = basis_planes(model.mean, model.basis, model.channels)
-        img = texels_to_image(texels, planes, dilate=True)
+        img = texels.to_image(planes, dilate=True)  # the receiver's stored image
         files = write_basis_files(directory, img[:, :, :planes.shape[1]], spec.output.dtype)
         write_exr(directory / "coverage.exr", img[:, :, -1:], dtype="half",
                   channel_names=("Y",))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from contextlib import nullcontext
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy import ndimage
@@ -59,9 +60,16 @@ class TexelSpace:
     dilate_xy: np.ndarray
     dilate_src: np.ndarray
 
+    #: the receiver kind (prtcore.receivers.base.Receiver)
+    kind: ClassVar[str] = "texels"
+
     @property
     def count(self) -> int:
         return len(self.xy)
+
+    def to_image(self, values: np.ndarray, dilate: bool = True) -> np.ndarray:
+        """:func:`texels_to_image` of this texel space (the Receiver protocol)."""
+        return texels_to_image(self, values, dilate=dilate)
 
 
 # ---------------------------------------------------------------------------------------
