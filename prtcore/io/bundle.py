@@ -21,20 +21,12 @@ import numpy as np
 
 from prtcore import __version__
 from prtcore.core.errors import BundleError, PrtError
+from prtcore.core.formula import RUNTIME_FORMULA as RUNTIME_FORMULA  # runtime.formula
 from prtcore.io.imageio import read_image, write_exr
 
 SCHEMA = "prtcore.bundle"
 VERSION = 1
 PLANES_PER_FILE = 4
-
-RUNTIME_FORMULA = (
-    "x = per-point mean over its cluster of albedo/pi * E_direct (P x 3); "
-    "x' = sign(x)|x|^(1/gamma) (identity without gamma); s = ||x'|| (Frobenius); "
-    "u_c = transfer[c] @ x'_c + s * offset[c] (c = R, G, B); "
-    "plane weights: mean plane of channel c -> s*e_c, mono element i -> (u_R,i, u_G,i, u_B,i), "
-    "rgb element i channel c -> u_c,i*e_c; colour = sum_j plane_j * w_j; "
-    "with gamma: colour = max(colour, 0)^gamma"
-)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,12 @@ channels); for "rgb", three planes (R, G, B) per element. Plane ``j`` gets the R
 coefficient vector ``w_j``: mean plane of channel c → ``s·e_c``; mono element i →
 ``(u_R,i, u_G,i, u_B,i)``; rgb element i, channel c → ``u_c,i·e_c``. Then
 ``colour = Σ_j plane_j · w_j`` — the paper's 4×3 coefficient matrices, one per texture.
+
+This module is the one source of the runtime formula; the others are checked against it:
+the GLSL of :mod:`prtcore.runtime.gl` (``coeff_cs.glsl``, ``blend.glsl``; in
+``tests/test_render.py``) and :data:`RUNTIME_FORMULA`, the statement every manifest
+carries (``runtime.formula``; defined in :mod:`prtcore.core.formula`, the bottom layer, so
+that the bundle writer can name it; clause by clause in ``tests/test_runtime_formula.py``).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from prtcore.core.formula import RUNTIME_FORMULA as RUNTIME_FORMULA  # see the docstring
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.emitters.punctual import irradiance
