@@ -12,9 +12,10 @@ from prtcore.core.errors import AssetError, SpecError
 from prtcore.core.progress import StageTimer
 from prtcore.core.scene import Material, PrimitiveInstance, Scene
 from prtcore.core.spec import parse_spec
+from prtcore.core.uvraster import rasterise_uv
 from prtcore.intake.mesh import inspect_mesh, remesh_scene, repair_scene
 from prtcore.intake.prepare import PrepareReport, prepare_scene
-from prtcore.intake.uv import check_uv1, generate_uv1, rasterise_uv
+from prtcore.intake.uv import check_uv1, generate_uv1
 
 # ---------------------------------------------------------------------------------------
 # Scene builders and invariant checks (independent of prtcore.io.gltf.loader)

@@ -24,6 +24,7 @@ from prtcore.core.materials import albedo_at
 from prtcore.core.progress import StageTimer, bar
 from prtcore.core.scene import Scene
 from prtcore.core.tolerances import BARY_EPS, DEGENERATE_AREA_REL, UV_TEXEL_EPS
+from prtcore.core.uvraster import expand_spans, raster_spans, span_blocks
 
 
 @dataclass(frozen=True)
@@ -249,10 +250,10 @@ def _rasterise(px: np.ndarray, py: np.ndarray, faces: np.ndarray, width: int, he
     """Conservative rasterisation of oriented pixel-space triangles.
 
     px, py : (m, 3) float64 pixel-space vertices (det > 0); faces : (m,) int64 their face
-    indices. Every (triangle, texel) pair of the triangle's bounding box is tested with the
-    separating-axis theorem against the texel square shrunk by ``UV_TEXEL_EPS`` texels; a
-    passing pair contributes its exact overlap area and a key (centre inside → 2, else the
-    overlap area).
+    indices. The (triangle, texel) pairs are those of :func:`prtcore.core.uvraster.raster_spans`
+    (the texel square shrunk by ``UV_TEXEL_EPS`` texels meets the triangle); each
+    contributes its exact overlap area and a key (centre inside → 2, else the overlap
+    area).
     """
     r = _Raster(width, height)
     m = len(faces)
@@ -261,67 +262,40 @@ def _rasterise(px: np.ndarray, py: np.ndarray, faces: np.ndarray, width: int, he
     ex = np.roll(px, -1, axis=1) - px  # edge k: vertex k → k+1
     ey = np.roll(py, -1, axis=1) - py
     det = ex[:, 0] * (py[:, 2] - py[:, 0]) - ey[:, 0] * (px[:, 2] - px[:, 0])
-    lox, hix = px.min(axis=1), px.max(axis=1)
-    loy, hiy = py.min(axis=1), py.max(axis=1)
-    x0 = np.clip(np.floor(lox), 0, width).astype(np.int64)
-    nx = np.clip(np.ceil(hix), 0, width).astype(np.int64) - x0
-    y0 = np.clip(np.floor(loy), 0, height).astype(np.int64)
-    ny = np.clip(np.ceil(hiy), 0, height).astype(np.int64) - y0
-    count = np.maximum(nx, 0) * np.maximum(ny, 0)
-    ends = np.cumsum(count)
-    begins = ends - count
-    total = int(ends[-1])
     half = 0.5 - UV_TEXEL_EPS
     # one row per quantity: gathering columns table[:, ti] gives contiguous rows
     table = np.concatenate([px.T, py.T, ex.T, ey.T, (np.abs(ex) + np.abs(ey)).T * half,
-                            -BARY_EPS * det[None], lox[None] - UV_TEXEL_EPS,
-                            hix[None] - UV_TEXEL_EPS, loy[None] - UV_TEXEL_EPS,
-                            hiy[None] - UV_TEXEL_EPS])
+                            -BARY_EPS * det[None]])
     hit = np.zeros(m, dtype=bool)
 
-    def evaluate(ti: np.ndarray, x: np.ndarray, y: np.ndarray, keep_all: bool):
+    def evaluate(ti: np.ndarray, x: np.ndarray, y: np.ndarray):
         g = table[:, ti]
-        vx, vy, gx, gy, reach = g[0:3], g[3:6], g[6:9], g[9:12], g[12:15]
-        slack, lx, hx, ly, hy = g[15], g[16], g[17], g[18], g[19]
+        vx, vy, gx, gy, reach, lim = g[0:3], g[3:6], g[6:9], g[9:12], g[12:15], g[15]
         fx = x.astype(np.float64)
         fy = y.astype(np.float64)
         cx = fx + 0.5
         cy = fy + 0.5
-        # separating axes: x, y and the three edge normals vs the square shrunk by the tolerance
-        keep = (hx >= fx) & (lx <= fx + (1 - 2 * UV_TEXEL_EPS))
-        keep &= (hy >= fy) & (ly <= fy + (1 - 2 * UV_TEXEL_EPS))
-        ec = [gx[k] * (cy - vy[k]) - gy[k] * (cx - vx[k]) for k in range(3)]
-        for k in range(3):
-            keep &= ec[k] + reach[k] >= 0
-        if keep_all:
-            keep[:] = True
-        sel = np.flatnonzero(keep)
-        e0, e1, e2, lim = ec[0][sel], ec[1][sel], ec[2][sel], slack[sel]
+        e0, e1, e2 = (gx[k] * (cy - vy[k]) - gy[k] * (cx - vx[k]) for k in range(3))
         inside = (e0 >= lim) & (e1 >= lim) & (e2 >= lim)
         # squares wholly inside the triangle have area 1; clip only the others
-        r_sel = reach[:, sel] * (0.5 / half)
+        r_sel = reach * (0.5 / half)
         cut = np.flatnonzero((e0 < r_sel[0]) | (e1 < r_sel[1]) | (e2 < r_sel[2]))
-        part = sel[cut]
-        area = np.ones(len(sel))
-        area[cut] = _square_overlap(vx[:, part] - fx[part], vy[:, part] - fy[part])
+        area = np.ones(len(ti))
+        area[cut] = _square_overlap(vx[:, cut] - fx[cut], vy[:, cut] - fy[cut])
         key = np.where(inside, _CENTRE_KEY, area.astype(np.float32))
-        tid = y[sel] * width + x[sel]
-        r.merge(tid, key, faces[ti[sel]].astype(np.int32), area)
-        return ti[sel]
+        r.merge(y * width + x, key, faces[ti].astype(np.int32), area)
 
-    chunks = range(0, total, _PAIR_CHUNK)
+    spans = list(raster_spans(np.stack([px, py], axis=2), width, height, 0.5))
+    f, y, x0, x1 = (np.concatenate(a) for a in zip(*spans, strict=True)) if spans else \
+        (np.zeros(0, np.int64),) * 4
+    blocks = list(span_blocks(x0, x1, _PAIR_CHUNK))
     # without a timer of its own: a bar on the timer of the stage running (the pipeline's)
-    chunks = (timer.bar if timer is not None else bar)(chunks, "texels", total=len(chunks))
-    for k0 in chunks:
-        k = np.arange(k0, min(k0 + _PAIR_CHUNK, total), dtype=np.int64)
-        ti = np.searchsorted(ends, k, side="right")
-        j = k - begins[ti]
-        w = nx[ti]
-        y = j // w
-        x = x0[ti] + (j - y * w)
-        y += y0[ti]
-        hit[evaluate(ti, x, y, False)] = True
-    # Triangles thinner than the SAT tolerance that hug a texel border still get the texel
+    blocks = (timer.bar if timer is not None else bar)(blocks, "texels", total=len(blocks))
+    for sl in blocks:
+        ti, tid = expand_spans(f[sl], y[sl], x0[sl], x1[sl], width)
+        evaluate(ti, tid % width, tid // width)
+        hit[ti] = True
+    # Triangles thinner than the tolerance that hug a texel border still get the texel
     # holding their centroid, so every rasterisable triangle inside the atlas has a sample.
     cxs = px.mean(axis=1)
     cys = py.mean(axis=1)
@@ -329,7 +303,7 @@ def _rasterise(px: np.ndarray, py: np.ndarray, faces: np.ndarray, width: int, he
                           & (cys < height))
     if len(lost):
         evaluate(lost, np.floor(cxs[lost]).astype(np.int64),
-                 np.floor(cys[lost]).astype(np.int64), True)
+                 np.floor(cys[lost]).astype(np.int64))
     return r
 
 
