@@ -39,7 +39,7 @@ from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
 from prtcore.core.spec import TransportSpec
-from prtcore.receivers.texels import TexelSpace
+from prtcore.receivers.base import Receiver
 
 _REGISTRY: dict[str, TransportOperator] = {}
 
@@ -74,15 +74,19 @@ class TransportOperator:
     stage: ClassVar[str]
     stats_key: ClassVar[str]
 
-    def build(self, scene: Scene, receiver: TexelSpace, tracer: RayTracer,
+    def build(self, scene: Scene, receiver: Receiver, tracer: RayTracer,
               spec: TransportSpec, timer: StageTimer | None = None) -> TransportTerm:
-        """Trace the operator once for this geometry (timed as ``stage`` on ``timer``)."""
+        """Trace the operator once for this geometry (timed as ``stage`` on ``timer``).
+        receiver : the elements light is gathered at (:mod:`prtcore.receivers.base`); an
+        operator may need one kind (the surface gather maps hits through TEXCOORD_1, so it
+        takes a :class:`~prtcore.receivers.texels.TexelSpace`)."""
         raise NotImplementedError
 
     def estimate_bytes(self, receivers: int, configurations: int,
                        spec: TransportSpec) -> int:
-        """Peak bytes :meth:`build` and its term add to a bake of ``receivers`` covered
-        texels and ``configurations`` lights (an overestimate, like the bake's model)."""
+        """Peak bytes :meth:`build` and its term add to a bake of ``receivers`` receiver
+        elements (covered texels) and ``configurations`` lights (an overestimate, like the
+        bake's model)."""
         raise NotImplementedError
 
     def direct_position(self, term: TransportTerm) -> np.ndarray | None:
