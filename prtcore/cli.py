@@ -39,12 +39,19 @@ def _cmd_intake(args: argparse.Namespace) -> int:
 
 def _cmd_bake(args: argparse.Namespace) -> int:
     from prtcore.core.spec import load_spec
+    from prtcore.io.bundle import read_manifest
     from prtcore.pipeline import bake
+    from prtcore.verdict import EXIT_POOR
 
     spec = load_spec(args.spec)
     out = bake(args.asset, spec, Path(args.out), quiet=args.quiet, force=args.force)
     print(f"bundle: {out}")
     print(f"report: {out / 'report.json'}")
+    verdict = read_manifest(out).get("verdict") or {}
+    if verdict.get("line"):
+        print(verdict["line"])  # the bake's last line, also with -q
+    if verdict.get("status") == "fail" and not args.allow_poor:
+        return EXIT_POOR
     return 0
 
 
@@ -220,6 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--spec", default=None)
     sp.add_argument("--out", required=True, help="bundle directory to write")
     sp.add_argument("--force", action="store_true", help="replace an existing bundle")
+    sp.add_argument("--allow-poor", action="store_true",
+                    help="exit 0 even when the verdict fails (the bundle is written either "
+                         "way; a failing verdict exits with status 3)")
     common(sp)
     sp.set_defaults(func=_cmd_bake)
 

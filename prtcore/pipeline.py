@@ -168,7 +168,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     seconds = dict(timer.seconds)
     _finish_run_files(out, m, result, seconds)  # export's own time, once it has ended
     if not quiet:
-        print(m.summary(result, seconds))
+        print(m.summary(result, seconds, with_verdict=False))
     return out
 
 

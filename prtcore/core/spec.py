@@ -110,6 +110,18 @@ class OutputSpec:
 
 
 @dataclass(frozen=True)
+class ValidateSpec:
+    #: the verdict fails when held-out error > target_ratio × the projection bound
+    target_ratio: float = 1.25
+    #: ... or when the held-out error (relative to the held-out RMS) exceeds this
+    max_error: float = 0.5
+    #: > 0: path-trace ``reference_lights`` held-out lights at this many samples per texel
+    #: and judge their noise-corrected error instead of the fast transport's
+    reference_spp: int = 0
+    reference_lights: int = 4
+
+
+@dataclass(frozen=True)
 class BakeSpec:
     atlas: AtlasSpec = AtlasSpec()
     prepare: PrepareSpec = PrepareSpec()
@@ -119,6 +131,7 @@ class BakeSpec:
     fit: FitSpec = FitSpec()
     keyframes: KeyframesSpec = KeyframesSpec()
     output: OutputSpec = OutputSpec()
+    validate: ValidateSpec = ValidateSpec()
 
 
 # ---------------------------------------------------------------------------------------
@@ -397,8 +410,22 @@ def _parse(data: Any) -> BakeSpec:
     o = _section(OutputSpec, root.get("output", {}), "output")
     output = OutputSpec(dtype=_choice(o.get("dtype", "half"), "output.dtype", ("half", "float")))
 
+    v = _section(ValidateSpec, root.get("validate", {}), "validate")
+    d = ValidateSpec()
+    validate = ValidateSpec(
+        target_ratio=_num(v.get("target_ratio", d.target_ratio), "validate.target_ratio",
+                          lo=1.0, hi=1e6),
+        max_error=_num(v.get("max_error", d.max_error), "validate.max_error", lo=0.0,
+                       lo_open=True),
+        reference_spp=_int(v.get("reference_spp", d.reference_spp), "validate.reference_spp",
+                           lo=0, hi=1 << 20),
+        reference_lights=_int(v.get("reference_lights", d.reference_lights),
+                              "validate.reference_lights", lo=1, hi=1 << 16),
+    )
+
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
-                    transport=transport, fit=fit, keyframes=keyframes, output=output)
+                    transport=transport, fit=fit, keyframes=keyframes, output=output,
+                    validate=validate)
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

@@ -52,6 +52,14 @@ DOCS: dict[str, str] = {
     "keyframes.transfer": "`shared` (one transfer for all keyframes) · `per_keyframe`",
     "keyframes.seed": "seed of the keyframe draws",
     "output.dtype": "basis EXR pixels: `half` · `float`",
+    "validate.target_ratio": "the verdict fails when the held-out error at the shipped n is "
+                             "above this multiple of the projection bound, ≥ 1",
+    "validate.max_error": "... or when the held-out error, relative to the RMS of all "
+                          "held-out indirect lightmaps, is above this, > 0",
+    "validate.reference_spp": "0: judge against the held-out lights' fast transport; > 0: "
+                              "path-trace `reference_lights` of them at this many samples "
+                              "per texel and judge their noise-corrected error",
+    "validate.reference_lights": "held-out lights path-traced when `reference_spp` > 0",
     "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual)",
     "family.weight": "relative probability of this family",
     "family.position": "`{\"shell\": [a, b]}` (radii in units of the asset's bounding "

@@ -54,8 +54,14 @@ class Method:
         """
         raise NotImplementedError
 
-    def summary(self, result: Any, seconds: dict[str, float]) -> str:
-        """The text printed at the end of a bake and written to report.txt."""
+    def summary(self, result: Any, seconds: dict[str, float], with_verdict: bool = True
+                ) -> str:
+        """The text written to report.txt (and printed at the end of a bake, where the
+        command line prints the verdict itself, as the last line)."""
+        raise NotImplementedError
+
+    def verdict(self, result: Any) -> dict[str, Any]:
+        """The bake's verdict (:func:`prtcore.verdict.judge` output)."""
         raise NotImplementedError
 
     def plot(self, result: Any, path: Path) -> None:

@@ -31,18 +31,21 @@ from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
+from prtcore.verdict import judge
 
 
 @dataclass(frozen=True, eq=False)
 class DataDrivenResult:
     """model : the shipped model (the spec's n); full : the fit the report table uses
     (≥ max(TABLE_N) elements where the data allows); table : error vs run time;
-    diagnostics : the shipped model's fit diagnostics as JSON data."""
+    diagnostics : the shipped model's fit diagnostics as JSON data; verdict :
+    :func:`prtcore.verdict.judge` at the shipped n."""
 
     model: TransferModel
     full: TransferModel
     table: dict[str, Any]
     diagnostics: dict[str, Any]
+    verdict: dict[str, Any]
 
 
 @register
@@ -86,8 +89,15 @@ class DataDriven(Method):
                                          groups=kfs.holdout if per_group else None)
             else:
                 table = {"reference": None, "heldout_configurations": 0, "rows": []}
-        return DataDrivenResult(model=model, full=full, table=table,
-                                diagnostics=model.diagnostics.to_dict())
+        diag = model.diagnostics.to_dict()
+        albedo = inputs.intake.texels.albedo
+        black = tuple(c for c, a in zip("RGB", albedo.max(axis=0) if len(albedo) else (),
+                                        strict=False) if a <= 0)
+        verdict = judge(table, diag, model.n_basis, spec.validate,
+                        points=inputs.intake.points.count, configurations=K,
+                        black_channels=black)
+        return DataDrivenResult(model=model, full=full, table=table, diagnostics=diag,
+                                verdict=verdict)
 
     def write(self, directory: Path, inputs: BakeInputs, result: DataDrivenResult
               ) -> tuple[dict, dict]:
@@ -134,12 +144,22 @@ class DataDriven(Method):
                         "transport_residual": data.residual},
             "validation": {"holdout_lights": "holdout_lights.json",
                            "reference": table["reference"]},
+            "verdict": result.verdict,
         }
-        report = {"table": table, "transport": data.stats, "fit": diag}
+        report = {"table": table, "verdict": result.verdict, "transport": data.stats,
+                  "fit": diag}
         return sections, report
 
-    def summary(self, result: DataDrivenResult, seconds: dict[str, float]) -> str:
-        return format_table(result.table, seconds)
+    def summary(self, result: DataDrivenResult, seconds: dict[str, float],
+                with_verdict: bool = True) -> str:
+        lines = [format_table(result.table, seconds)]
+        lines += [f"warning: {w}" for w in result.diagnostics.get("warnings") or ()]
+        if with_verdict:
+            lines.append(result.verdict["line"])  # the verdict is the last line
+        return "\n".join(lines)
+
+    def verdict(self, result: DataDrivenResult) -> dict[str, Any]:
+        return result.verdict
 
     def plot(self, result: DataDrivenResult, path: Path) -> None:
         plot(result.table, path)
