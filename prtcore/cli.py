@@ -56,7 +56,7 @@ def _cmd_bake(args: argparse.Namespace) -> int:
 
 
 def _cmd_reference(args: argparse.Namespace) -> int:
-    from prtcore.pipeline import reference_to_exr
+    from prtcore.reference.lightmap import reference_to_exr
 
     if args.camera:  # camera-space ground truth for `prtcore render`
         from prtcore.reference.camera import reference_view_to_exr

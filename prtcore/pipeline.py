@@ -25,7 +25,8 @@ INTAKE_STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
 
 #: every timed stage of :func:`bake`, in the order they run: the one list progress reports
 #: (the service's workers) and benchmarks use
-STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "fit", "report", "export")
+STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "fit", "report", "export",
+          "validate")
 
 
 @dataclass(frozen=True)
@@ -165,8 +166,16 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
+    validation = None
+    if spec.validate.reference_spp > 0 and len(hold):
+        from prtcore.validate import validate_bundle
+
+        with timer.stage("validate"):  # the verdict against the path tracer, noise removed
+            validation = validate_bundle(out, spec.validate.reference_spp,
+                                         count=spec.validate.reference_lights, timer=timer)
+        result = m.revalidate(result, inputs, validation)
     seconds = dict(timer.seconds)
-    _finish_run_files(out, m, result, seconds)  # export's own time, once it has ended
+    _finish_run_files(out, m, result, seconds, validation)  # export's time, once it ended
     if not quiet:
         print(m.summary(result, seconds, with_verdict=False))
     return out
@@ -183,13 +192,18 @@ def _write_run_files(directory: Path, m, result, report: dict, seconds: dict[str
     (directory / "report.txt").write_text(m.summary(result, seconds) + "\n")
 
 
-def _finish_run_files(out: Path, m, result, seconds: dict[str, float]) -> None:
-    """Put the final stage times (export included) into the bundle's run files."""
+def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
+                      validation: dict | None = None) -> None:
+    """Put the final stage times (export included), and the verdict against the path
+    tracer when the spec asked for one, into the bundle's run files."""
     import os
 
     manifest = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
     report = json.loads((out / "report.json").read_text(encoding="utf-8"))
     manifest["timings"] = report["stage_seconds"] = _jsonable(seconds)
+    manifest["verdict"] = report["verdict"] = _jsonable(m.verdict(result))
+    if validation is not None:
+        report["validation"] = _jsonable(validation)
     for name, doc in (("manifest.json", manifest), ("report.json", report)):
         tmp = out / f".{name}.tmp"
         tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
@@ -227,54 +241,3 @@ def _jsonable(x):
     if isinstance(x, float):
         return x if math.isfinite(x) else None
     return x
-
-
-def texel_space_for(source: str | Path, spec_path: str | Path | None = None, *,
-                    quiet: bool = True, timer: StageTimer | None = None
-                    ) -> tuple[Scene, TexelSpace]:
-    """The scene and texel space of an asset (prepared with the spec) or of a bundle
-    (its asset.glb at the bundle's atlas size), so that outputs line up texel for texel."""
-    from prtcore.core.spec import load_spec
-    from prtcore.intake.prepare import prepare_scene
-    from prtcore.io.gltf.loader import load_asset
-    from prtcore.receivers.texels import build_texel_space
-
-    timer = timer or StageTimer(quiet=quiet)
-    source = Path(source)
-    if source.is_dir():
-        from prtcore.io.bundle import read_manifest
-
-        m = read_manifest(source)
-        with timer.stage("load"):
-            scene = load_asset(source / m["asset"]["file"])
-        w, h, pad = m["atlas"]["width"], m["atlas"]["height"], m["atlas"]["padding"]
-    else:
-        spec = load_spec(spec_path)
-        with timer.stage("load"):
-            scene = load_asset(source)
-        scene, _ = prepare_scene(scene, spec, timer=timer)
-        w = h = spec.atlas.resolution
-        pad = spec.atlas.padding
-    with timer.stage("texels"):
-        texels = build_texel_space(scene, w, h, padding=pad)
-    return scene, texels
-
-
-def reference_to_exr(source: str | Path, light_path: str | Path, out: Path, *, spp: int,
-                     seed: int = 0, spec_path: str | Path | None = None,
-                     quiet: bool = False) -> Path:
-    """``prtcore reference``: the path-traced indirect lightmap as an RGBA EXR."""
-    from prtcore.core.errors import PrtError
-    from prtcore.emitters.lightfile import load_light_file
-    from prtcore.io.imageio import write_exr
-    from prtcore.receivers.texels import texels_to_image
-    from prtcore.reference.pathtracer import reference_lightmap
-
-    if spp < 1:
-        raise PrtError(f"--spp must be ≥ 1, got {spp}")
-    lights = load_light_file(light_path)  # validate before the expensive part
-    timer = StageTimer(quiet=quiet)
-    scene, texels = texel_space_for(source, spec_path, timer=timer)
-    values = reference_lightmap(scene, texels, lights, spp, seed=seed, timer=timer)
-    write_exr(out, texels_to_image(texels, values, dilate=False), dtype="float")
-    return Path(out)

@@ -38,7 +38,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     mean/max relative RMSE, the reference noise (relative standard error) and, per light,
     the errors.
     """
-    from prtcore.pipeline import texel_space_for
+    from prtcore.reference.lightmap import texel_space_for
 
     bundle = Path(bundle)
     timer = timer or StageTimer(quiet=True)

@@ -91,3 +91,26 @@ def test_a_family_the_points_cannot_see_fails_its_gate(tmp_path, capsys):
     assert main(["bake", str(CORNELL), "--spec", str(spec), "--out", str(out), "--force",
                  "--allow-poor", "-q"]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1].startswith("verdict: fail")
+
+
+def test_reference_spp_judges_against_the_path_tracer(tmp_path):
+    from prtcore.core.spec import parse_spec
+    from prtcore.pipeline import bake
+
+    spec = {"atlas": {"resolution": 32, "padding": 2},
+            "measurement_points": {"count": 16, "supersample": 2},
+            "lights": {"count": 32, "holdout": 4, "families": [
+                {"type": "point", "position": {"box": [[-0.6, 1.3, -0.6], [0.6, 1.7, 0.6]]},
+                 "intensity": {"uniform": [0.5, 3.0]}}]},
+            "transport": {"gather_rays": 16, "max_bounces": 8}, "fit": {"basis": 8},
+            "validate": {"reference_spp": 32, "reference_lights": 2}}
+    out = bake(CORNELL, parse_spec(spec), tmp_path / "b", quiet=True)
+    m = read_manifest(out)
+    report = json.loads((out / "report.json").read_text())
+    v = m["verdict"]
+    assert v["against"] == "path tracer, 32 spp, noise removed"
+    assert report["validation"]["lights"] == 2 and report["verdict"] == v
+    row = next(r for r in report["validation"]["rows"] if r["n"] == 8)
+    assert v["error"] == row["rmse_noise_corrected_mean"]
+    assert "validate" in m["timings"]
+    assert (out / "report.txt").read_text().strip().splitlines()[-1] == v["line"]

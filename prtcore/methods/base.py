@@ -64,6 +64,11 @@ class Method:
         """The bake's verdict (:func:`prtcore.verdict.judge` output)."""
         raise NotImplementedError
 
+    def revalidate(self, result: Any, inputs: BakeInputs, validation: dict) -> Any:
+        """The result with its verdict judged against a path-traced validation
+        (:func:`prtcore.validate.validate_bundle` output) instead of the fast transport."""
+        raise NotImplementedError
+
     def plot(self, result: Any, path: Path) -> None:
         """The report's figure (report.png)."""
         raise NotImplementedError

@@ -9,6 +9,7 @@ written into the manifest's ``runtime`` section.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -90,14 +91,23 @@ class DataDriven(Method):
             else:
                 table = {"reference": None, "heldout_configurations": 0, "rows": []}
         diag = model.diagnostics.to_dict()
+        return DataDrivenResult(model=model, full=full, table=table, diagnostics=diag,
+                                verdict=self._judge(inputs, model, table, diag))
+
+    def _judge(self, inputs: BakeInputs, model: TransferModel, table: dict, diag: dict,
+               reference: dict | None = None) -> dict[str, Any]:
         albedo = inputs.intake.texels.albedo
         black = tuple(c for c, a in zip("RGB", albedo.max(axis=0) if len(albedo) else (),
                                         strict=False) if a <= 0)
-        verdict = judge(table, diag, model.n_basis, spec.validate,
-                        points=inputs.intake.points.count, configurations=K,
-                        black_channels=black)
-        return DataDrivenResult(model=model, full=full, table=table, diagnostics=diag,
-                                verdict=verdict)
+        return judge(table, diag, model.n_basis, inputs.spec.validate,
+                     points=inputs.intake.points.count, configurations=len(inputs.train),
+                     black_channels=black, reference=reference)
+
+    def revalidate(self, result: DataDrivenResult, inputs: BakeInputs, validation: dict
+                   ) -> DataDrivenResult:
+        verdict = self._judge(inputs, result.model, result.table, result.diagnostics,
+                              validation)
+        return dataclasses.replace(result, verdict=verdict)
 
     def write(self, directory: Path, inputs: BakeInputs, result: DataDrivenResult
               ) -> tuple[dict, dict]:
