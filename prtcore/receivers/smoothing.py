@@ -1,0 +1,110 @@
+"""A seam-aware smoothing filter in texel space (issue 13: noise stays out of the basis).
+
+The fast transport's gather estimates each texel's indirect light with M rays of its own,
+so every texel carries its own Monte Carlo error, the same for all K configurations (one
+gather operator serves them all). Such error is not noise the SVD can average away: it is
+a fixed texel-sized pattern in every snapshot, and the basis reproduces it as texel-sized
+blocks. Filtering the snapshots in texel space before the SVD removes most of it.
+
+The filter works on the texels' 3-D samples, not on the atlas image, so it is
+seam-aware: two texels on either side of a UV seam (far apart in the atlas, adjacent on
+the surface) are neighbours, while two texels adjacent in the atlas but on different
+charts are not. Texel i averages the texels j with
+
+    ‖p_j − p_i‖ ≤ r_i,   n_i · n_j ≥ cos_min,   |n_i · (p_j − p_i)| ≤ plane_tol · h_i
+
+(p: position, n: shading normal, h_i: the texel's world-space size, r_i = radius · h_i),
+weighted by exp(−‖p_j − p_i‖² / (2 (r_i/2)²)): it does not blend across a crease (the floor
+and a wall), across the two sides of a thin wall, or between stacked parallel surfaces.
+With ``albedo``, the filter runs on irradiance (values divided by the clamped albedo per
+channel, multiplied back after), so an albedo edge stays sharp.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from prtcore.core.materials import clamp_albedo
+from prtcore.receivers.texels import TexelSpace
+
+#: Defaults: Gaussian of σ = radius/2 over 1.5 texel sizes, normals within ~25°, at most
+#: half a texel off the tangent plane.
+SMOOTH_RADIUS = 1.5
+SMOOTH_COS_MIN = 0.9
+SMOOTH_PLANE_TOL = 0.5
+
+
+def texel_size(texels: TexelSpace) -> np.ndarray:
+    """(T,) float64 world-space size of each texel: the mean length of its footprint's
+    two steps (dP/dx, dP/dy)."""
+    fp = np.asarray(texels.footprint, dtype=np.float64)
+    return 0.5 * (np.linalg.norm(fp[:, 0], axis=1) + np.linalg.norm(fp[:, 1], axis=1))
+
+
+def smoothing_operator(texels: TexelSpace, radius: float = SMOOTH_RADIUS,
+                       cos_min: float = SMOOTH_COS_MIN,
+                       plane_tol: float = SMOOTH_PLANE_TOL) -> sp.csr_matrix:
+    """The filter as a row-stochastic sparse matrix W (T × T) float64: ``W @ values``
+    smooths (T, …) texel values (module docstring). Every row contains its own texel, so
+    a texel with no neighbour keeps its value; radius 0 gives the identity."""
+    pos = np.asarray(texels.position, dtype=np.float64)
+    nrm = np.asarray(texels.normal, dtype=np.float64)
+    t = len(pos)
+    if radius <= 0 or t == 0:
+        return sp.identity(t, format="csr", dtype=np.float64)
+    h = texel_size(texels)
+    r = radius * h
+    tree = cKDTree(pos)
+    rows, cols = [], []
+    for a in range(0, t, 4096):
+        b = min(a + 4096, t)
+        hits = tree.query_ball_point(pos[a:b], r[a:b])
+        lens = np.fromiter((len(x) for x in hits), dtype=np.int64, count=b - a)
+        rows.append(np.repeat(np.arange(a, b), lens))
+        cols.append(np.fromiter((j for x in hits for j in x), dtype=np.int64,
+                                count=int(lens.sum())))
+    i = np.concatenate(rows)
+    j = np.concatenate(cols)
+    d = pos[j] - pos[i]
+    ok = (np.einsum("ij,ij->i", nrm[i], nrm[j]) >= cos_min) & (
+        np.abs(np.einsum("ij,ij->i", nrm[i], d)) <= plane_tol * h[i])
+    ok |= i == j
+    i, j, d = i[ok], j[ok], d[ok]
+    sigma = 0.5 * r[i]
+    w = np.exp(-np.einsum("ij,ij->i", d, d) / (2.0 * sigma * sigma))
+    W = sp.csr_matrix((w, (i, j)), shape=(t, t))
+    norm = np.asarray(W.sum(axis=1)).ravel()
+    return sp.diags(1.0 / norm) @ W
+
+
+def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True,
+                  operator: sp.csr_matrix | None = None, **kw) -> np.ndarray:
+    """Smooth per-texel values with :func:`smoothing_operator`.
+
+    values : (T, 3) or (T, K, 3) float — outgoing radiance per texel (the last axis is the
+        channel when ``albedo``), e.g. the dataset's indirect lightmaps
+    albedo : filter irradiance (values / clamped albedo) over the neighbours whose albedo
+        in that channel is > 0, and multiply back, so albedo edges stay sharp; a texel with
+        zero albedo in a channel stays 0 there (its outgoing radiance)
+    operator : a W from :func:`smoothing_operator` (built from ``kw`` when None)
+    Returns the same shape, float32 when ``values`` is float32, else float64.
+    """
+    v = np.asarray(values)
+    if v.shape[0] != texels.count or v.shape[-1] != 3 or v.ndim not in (2, 3):
+        raise ValueError(f"smooth_texels: values {v.shape}, expected ({texels.count}, 3) "
+                         f"or ({texels.count}, K, 3)")
+    W = operator if operator is not None else smoothing_operator(texels, **kw)
+    x = v.astype(np.float64).reshape(texels.count, -1, 3)
+    if albedo:
+        rho, _ = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
+        valid = (rho > 0).astype(np.float64)  # (T, 3)
+        e = x / np.where(rho > 0, rho, 1.0)[:, None, :] * valid[:, None, :]
+        num = (W @ e.reshape(texels.count, -1)).reshape(x.shape)
+        den = np.asarray(W @ valid)  # (T, 3)
+        y = num / np.where(den > 0, den, 1.0)[:, None, :] * rho[:, None, :]
+    else:
+        y = (W @ x.reshape(texels.count, -1)).reshape(x.shape)
+    out_dtype = np.float32 if v.dtype == np.float32 else np.float64
+    return y.reshape(v.shape).astype(out_dtype)
