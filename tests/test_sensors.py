@@ -212,3 +212,22 @@ def test_restrict_and_concat_points_keep_each_cluster(tmp_path):
     avg = both.average_clusters(np.concatenate([vals, v2]))
     np.testing.assert_allclose(avg[rows2[0]], full)
     np.testing.assert_allclose(avg[rows2[1]], other.average_clusters(v2))
+
+
+def test_fill_skips_candidates_no_light_reaches():
+    rng = np.random.default_rng(8)
+    d = rng.random((50, 20))
+    dark = np.array([3, 4, 5, 40])
+    d[dark] = 0.0  # buried or facing away: no training light reaches them
+    pos = rng.normal(size=(50, 3))
+    pos[dark] *= 100.0  # far away: the farthest-point fill would take them first
+    sel = select_sensors(d, 30, positions=pos)
+    assert not np.isin(dark, sel.indices).any()
+    sel = select_sensors(d, 30, seed=1)
+    assert not np.isin(dark, sel.indices).any()
+    # unless nothing else is left
+    assert np.isin(dark, select_sensors(d, 50, positions=pos).indices).all()
+    picked = farthest_fill(pos, np.array([0]), 46 - 1, exclude=dark)
+    assert len(set(picked.tolist())) == 45 and not np.isin(dark, picked).any()
+    with pytest.raises(ValueError, match="excluded"):
+        farthest_fill(pos, np.array([0]), 46, exclude=dark)

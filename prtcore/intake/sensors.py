@@ -150,15 +150,19 @@ def qdeim(modes: np.ndarray, count: int | None = None) -> np.ndarray:
     return np.asarray(piv[:count], dtype=np.int64)
 
 
-def farthest_fill(positions: np.ndarray, chosen: np.ndarray, count: int) -> np.ndarray:
+def farthest_fill(positions: np.ndarray, chosen: np.ndarray, count: int,
+                  exclude: np.ndarray | None = None) -> np.ndarray:
     """``count`` more rows of ``positions`` (N, 3) by farthest-point sampling from the
-    rows ``chosen`` (Euclidean; ties to the lowest index). Deterministic.
-    Returns (count,) int64, disjoint from ``chosen``."""
+    rows ``chosen`` (Euclidean; ties to the lowest index), never taking the rows
+    ``exclude`` (which do not count as covering anything either). Deterministic.
+    Returns (count,) int64, disjoint from ``chosen`` and ``exclude``."""
     pos = np.asarray(positions, dtype=np.float64)
     chosen = np.asarray(chosen, dtype=np.int64)
-    if count > len(pos) - len(chosen):
-        raise ValueError(f"farthest_fill: {count} more of {len(pos)} with {len(chosen)} "
-                         "taken")
+    banned = np.union1d(chosen, np.zeros(0, np.int64) if exclude is None
+                        else np.asarray(exclude, dtype=np.int64))
+    if count > len(pos) - len(banned):
+        raise ValueError(f"farthest_fill: {count} more of {len(pos)} with {len(banned)} "
+                         "taken or excluded")
     if count == 0:
         return np.zeros(0, dtype=np.int64)
     if len(chosen):
@@ -169,13 +173,14 @@ def farthest_fill(positions: np.ndarray, chosen: np.ndarray, count: int) -> np.n
                                      axis=1))
     else:
         d = np.linalg.norm(pos - pos.mean(axis=0), axis=1)  # start at the outermost point
-    d[chosen] = -1.0
+    d[banned] = -1.0
     out = np.empty(count, dtype=np.int64)
     for i in range(count):
         j = int(np.argmax(d))
         out[i] = j
         d = np.minimum(d, np.linalg.norm(pos - pos[j], axis=1))
         d[j] = -1.0
+        d[banned] = -1.0
     return out
 
 
@@ -196,7 +201,8 @@ def select_sensors(direct: np.ndarray, count: int,
         same K, and same C when 3-D) → the modes are ranked by the coefficient energy
         ``‖C v_j‖²`` they carry instead (ties by σ).
     positions : (N, 3) float — candidates' positions for the farthest-point fill; None →
-        seeded random fill
+        seeded random fill. The fill skips candidates that no training light reaches
+        (all-zero rows of ``direct``) while others remain.
     seed : seeds the random fill only (the QR part is deterministic)
     energy : the QR ranks the fewest modes (in the ranking's order) that carry this
         fraction of the direct energy Σσ² (of the coefficient energy with coefficients);
@@ -245,13 +251,19 @@ def select_sensors(direct: np.ndarray, count: int,
     if rest == 0:
         fill = "none"
         extra = np.zeros(0, dtype=np.int64)
-    elif positions is not None:
-        fill = "farthest"
-        extra = farthest_fill(positions, pivots, rest)
     else:
-        fill = "random"
-        pool = np.setdiff1d(np.arange(n), pivots)
-        extra = np.random.default_rng(seed).choice(pool, size=rest, replace=False)
+        # candidates no training light reaches carry nothing (buried, or facing away from
+        # the family): the fill takes them only when the others run out
+        dark = np.flatnonzero(~np.any(np.asarray(direct).reshape(n, -1) != 0, axis=1))
+        if n - len(np.union1d(pivots, dark)) < rest:
+            dark = dark[:0]
+        if positions is not None:
+            fill = "farthest"
+            extra = farthest_fill(positions, pivots, rest, exclude=dark)
+        else:
+            fill = "random"
+            pool = np.setdiff1d(np.arange(n), np.union1d(pivots, dark))
+            extra = np.random.default_rng(seed).choice(pool, size=rest, replace=False)
     return SensorSelection(indices=np.concatenate([pivots, extra]).astype(np.int64),
                            qr_count=r, rank=rank, method=method, fill=fill,
                            singular_values=s, target_energy=target_energy)

@@ -40,17 +40,26 @@ ALBEDO = {
     "low_wall": (0.12, 0.12, 0.14),    # nearly black: a dark occluder
 }
 
-#: Point lights filling the room's air 0.3 m clear of the walls, from just above the low
-#: wall to 0.3 m below the walls' top: one box per leg, weighted by floor area. A light
-#: drawn inside the pillar has zero direct light and is excluded by the fit (rare: the
-#: pillar takes 0.4 % of the boxes' volume).
+#: Point lights filling the room's air 0.3 m clear of the walls and 0.15 m clear of the
+#: pillar, from just above the low wall to 0.3 m below the walls' top: leg A as four boxes
+#: around the pillar's column plus leg B, each weighted by its floor area. (A light inside
+#: the pillar would light nothing but the floor buried under it, where measurement points
+#: can be placed: keep the family out of solids.)
+_Y = (0.9, 2.2)
+
+
+def _box(x0, z0, x1, z1, weight=None) -> dict:
+    return {"type": "point", "weight": weight or (x1 - x0) * (z1 - z0),
+            "position": {"box": [[x0, _Y[0], z0], [x1, _Y[1], z1]]},
+            "intensity": {"uniform": [0.5, 3.0]}, "color": "white"}
+
+
 LIGHT_FAMILIES = [
-    {"type": "point", "weight": 2.0,
-     "position": {"box": [[0.3, 0.9, 0.3], [3.7, 2.2, 1.7]]},
-     "intensity": {"uniform": [0.5, 3.0]}, "color": "white"},
-    {"type": "point", "weight": 1.0,
-     "position": {"box": [[0.3, 0.9, 2.0], [1.7, 2.2, 3.7]]},
-     "intensity": {"uniform": [0.5, 3.0]}, "color": "white"},
+    _box(0.3, 0.3, 3.7, 0.7),    # leg A, south of the pillar
+    _box(0.3, 1.3, 3.7, 1.7),    # leg A, north of the pillar
+    _box(0.3, 0.7, 0.7, 1.3),    # leg A, west of the pillar
+    _box(1.3, 0.7, 3.7, 1.3),    # leg A, east of the pillar
+    _box(0.3, 2.0, 1.7, 3.7),    # leg B
 ]
 
 #: A bake spec naming the room's light family (sizes small enough for tests to override).
