@@ -105,7 +105,7 @@ def decide_uv(check: UVCheck | None, spec: BakeSpec, source: str = "",
     return StagePlan("uv", "generate", f"TEXCOORD_1 invalid: {check.reason}")
 
 
-def _animation_index(scene: Scene, spec: BakeSpec) -> int | None:
+def animation_index(scene: Scene, spec: BakeSpec) -> int | None:
     want = spec.keyframes.animation
     if want is None:
         return None
@@ -123,7 +123,7 @@ def _animation_index(scene: Scene, spec: BakeSpec) -> int | None:
 
 def decide_keyframes(scene: Scene, spec: BakeSpec) -> StagePlan:
     """Keyframe sets only when the spec names an animation the asset has."""
-    idx = _animation_index(scene, spec)
+    idx = animation_index(scene, spec)
     if idx is None:
         if not scene.animations:
             return StagePlan("keyframes", "skip", "asset has no animation")

@@ -21,7 +21,6 @@ import numpy as np
 
 from prtcore import __version__
 from prtcore.core.errors import BundleError, PrtError
-from prtcore.core.formula import RUNTIME_FORMULA as RUNTIME_FORMULA  # runtime.formula
 from prtcore.io.imageio import read_image, write_exr
 
 SCHEMA = "prtcore.bundle"

@@ -34,15 +34,9 @@ from prtcore.core.errors import PrtError, SpecError
 from prtcore.core.progress import StageTimer
 from prtcore.core.scene import Animation, AnimationChannel, Light, Scene
 from prtcore.core.spec import BakeSpec, TransportSpec
+from prtcore.intake.plan import animation_index
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.texels import TexelSpace
-
-
-def animation_index(scene: Scene, spec: BakeSpec) -> int | None:
-    """The spec's animation as an index into ``scene.animations`` (None: static bake)."""
-    from prtcore.intake.plan import _animation_index
-
-    return _animation_index(scene, spec)
 
 
 def keyframe_times(animation: Animation, spec: BakeSpec) -> np.ndarray:

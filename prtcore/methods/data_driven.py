@@ -15,13 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from prtcore.core.errors import PrtError
+from prtcore.core.formula import RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
 from prtcore.fit.model import TransferModel
 from prtcore.fit.transfer import fit_transfer
 from prtcore.io.bundle import (
-    RUNTIME_FORMULA,
     basis_planes,
     planes_layout,
     points_files,

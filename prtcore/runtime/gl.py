@@ -1,4 +1,4 @@
-"""Headless OpenGL runtime (moderngl, EGL): the engine side of a bundle (DESIGN 3.3 render).
+"""Headless OpenGL runtime (moderngl, EGL): the engine side of a bundle (`prtcore render`).
 
 Per frame, all on the GPU (paper 4.3, 5.1, 5.2):
 
@@ -21,7 +21,7 @@ Shadow test: a point p with normal n (geometric normal in the camera pass, the s
 shading normal at measurement points) is looked up at ``p + n·k_n·τ`` where τ is the
 world size of one shadow-map texel at p (``2d/res`` at distance d for a 90° view,
 ``2·1.01·R/res`` for directional), and is lit when its distance is at most the stored one
-plus ``k_c·τ``. Both biases are thus in shadow texels, scaled to the scene (DESIGN 4),
+plus ``k_c·τ``. Both biases are thus in shadow texels, scaled to the scene (core/tolerances.py),
 never a fixed world epsilon. Each pass is timed with GL timer queries (GL_TIME_ELAPSED).
 
 Images: float RGBA, row 0 at the top; A = 1 where the pixel centre sees the front of a
@@ -88,7 +88,7 @@ class RenderResult:
 class BundleRenderer:
     """The GPU runtime of one bundle in one OpenGL context.
 
-    bundle : bundle directory (DESIGN 3.4); ctx : a moderngl context (created through EGL
+    bundle : bundle directory (docs/bundle.md); ctx : a moderngl context (created through EGL
     when None; pass one to share it, e.g. a test session's); shadow_resolution : side of
     each shadow view; time : keyframe bundles, seconds into the animation (the nearest
     keyframe's vertices, points and transfer; default the first keyframe). Call
