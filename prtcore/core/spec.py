@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from prtcore.core.errors import SpecError
+from prtcore.core.jsonfile import read_json
 
 # ---------------------------------------------------------------------------------------
 # Sections
@@ -432,16 +433,7 @@ def load_spec(path: str | Path | None) -> BakeSpec:
     """Read and validate a spec file; ``None`` gives the defaults."""
     if path is None:
         return parse_spec({})
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise SpecError("<file>", f"cannot read: {e.strerror}", file=str(path)) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise SpecError("<file>", f"not valid JSON at line {e.lineno} column {e.colno}: "
-                        f"{e.msg}", file=str(path)) from None
+    data = read_json(path, lambda what: SpecError("<file>", what, file=str(path)))
     return parse_spec(data, file=str(path))
 
 

@@ -63,6 +63,12 @@ class Emitter:
         raise NotImplementedError
 
 
+def light_axis(light: Light) -> np.ndarray:
+    """(3,) float64 unit vector of ``light.direction`` (the way light travels)."""
+    d = np.asarray(light.direction, dtype=np.float64)
+    return d / np.linalg.norm(d)
+
+
 _REGISTRY: Registry[Emitter] = Registry("emitter for light type", "type")
 
 #: class decorator: make a class the emitter of lights of its ``type``

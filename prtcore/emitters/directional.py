@@ -10,12 +10,7 @@ import numpy as np
 from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
-from prtcore.emitters.base import Emitter, register
-
-
-def _axis(light: Light) -> np.ndarray:
-    d = np.asarray(light.direction, dtype=np.float64)
-    return d / np.linalg.norm(d)
+from prtcore.emitters.base import Emitter, light_axis, register
 
 
 @register
@@ -41,7 +36,7 @@ class DirectionalEmitter(Emitter):
     def sample_rays(self, light, rng, n, disk_centre, disk_radius):
         u = rng.random((n, 2))
         phi = 2.0 * math.pi * u[:, 1]
-        axis = np.broadcast_to(_axis(light), (n, 3))
+        axis = np.broadcast_to(light_axis(light), (n, 3))
         t, s = orthonormal_frame(np.ascontiguousarray(axis))
         r = disk_radius * np.sqrt(u[:, 0])
         origin = (disk_centre - 2.0 * disk_radius * axis
@@ -49,5 +44,5 @@ class DirectionalEmitter(Emitter):
         return origin, axis.copy()
 
     def first_hit_density(self, light, points, face_normals, disk_radius):
-        cos = np.abs(face_normals @ _axis(light))
+        cos = np.abs(face_normals @ light_axis(light))
         return cos / (math.pi * disk_radius**2)

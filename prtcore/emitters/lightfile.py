@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from prtcore.core.errors import LightFileError
+from prtcore.core.jsonfile import read_json
 from prtcore.core.scene import Light
 from prtcore.emitters.base import emitter_for, types
 
@@ -104,15 +105,8 @@ def light_to_dict(light: Light) -> dict:
 
 def load_light_file(path: str | Path) -> tuple[Light, ...]:
     """Read a light file: one light object or ``{"lights": [...]}``."""
-    path = Path(path)
     file = str(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise LightFileError(f"{file}: cannot read: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise LightFileError(f"{file}: not valid JSON at line {e.lineno} column {e.colno}: "
-                             f"{e.msg}") from None
+    data = read_json(path, lambda what: LightFileError(f"{file}: {what}"))
     if isinstance(data, dict) and "lights" in data:
         if set(data) != {"lights"} or not isinstance(data["lights"], list) or \
                 not data["lights"]:

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from prtcore.core.scene import Light
-from prtcore.emitters.base import emitter_for, register
+from prtcore.emitters.base import emitter_for, light_axis, register
 from prtcore.emitters.point import PointEmitter
 
 
@@ -26,11 +26,6 @@ def spot_factor(light: Light, cos_angle: np.ndarray) -> np.ndarray:
     return a * a
 
 
-def _axis(light: Light) -> np.ndarray:
-    d = np.asarray(light.direction, dtype=np.float64)
-    return d / np.linalg.norm(d)
-
-
 @register
 class SpotEmitter(PointEmitter):
     type = "spot"
@@ -39,10 +34,10 @@ class SpotEmitter(PointEmitter):
     coned = True
 
     def cone(self, light, to_light):
-        return spot_factor(light, -(to_light @ _axis(light)))
+        return spot_factor(light, -(to_light @ light_axis(light)))
 
     def emission_cone(self, light):
         return math.cos(light.outer_cone_angle)
 
     def emission_axis(self, light):
-        return _axis(light)
+        return light_axis(light)

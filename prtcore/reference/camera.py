@@ -21,7 +21,6 @@ misses are black with A = 0.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core.errors import PrtError
+from prtcore.core.jsonfile import read_json
 from prtcore.core.materials import albedo_at
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
@@ -168,14 +168,7 @@ def camera_from_dict(d: object, file: str = "<camera>") -> Camera:
 
 def load_camera(path: str | Path) -> Camera:
     """Read a camera JSON file."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise CameraFileError(f"{path}: cannot read: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise CameraFileError(f"{path}: not valid JSON at line {e.lineno} column {e.colno}: "
-                              f"{e.msg}") from None
+    data = read_json(path, lambda what: CameraFileError(f"{path}: {what}"))
     return camera_from_dict(data, str(path))
 
 
