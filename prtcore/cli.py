@@ -86,29 +86,55 @@ def _warn_time(command: str, manifest: dict, time: float | None) -> None:
         print(f"prtcore {command}: warning: {msg}", file=sys.stderr)
 
 
+def _posed_runtime(command: str, bundle: Path, time: float | None):
+    """(manifest, runtime data, scene, keyframe) of a bundle, posed at the keyframe nearest
+    ``time`` for keyframe bundles (with the --time warning)."""
+    from prtcore.io.bundle import load_runtime, read_manifest
+    from prtcore.io.gltf.loader import load_asset
+
+    manifest = read_manifest(bundle)
+    data = load_runtime(bundle, manifest)
+    scene = load_asset(bundle / manifest["asset"]["file"])
+    key = None
+    if manifest.get("keyframes") or time is not None:  # pose at the nearest keyframe
+        from prtcore.keyframes.pose import bundle_at_time
+
+        _warn_time(command, manifest, time)
+        data, scene, key = bundle_at_time(bundle, manifest, data, scene, time)
+    return manifest, data, scene, key
+
+
+def _warn_family(command: str, data, lights, tracer) -> None:
+    """One warning line on stderr when the lights lie outside the family the bake was
+    trained on (prtcore.runtime.family), with the measure."""
+    from prtcore.runtime.cpu import shade_points
+    from prtcore.runtime.family import family_residual
+
+    if data.direct_span is None:
+        return
+    r = family_residual(data.direct_span.T, shade_points(data, lights, tracer))
+    if r > data.family_warn_above:
+        print(f"prtcore {command}: warning: light outside the trained family: "
+              f"{100 * r:.1f} % of its direct vector at the measurement points lies outside "
+              f"the span of the training lights (warning above "
+              f"{100 * data.family_warn_above:.1f} %); its error is not bounded by the "
+              "bake's held-out figures", file=sys.stderr)
+
+
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
-    from prtcore.io.bundle import load_runtime, read_manifest
-    from prtcore.io.gltf.loader import load_asset
     from prtcore.io.imageio import write_exr
     from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
-    manifest = read_manifest(bundle)
-    data = load_runtime(bundle, manifest)
     lights = load_light_file(args.light)
-    scene = load_asset(bundle / manifest["asset"]["file"])
-    key = None
-    if manifest.get("keyframes") or args.time is not None:  # pose at the nearest keyframe
-        from prtcore.keyframes.pose import bundle_at_time
-
-        _warn_time("relight", manifest, args.time)
-        data, scene, key = bundle_at_time(bundle, manifest, data, scene, args.time)
+    manifest, data, scene, key = _posed_runtime("relight", bundle, args.time)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     if args.basis is not None and not 1 <= args.basis <= data.n_basis:
         raise PrtError(f"--basis {args.basis}: the bundle has {data.n_basis} basis elements "
                        f"(mean included); use 1..{data.n_basis}")
+    _warn_family("relight", data, lights, tracer)
     image = relight(data, lights, tracer, n=args.basis)
     write_exr(args.out, image, dtype="float")
     print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, "
@@ -124,10 +150,12 @@ def _cmd_render(args: argparse.Namespace) -> int:
     if args.indirect_only and args.no_indirect:
         raise PrtError("render: --indirect-only and --no-indirect exclude each other")
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
-    if args.time is not None:
-        from prtcore.io.bundle import read_manifest
+    from prtcore.core.raytrace import RayTracer
+    from prtcore.emitters.lightfile import load_light_file
 
-        _warn_time("render", read_manifest(Path(args.bundle)), args.time)
+    lights = load_light_file(args.light)
+    _, data, scene, _ = _posed_runtime("render", Path(args.bundle), args.time)
+    _warn_family("render", data, lights, RayTracer(scene.positions, scene.faces, scene.radius))
     res, label = render_to_file(args.bundle, args.light, args.camera, args.out,
                                 n=args.basis, mode=mode, exposure=args.exposure,
                                 shadow_resolution=args.shadow_resolution, time=args.time)

@@ -46,6 +46,12 @@ DIRECT_SVD_REL_TOL = 1e-6
 #: A configuration whose leverage h_kk leaves 1 − h_kk at or below this is interpolated by
 #: the fit: its leave-one-out residual is undefined and that λ scores +inf.
 LOO_LEVERAGE_TOL = 1e-10
+#: The span of the training lights' direct vectors (out-of-family warnings) keeps singular
+#: directions above this fraction of the largest singular value.
+FAMILY_SPAN_REL_TOL = 1e-3
+#: A light warns as out of family when the part of its direct vector outside that span
+#: exceeds max(2 × the held-out lights' largest, this floor) of the vector's norm.
+FAMILY_RESIDUAL_FLOOR = 0.05
 
 
 def ray_offset(scale: float) -> float:

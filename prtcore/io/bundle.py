@@ -54,6 +54,10 @@ class RuntimeData:
     cluster_owner: np.ndarray
     point_count: int
     keyframe_times: tuple[float, ...] | None = None
+    #: (r, 3P) float32 span of the training direct vectors and the residual above which a
+    #: light is out of family (prtcore.runtime.family); None in bundles without them
+    direct_span: np.ndarray | None = None
+    family_warn_above: float | None = None
 
     @property
     def n_basis(self) -> int:
@@ -288,6 +292,8 @@ def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
         cluster_owner=_load_raw(path, pts["clusters_owner"]).astype(np.int64),
         point_count=int(pts["count"]),
         keyframe_times=None if not m.get("keyframes") else tuple(m["keyframes"]["times"]),
+        direct_span=_load_raw(path, m["family"]["span"]) if m.get("family") else None,
+        family_warn_above=m["family"]["warn_above"] if m.get("family") else None,
     )
 
 

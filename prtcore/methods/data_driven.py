@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from prtcore.core.errors import PrtError
 from prtcore.core.formula import RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
@@ -32,6 +34,7 @@ from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
+from prtcore.runtime.family import direct_span, family_residual, warn_above
 from prtcore.verdict import judge
 
 
@@ -130,6 +133,16 @@ class DataDriven(Method):
                                         model.transfer.ndim == 4 else ""),
         }
         save_light_file(inputs.hold, directory / "holdout_lights.json")
+        K = len(inputs.train)
+        span = direct_span(data.direct_points[:, :K])
+        held = np.array([family_residual(span, data.direct_points[:, K + h])
+                         for h in range(len(inputs.hold))])
+        family = {"span": raw_file(directory / "direct_span.bin", span.T),
+                  "layout": "span[r, 3p + c]: orthonormal rows spanning the training "
+                            "lights' unit direct vectors x.ravel() (point p, channel c)",
+                  "heldout_residual_max": float(held.max()) if len(held) else None,
+                  "warn_above": warn_above(held),
+                  "measure": "||x - span^T span x|| / ||x|| for a light's direct vector x"}
         sections = {
             "basis": {"count": model.n_basis, "channels": model.channels,
                       "files": files, "planes": int(planes.shape[1]),
@@ -155,6 +168,7 @@ class DataDriven(Method):
             "validation": {"holdout_lights": "holdout_lights.json",
                            "reference": table["reference"]},
             "verdict": result.verdict,
+            "family": family,
         }
         report = {"table": table, "verdict": result.verdict, "transport": data.stats,
                   "fit": diag}
