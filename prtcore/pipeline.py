@@ -91,7 +91,8 @@ def run_intake(asset: str | Path, spec: BakeSpec, *, quiet: bool = False,
 
 #: Files that describe the run rather than the result: left out of the checksums, so two
 #: bakes of the same asset + spec + seed have identical checksummed files.
-RUN_FILES = ("report.json", "report.png", "report.txt", "manifest.json")
+RUN_FILES = ("report.json", "report.png", "report.txt", "report_worst.png", "report_atlas.png",
+             "manifest.json")
 
 
 #: the method every bake uses until the spec chooses one (issue 17 adds sh_prt)

@@ -224,8 +224,9 @@ def _gpu_lines(table: dict) -> list[str]:
     return lines
 
 
-def plot(table: dict, path: Path) -> None:
-    """report.png: held-out error and projection bound against n, with CPU cost."""
+def plot(table: dict, path: Path, verdict: dict | None = None) -> None:
+    """report.png: held-out error and projection bound against n, with CPU cost; with a
+    verdict, the shipped n is marked and the gate (target ratio × bound) drawn."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -238,6 +239,14 @@ def plot(table: dict, path: Path) -> None:
         ax.plot(n, [100 * r["heldout_rmse_mean"] for r in rows], "o-", label="held-out rRMSE")
         ax.plot(n, [100 * r["projection_bound_mean"] for r in rows], "s--",
                 label="projection bound")
+        if verdict and verdict.get("target_ratio"):
+            k = verdict["target_ratio"]
+            ax.plot(n, [100 * k * r["projection_bound_mean"] for r in rows], ":",
+                    color="tab:red", label=f"gate: {k:g}× bound")
+        if verdict and verdict.get("error") is not None:
+            ax.plot([verdict["n"]], [100 * verdict["error"]], "*", ms=14,
+                    color="tab:green" if verdict["status"] == "pass" else "tab:red",
+                    label=f"shipped n = {verdict['n']} ({verdict['status']})")
         ax.set_xscale("log", base=2)
         ax.set_xticks(n, [str(v) for v in n])
         ax2 = ax.twinx()
@@ -256,6 +265,54 @@ def plot(table: dict, path: Path) -> None:
         labels += lb
     if handles:
         ax.legend(handles, labels, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_worst(ref: np.ndarray, rec: np.ndarray, title: str, path: Path) -> None:
+    """report_worst.png: the worst held-out light's reference, reconstruction and signed
+    error, as atlas images (h, w, 3) linear RGB; coverage-less texels are black."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    scale = float(np.percentile(ref @ lum, 99)) or 1.0
+    err = (rec - ref) @ lum
+    lim = float(np.max(np.abs(err))) or 1.0
+    fig, axes = plt.subplots(1, 3, figsize=(10, 3.6), dpi=100)
+    for ax, img, name in ((axes[0], ref, "reference"), (axes[1], rec, "reconstruction")):
+        ax.imshow(np.clip(img / scale, 0, 1) ** (1 / 2.2), interpolation="nearest")
+        ax.set_title(name)
+    im = axes[2].imshow(err, cmap="RdBu_r", vmin=-lim, vmax=lim, interpolation="nearest")
+    axes[2].set_title("signed error (luminance)")
+    fig.colorbar(im, ax=axes[2], fraction=0.046)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_atlas(density: np.ndarray, utilisation: float, title: str, path: Path) -> None:
+    """report_atlas.png: the UV layout coloured by texel density (texels per metre; 0 where
+    no geometry) and the atlas utilisation."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 5), dpi=100)
+    shown = np.where(density > 0, density, np.nan)
+    im = ax.imshow(shown, cmap="viridis", interpolation="nearest")
+    fig.colorbar(im, ax=ax, fraction=0.046, label="texels per metre")
+    ax.set_title(f"{title}\nutilisation {100 * utilisation:.1f} % of the atlas")
+    ax.set_xticks([])
+    ax.set_yticks([])
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -21,8 +21,8 @@ from prtcore.core.formula import RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
-from prtcore.fit.model import TransferModel
-from prtcore.fit.transfer import fit_transfer
+from prtcore.fit.model import TransferModel, relative_rmse
+from prtcore.fit.transfer import fit_transfer, reconstruct
 from prtcore.io.bundle import (
     basis_planes,
     planes_layout,
@@ -33,7 +33,15 @@ from prtcore.io.bundle import (
 from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
-from prtcore.report import TABLE_N, error_vs_runtime, format_table, plot, truncate
+from prtcore.report import (
+    TABLE_N,
+    error_vs_runtime,
+    format_table,
+    plot,
+    plot_atlas,
+    plot_worst,
+    truncate,
+)
 from prtcore.runtime.family import direct_span, family_residual, warn_above
 from prtcore.verdict import judge
 
@@ -50,6 +58,7 @@ class DataDrivenResult:
     table: dict[str, Any]
     diagnostics: dict[str, Any]
     verdict: dict[str, Any]
+    warnings: tuple[str, ...] = ()
 
 
 @register
@@ -94,8 +103,10 @@ class DataDriven(Method):
             else:
                 table = {"reference": None, "heldout_configurations": 0, "rows": []}
         diag = model.diagnostics.to_dict()
+        warnings = (*inputs.intake.prepare.warnings, *(diag.get("warnings") or ()))
         return DataDrivenResult(model=model, full=full, table=table, diagnostics=diag,
-                                verdict=self._judge(inputs, model, table, diag))
+                                verdict=self._judge(inputs, model, table, diag),
+                                warnings=tuple(warnings))
 
     def _judge(self, inputs: BakeInputs, model: TransferModel, table: dict, diag: dict,
                reference: dict | None = None) -> dict[str, Any]:
@@ -170,6 +181,7 @@ class DataDriven(Method):
             "verdict": result.verdict,
             "family": family,
         }
+        self._report_images(directory, inputs, result)
         report = {"table": table, "verdict": result.verdict, "transport": data.stats,
                   "fit": diag}
         return sections, report
@@ -177,7 +189,7 @@ class DataDriven(Method):
     def summary(self, result: DataDrivenResult, seconds: dict[str, float],
                 with_verdict: bool = True) -> str:
         lines = [format_table(result.table, seconds)]
-        lines += [f"warning: {w}" for w in result.diagnostics.get("warnings") or ()]
+        lines += [f"warning: {w}" for w in result.warnings]  # prepare's and the fit's
         if with_verdict:
             lines.append(result.verdict["line"])  # the verdict is the last line
         return "\n".join(lines)
@@ -186,6 +198,37 @@ class DataDriven(Method):
         return result.verdict
 
     def plot(self, result: DataDrivenResult, path: Path) -> None:
-        plot(result.table, path)
+        plot(result.table, path, result.verdict)
+
+    def _report_images(self, directory: Path, inputs: BakeInputs,
+                       result: DataDrivenResult) -> None:
+        """report_worst.png (the worst held-out light at the shipped n) and
+        report_atlas.png (UV layout, texel density, utilisation)."""
+        texels, data, model = inputs.intake.texels, inputs.data, result.model
+        K = len(inputs.train)
+        worst, worst_err = None, -1.0
+        for h in range(len(inputs.hold)):
+            x = data.direct_points[:, K + h].astype(np.float64)
+            ref = data.indirect[:, K + h].astype(np.float64)
+            if not (np.linalg.norm(x) > 0 and np.linalg.norm(ref) > 0):
+                continue
+            g = None if model.group_ids is None else int(inputs.keyframes.holdout[h])
+            rec = reconstruct(model, x, group=g).astype(np.float64)
+            err = relative_rmse(rec, ref)
+            if err > worst_err:
+                worst, worst_err = (h, ref, rec), err
+        if worst is not None:
+            h, ref, rec = worst
+            plot_worst(texels.to_image(ref, dilate=False)[:, :, :3],
+                       texels.to_image(rec, dilate=False)[:, :, :3],
+                       f"worst held-out light {h}: {100 * worst_err:.1f} % at "
+                       f"n = {model.n_basis}", directory / "report_worst.png")
+        fp = texels.footprint
+        area = np.linalg.norm(np.cross(fp[:, 0], fp[:, 1]), axis=1)
+        density = np.divide(1.0, np.sqrt(area), out=np.zeros_like(area), where=area > 0)
+        plot_atlas(texels.to_image(density, dilate=False)[:, :, 0],
+                   inputs.intake.prepare.utilisation,
+                   f"{texels.width}×{texels.height} atlas, {texels.count} texels",
+                   directory / "report_atlas.png")
 
 
