@@ -354,3 +354,63 @@ def patched_asset(folder: Path, patch) -> Path:
     path = Path(folder) / "patched.glb"
     path.write_bytes(glb_bytes(doc, bytes(b.bin)))
     return path
+
+
+def _draco_box(corrupt: bool) -> tuple[GltfBuilder, bytes]:
+    """A Draco-compressed box (12 triangles); with ``corrupt`` its payload's body is
+    replaced by bytes that are not a Draco stream (the header kept)."""
+    import DracoPy
+    import numpy as np
+
+    pos = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float32)
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]],
+                     np.uint32)
+    data = bytes(DracoPy.encode(pos, faces, preserve_order=True))
+    if corrupt:
+        data = data[:16] + bytes((b * 37 + 11) & 0xFF for b in data[16:])
+    b = GltfBuilder()
+    bv = b.buffer_view(data)
+    b.doc["accessors"] += [{"componentType": 5126, "count": 8, "type": "VEC3",
+                            "min": [0, 0, 0], "max": [1, 1, 1]},
+                           {"componentType": 5125, "count": 36, "type": "SCALAR"}]
+    b.doc["meshes"].append({"primitives": [{
+        "attributes": {"POSITION": 0}, "indices": 1,
+        "extensions": {"KHR_draco_mesh_compression": {"bufferView": bv,
+                                                      "attributes": {"POSITION": 0}}}}]})
+    b.node(0)
+    b.use_extension("KHR_draco_mesh_compression", required=True)
+    return b, data
+
+
+def corrupt_draco_asset(folder: Path) -> Path:
+    """A required-Draco GLB whose compressed payload is garbage: refused, never decoded
+    into something else."""
+    b, _ = _draco_box(corrupt=True)
+    return b.write_glb(Path(folder) / "draco_corrupt.glb")
+
+
+def corrupt_meshopt_asset(folder: Path) -> Path:
+    """A required-meshopt GLB whose compressed vertex stream is garbage."""
+    import numpy as np
+
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    payload = bytes(range(7, 7 + 40))  # not a meshopt vertex stream
+    b = GltfBuilder()
+    src = b.buffer_view(payload)
+    off = b.doc["bufferViews"][src]["byteOffset"]
+    b.doc["bufferViews"] = [{"buffer": 1, "byteOffset": 0, "byteLength": pos.nbytes,
+                             "byteStride": 12, "extensions": {"EXT_meshopt_compression": {
+                                 "buffer": 0, "byteOffset": off, "byteLength": len(payload),
+                                 "byteStride": 12, "count": 3, "mode": "ATTRIBUTES"}}}]
+    b.doc["accessors"] = [{"bufferView": 0, "componentType": 5126, "count": 3,
+                           "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}]
+    b.doc["meshes"].append({"primitives": [{"attributes": {"POSITION": 0}}]})
+    b.node(0)
+    b.use_extension("EXT_meshopt_compression", required=True)
+    doc = b.finish()
+    doc["buffers"].append({"byteLength": pos.nbytes,
+                           "extensions": {"EXT_meshopt_compression": {"fallback": True}}})
+    path = Path(folder) / "meshopt_corrupt.glb"
+    path.write_bytes(glb_bytes(doc, bytes(b.bin)))
+    return path

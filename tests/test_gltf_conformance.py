@@ -123,6 +123,16 @@ def test_draco_round_trip(tmp_path, duck):
         load_asset(_finish(b, tmp_path / "draco_short.glb"))
 
 
+@pytest.mark.parametrize(("build", "where"), [
+    ("corrupt_draco_asset", "extensions.KHR_draco_mesh_compression: cannot decode"),
+    ("corrupt_meshopt_asset", "extensions.EXT_meshopt_compression: cannot decode")])
+def test_corrupt_compressed_payloads_are_refused(tmp_path, build, where):
+    import hostile_assets as H
+
+    with pytest.raises(AssetError, match=where):
+        load_asset(getattr(H, build)(tmp_path))
+
+
 def test_meshopt_round_trip(tmp_path, duck):
     import meshopt
 
