@@ -23,9 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from trimesh.visual.material import PBRMaterial
 
-from prtcore.scenes.cornell import _block, _quad
+from prtcore.scenes.parts import block, material_scene, quad, write_glb
 
 #: albedo per part (linear RGB)
 ALBEDO = {
@@ -84,28 +83,19 @@ def _prism_roof() -> trimesh.Trimesh:
 def house(subdiv: int = 4) -> trimesh.Scene:
     """The house, the garden wall and the ground as a trimesh scene."""
     g = GROUND_HALF
-    ground = _quad(np.array([[-g, 0, g], [g, 0, g], [g, 0, -g], [-g, 0, -g]], float), subdiv)
+    ground = quad(np.array([[-g, 0, g], [g, 0, g], [g, 0, -g], [-g, 0, -g]], float), subdiv)
     # chimney on the south slope, its foot buried in the roof
     slope_y = BODY[1] + RIDGE_HEIGHT * (1 - 0.6 / (BODY[2] / 2))
     parts = {
         "ground": ground,
-        "body": _block([0.0, BODY[1] / 2, 0.0], list(BODY), 0.0),
+        "body": block([0.0, BODY[1] / 2, 0.0], list(BODY), 0.0),
         "roof": _prism_roof(),
-        "chimney": _block([0.8, slope_y + 0.25, 0.6], [0.35, 1.0, 0.35], 0.0),
-        "garden_wall": _block([2.6, 0.3, 2.4], [2.0, 0.6, 0.25], -30.0),
+        "chimney": block([0.8, slope_y + 0.25, 0.6], [0.35, 1.0, 0.35], 0.0),
+        "garden_wall": block([2.6, 0.3, 2.4], [2.0, 0.6, 0.25], -30.0),
     }
-    scene = trimesh.Scene()
-    for name, mesh in parts.items():
-        mesh.visual = trimesh.visual.TextureVisuals(
-            material=PBRMaterial(name=name, baseColorFactor=[*ALBEDO[name], 1.0],
-                                 metallicFactor=0.0, roughnessFactor=1.0))
-        scene.add_geometry(mesh, geom_name=name, node_name=name)
-    return scene
+    return material_scene(parts, ALBEDO)
 
 
 def write_exterior(path: str | Path, subdiv: int = 4) -> Path:
     """Write the house scene as a .glb; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(house(subdiv).export(file_type="glb", include_normals=True))
-    return path
+    return write_glb(house(subdiv), path)

@@ -22,9 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from trimesh.visual.material import PBRMaterial
 
-from prtcore.scenes.cornell import _block, _quad
+from prtcore.scenes.parts import block, material_scene, quad, write_glb
 
 HEIGHT = 2.5
 
@@ -88,15 +87,15 @@ def _wall(x0, z0, x1, z1, subdiv: int) -> trimesh.Trimesh:
     """A vertical wall from (x0, z0) to (x1, z1), 0 ≤ y ≤ HEIGHT, whose front faces
     the direction (−(z1 − z0), 0, x1 − x0)."""
     P = np.array
-    return _quad(P([[x0, 0, z0], [x1, 0, z1], [x1, HEIGHT, z1], [x0, HEIGHT, z0]], float),
+    return quad(P([[x0, 0, z0], [x1, 0, z1], [x1, HEIGHT, z1], [x0, HEIGHT, z0]], float),
                  subdiv)
 
 
 def open_room(subdiv: int = 2) -> trimesh.Scene:
     """The room as a trimesh scene with one PBR material per part."""
     P = np.array
-    floor_a = _quad(P([[0, 0, 2], [4, 0, 2], [4, 0, 0], [0, 0, 0]], float), subdiv)
-    floor_b = _quad(P([[0, 0, 4], [2, 0, 4], [2, 0, 2], [0, 0, 2]], float), subdiv)
+    floor_a = quad(P([[0, 0, 2], [4, 0, 2], [4, 0, 0], [0, 0, 0]], float), subdiv)
+    floor_b = quad(P([[0, 0, 4], [2, 0, 4], [2, 0, 2], [0, 0, 2]], float), subdiv)
     floor = trimesh.util.concatenate([floor_a, floor_b])
     parts = {
         "floor": floor,
@@ -106,24 +105,15 @@ def open_room(subdiv: int = 2) -> trimesh.Scene:
         "wall_north_a": _wall(4, 2, 2, 2, subdiv),    # faces −z
         "wall_inner_b": _wall(2, 2, 2, 4, subdiv),    # faces −x
         "wall_west": _wall(0, 4, 0, 0, subdiv),       # faces +x
-        "pillar": _block([(PILLAR[0][0] + PILLAR[1][0]) / 2, HEIGHT / 2,
+        "pillar": block([(PILLAR[0][0] + PILLAR[1][0]) / 2, HEIGHT / 2,
                           (PILLAR[0][1] + PILLAR[1][1]) / 2],
                          [PILLAR[1][0] - PILLAR[0][0], HEIGHT, PILLAR[1][1] - PILLAR[0][1]],
                          0.0),
-        "low_wall": _block([3.0, 0.4, 1.0], [0.15, 0.8, 1.4], 0.0),
+        "low_wall": block([3.0, 0.4, 1.0], [0.15, 0.8, 1.4], 0.0),
     }
-    scene = trimesh.Scene()
-    for name, mesh in parts.items():
-        mesh.visual = trimesh.visual.TextureVisuals(
-            material=PBRMaterial(name=name, baseColorFactor=[*ALBEDO[name], 1.0],
-                                 metallicFactor=0.0, roughnessFactor=1.0))
-        scene.add_geometry(mesh, geom_name=name, node_name=name)
-    return scene
+    return material_scene(parts, ALBEDO)
 
 
 def write_open_room(path: str | Path, subdiv: int = 2) -> Path:
     """Write the open room as a .glb; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(open_room(subdiv).export(file_type="glb", include_normals=True))
-    return path
+    return write_glb(open_room(subdiv), path)
