@@ -25,8 +25,8 @@ INTAKE_STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
 
 #: every timed stage of :func:`bake`, in the order they run: the one list progress reports
 #: (the service's workers) and benchmarks use
-STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "fit", "report", "export",
-          "validate")
+STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "denoise", "fit", "report",
+          "export", "validate")
 
 
 @dataclass(frozen=True)

@@ -91,6 +91,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
     global_norm = float(np.sqrt(np.mean(ref_ss))) if H else 0.0
     for n in bar(sorted(ns), "error vs run time", total=len(ns)):
         errs, bounds, errs_global, abs_rmse, negative = [], [], [], [], []
+        pooled = [0.0, 0.0, 0.0]  # Σ‖rec − ref‖², Σ (bound·‖ref‖)², Σ‖ref‖²
         for h in range(H):
             x = holdout_direct[:, h, :].astype(np.float64)
             ref = holdout_indirect[:, h, :].astype(np.float64)
@@ -107,6 +108,10 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
                 continue
             errs.append(relative_rmse(rec, ref))
             bounds.append(projection_bound(model, ref, x, n=n))
+            ref_norm = float(np.linalg.norm(ref))
+            pooled[0] += diff**2
+            pooled[1] += (bounds[-1] * ref_norm) ** 2
+            pooled[2] += ref_norm**2
         M = model.transfer[..., : n - 1, :]
         M = M if M.ndim == 3 else M[0]
         x32 = rng.random((M.shape[-1],)).astype(np.float32)
@@ -127,6 +132,11 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             "heldout_rmse_max": float(np.max(errs)) if errs else None,
             "projection_bound_mean": float(np.mean(bounds)) if bounds else None,
             "projection_bound_max": float(np.max(bounds)) if bounds else None,
+            # pooled over the held-out lights: √(Σ‖rec − ref‖² / Σ‖ref‖²) and the same for
+            # the projection; a light with almost no indirect light weighs what it holds
+            "heldout_rmse_pooled": float(np.sqrt(pooled[0] / pooled[2])) if pooled[2] else None,
+            "projection_bound_pooled": float(np.sqrt(pooled[1] / pooled[2]))
+            if pooled[2] else None,
             # per configuration ‖rec − ref‖ / RMS of all held-out indirect lightmaps
             "heldout_rmse_global_mean": float(np.mean(errs_global)) if errs_global else None,
             "heldout_rmse_global_max": float(np.max(errs_global)) if errs_global else None,

@@ -1,8 +1,10 @@
 """The verdict on a bake: pass or fail by the spec's ``validate`` thresholds, with the
 cause it can detect and what to change.
 
-Judged at the shipped n on the held-out lights: the held-out error (mean relative RMSE
-per light) against ``validate.target_ratio`` × the projection bound (the best any
+Judged at the shipped n on the held-out lights: the held-out error (pooled over the
+lights, √(Σ‖rec − ref‖² / Σ‖ref‖²); with a path-traced reference, the mean
+noise-corrected error per light) against ``validate.target_ratio`` × the projection
+bound (pooled alike) (the best any
 transfer could do with this basis), and the held-out error relative to the RMS of all
 held-out indirect lightmaps against ``validate.max_error``. A failing bake still writes
 its bundle; ``prtcore bake`` then exits with :data:`EXIT_POOR` unless ``--allow-poor``.
@@ -45,14 +47,17 @@ def judge(table: dict, diagnostics: dict, n: int, validate, *, points: int,
         out.update(status="unknown", error=None, bound=None, ratio=None, error_global=None,
                    against=None, line=f"verdict: unknown — {why}")
         return out
-    error = row["heldout_rmse_mean"]
+    # pooled over the held-out lights (each weighs the indirect light it holds: a light
+    # with almost none cannot fail the gate alone); the per-light mean where not reported
+    error = row.get("heldout_rmse_pooled", row["heldout_rmse_mean"])
+    bound = row.get("projection_bound_pooled", row.get("projection_bound_mean"))
     against = table.get("reference") or "fast transport"
     if reference is not None:
         rr = _row(reference, n)
         if rr is not None and rr.get("rmse_noise_corrected_mean") is not None:
             error = rr["rmse_noise_corrected_mean"]
+            bound = row.get("projection_bound_mean")
             against = f"{reference['reference']}, noise removed"
-    bound = row.get("projection_bound_mean")
     ratio = error / bound if bound else (1.0 if error == 0 else float("inf"))
     error_global = row.get("heldout_rmse_global_mean")
     out.update(error=error, bound=bound, ratio=ratio, error_global=error_global,

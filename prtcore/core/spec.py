@@ -94,6 +94,9 @@ class FitSpec:
     ridge: float | str = "auto"  # float ≥ 0 or "auto"
     channels: str = "mono"  # "mono" | "rgb"
     gamma: float | None = None
+    #: radius in texels of the seam-aware filter applied to the training lightmaps before
+    #: the basis is fitted (0: off); keeps the gather's per-texel noise out of the basis
+    denoise: float = 1.5
 
 
 @dataclass(frozen=True)
@@ -388,6 +391,7 @@ def _parse(data: Any) -> BakeSpec:
         # gamma < 1 expands the dynamic range (|v|^(1/g) overflows float64 for radiance
         # ~1e6 at g = 0.05, and the float32 model long before): refused, see fit.py
         gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=1.0, hi=10.0),
+        denoise=_num(f.get("denoise", FitSpec().denoise), "fit.denoise", lo=0.0, hi=8.0),
     )
 
     k = _section(KeyframesSpec, root.get("keyframes", {}), "keyframes")

@@ -46,6 +46,9 @@ DOCS: dict[str, str] = {
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",
+    "fit.denoise": "radius in texels (0–8) of the seam-aware filter applied to the "
+                   "training lightmaps before the basis is fitted (0: off); the held-out "
+                   "lightmaps the verdict is judged on are not filtered",
     "keyframes.animation": "animation index or name to bake keyframes of; null: static",
     "keyframes.count": "keyframes drawn (stratified) when `times` is not given, 1–4096",
     "keyframes.times": "explicit keyframe times in seconds",
