@@ -128,8 +128,8 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
-    lights = load_light_file(args.light)
     manifest, data, scene, key = _posed_runtime("relight", bundle, args.time)
+    lights = load_light_file(args.light)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     if args.basis is not None and not 1 <= args.basis <= data.n_basis:
         raise PrtError(f"--basis {args.basis}: the bundle has {data.n_basis} basis elements "
@@ -153,8 +153,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
 
-    lights = load_light_file(args.light)
     _, data, scene, _ = _posed_runtime("render", Path(args.bundle), args.time)
+    lights = load_light_file(args.light)
     _warn_family("render", data, lights, RayTracer(scene.positions, scene.faces, scene.radius))
     res, label = render_to_file(args.bundle, args.light, args.camera, args.out,
                                 n=args.basis, mode=mode, exposure=args.exposure,

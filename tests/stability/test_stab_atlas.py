@@ -62,7 +62,7 @@ def _bake_in_child(tmp_path, spec: dict) -> dict:
     """Bake in a fresh process; returns {"peak": bytes, "error": str|None, "estimate": …}."""
     code = f"""
 import json, resource, sys
-sys.path.insert(0, {str(HERE)!r})
+sys.path[:0] = [{str(HERE)!r}, {str(HERE.parent)!r}]  # stab_helpers, and the tests/ it imports
 from stab_helpers import CORNELL, bake
 from prtcore.core.errors import PrtError
 out = {{"error": None}}
