@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from trimesh.visual.material import PBRMaterial
+
+from prtcore.scenes.parts import block, material_scene, quad, write_glb
 
 WHITE = (0.73, 0.73, 0.73)
 RED = (0.63, 0.065, 0.05)
@@ -40,66 +41,32 @@ EXAMPLE_SPEC = {
 }
 
 
-def _quad(corners: np.ndarray, subdiv: int = 1) -> trimesh.Trimesh:
-    """A planar quad from 4 corners in counter-clockwise order (seen from the front),
-    split into subdiv×subdiv cells."""
-    a, b, c, d = corners
-    n = subdiv + 1
-    s, t = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
-    s, t = s.ravel()[:, None], t.ravel()[:, None]
-    verts = (1 - s) * (1 - t) * a + s * (1 - t) * b + s * t * c + (1 - s) * t * d
-    faces = []
-    for i in range(subdiv):
-        for j in range(subdiv):
-            v00, v10, v11, v01 = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
-            faces += [[v00, v10, v11], [v00, v11, v01]]
-    return trimesh.Trimesh(verts, np.array(faces), process=False)
-
-
-def _block(center, size, angle_deg: float) -> trimesh.Trimesh:
-    box = trimesh.creation.box(extents=size)
-    rot = trimesh.transformations.rotation_matrix(np.radians(angle_deg), [0, 1, 0])
-    box.apply_transform(rot)
-    box.apply_translation(center)
-    box.unmerge_vertices()  # flat faces: no smoothing across the block's edges
-    return box
-
-
 def cornell_box(subdiv: int = 1) -> trimesh.Scene:
     """The room and blocks as a trimesh scene with one PBR material per part."""
     P = np.array
     parts = {
         # floor (y=0) facing +y
-        "floor": (_quad(P([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], float), subdiv),
+        "floor": (quad(P([[-1, 0, 1], [1, 0, 1], [1, 0, -1], [-1, 0, -1]], float), subdiv),
                   WHITE),
         # ceiling (y=2) facing −y
-        "ceiling": (_quad(P([[-1, 2, -1], [1, 2, -1], [1, 2, 1], [-1, 2, 1]], float), subdiv),
+        "ceiling": (quad(P([[-1, 2, -1], [1, 2, -1], [1, 2, 1], [-1, 2, 1]], float), subdiv),
                     WHITE),
         # back wall (z=−1) facing +z
-        "back": (_quad(P([[-1, 0, -1], [1, 0, -1], [1, 2, -1], [-1, 2, -1]], float), subdiv),
+        "back": (quad(P([[-1, 0, -1], [1, 0, -1], [1, 2, -1], [-1, 2, -1]], float), subdiv),
                  WHITE),
         # left wall (x=−1) facing +x, red
-        "left": (_quad(P([[-1, 0, 1], [-1, 0, -1], [-1, 2, -1], [-1, 2, 1]], float), subdiv),
+        "left": (quad(P([[-1, 0, 1], [-1, 0, -1], [-1, 2, -1], [-1, 2, 1]], float), subdiv),
                  RED),
         # right wall (x=+1) facing −x, green
-        "right": (_quad(P([[1, 0, -1], [1, 0, 1], [1, 2, 1], [1, 2, -1]], float), subdiv),
+        "right": (quad(P([[1, 0, -1], [1, 0, 1], [1, 2, 1], [1, 2, -1]], float), subdiv),
                   GREEN),
-        "tall_block": (_block([-0.33, 0.6, -0.3], [0.6, 1.2, 0.6], 18.0), WHITE),
-        "short_block": (_block([0.35, 0.3, 0.35], [0.6, 0.6, 0.6], -17.0), WHITE),
+        "tall_block": (block([-0.33, 0.6, -0.3], [0.6, 1.2, 0.6], 18.0), WHITE),
+        "short_block": (block([0.35, 0.3, 0.35], [0.6, 0.6, 0.6], -17.0), WHITE),
     }
-    scene = trimesh.Scene()
-    for name, (mesh, color) in parts.items():
-        mesh.visual = trimesh.visual.TextureVisuals(
-            material=PBRMaterial(name=name, baseColorFactor=[*color, 1.0],
-                                 metallicFactor=0.0, roughnessFactor=1.0))
-        scene.add_geometry(mesh, geom_name=name, node_name=name)
-    return scene
+    return material_scene({k: m for k, (m, _) in parts.items()},
+                          {k: c for k, (_, c) in parts.items()})
 
 
 def write_cornell_box(path: str | Path, subdiv: int = 1) -> Path:
     """Write the Cornell box as a .glb; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = cornell_box(subdiv).export(file_type="glb", include_normals=True)
-    path.write_bytes(data)
-    return path
+    return write_glb(cornell_box(subdiv), path)

@@ -82,7 +82,7 @@ def _white(mesh: trimesh.Trimesh, name: str, color=(0.8, 0.8, 0.8)) -> trimesh.T
 
 
 def _floor(half: float = 2.0, y: float = 0.0) -> trimesh.Trimesh:
-    from prtcore.scenes.cornell import _quad
+    from prtcore.scenes.parts import quad as _quad
 
     c = np.array([[-half, y, half], [half, y, half], [half, y, -half], [-half, y, -half]])
     return _quad(c, subdiv=4)
