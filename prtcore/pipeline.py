@@ -5,14 +5,16 @@ The CLI, the service workers and the benchmarks all call these functions.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from prtcore.core.errors import SpecError
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
 from prtcore.core.scene import Scene
-from prtcore.core.spec import BakeSpec
+from prtcore.core.spec import BakeSpec, PointsSpec
 from prtcore.intake.plan import Plan
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
@@ -25,8 +27,8 @@ INTAKE_STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
 
 #: every timed stage of :func:`bake`, in the order they run: the one list progress reports
 #: (the service's workers) and benchmarks use
-STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "denoise", "fit", "report",
-          "export", "validate")
+STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "select points", "denoise",
+          "fit", "report", "export", "validate")
 
 
 @dataclass(frozen=True)
@@ -81,7 +83,7 @@ def run_intake(asset: str | Path, spec: BakeSpec, *, quiet: bool = False,
         texels = build_texel_space(scene, spec.atlas.resolution, spec.atlas.resolution,
                                    padding=spec.atlas.padding)
     with timer.stage("points"):
-        points = place_measurement_points(scene, spec.measurement_points)
+        points = place_measurement_points(scene, candidate_spec(spec.measurement_points))
     return IntakeResult(source=str(asset), spec=spec, plan=plan, scene=scene, prepare=report,
                         texels=texels, points=points, seconds=dict(timer.seconds))
 
@@ -128,12 +130,17 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         train, hold = sample_configurations(spec.lights, scene.center, scene.radius,
                                             scene.lights)
     kfs = _keyframe_set(intake, len(train), len(hold), timer)
+    if kfs is not None and spec.measurement_points.placement == "qdeim":
+        raise SpecError("measurement_points.placement", "'qdeim' is not available for "
+                        "keyframe bakes yet (use 'surface')")
     if kfs is None:
         data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
     else:
         from prtcore.keyframes.pose import bake_keyframe_dataset
 
         data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
+    if spec.measurement_points.placement == "qdeim":
+        intake, data = _select_points(intake, data, len(train), timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
                         data=data)
     m = method(METHOD)
@@ -210,6 +217,29 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
         tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         os.replace(tmp, out / name)
     (out / "report.txt").write_text(m.summary(result, seconds) + "\n", encoding="utf-8")
+
+
+def candidate_spec(points: PointsSpec) -> PointsSpec:
+    """The intake's placement: for "qdeim", the blue-noise candidates it chooses from."""
+    if points.placement != "qdeim":
+        return points
+    return dataclasses.replace(points, placement="surface",
+                               count=points.candidates or 8 * points.count)
+
+
+def _select_points(intake: IntakeResult, data, n_train: int, timer: StageTimer):
+    """Placement "qdeim": choose the spec's P of the candidates by pivoted QR on their
+    training direct light (intake/sensors.py), after transport, whose direct values at the
+    candidates are the chosen points' own (each point is its cluster's average)."""
+    from prtcore.intake.sensors import restrict_points, select_sensors
+
+    mp = intake.spec.measurement_points
+    with timer.stage("select points"):
+        sel = select_sensors(data.direct_points[:, :n_train], min(mp.count, intake.points.count),
+                             positions=intake.points.position, seed=mp.seed)
+        points = restrict_points(intake.points, sel.indices)
+        data = dataclasses.replace(data, direct_points=data.direct_points[sel.indices])
+    return dataclasses.replace(intake, points=points), data
 
 
 def _keyframe_set(intake: IntakeResult, n_train: int, n_holdout: int, timer: StageTimer):

@@ -43,9 +43,11 @@ class PrepareSpec:
 @dataclass(frozen=True)
 class PointsSpec:
     count: int = 256
-    placement: str = "surface"  # "surface" | "hull"
+    placement: str = "surface"  # "surface" | "hull" | "qdeim"
     supersample: int = 8
     seed: int = 1
+    #: "qdeim": blue-noise candidates to choose the points from (0: 8 × count)
+    candidates: int = 0
 
 
 @dataclass(frozen=True)
@@ -345,10 +347,12 @@ def _parse(data: Any) -> BakeSpec:
     points = PointsSpec(
         count=_int(m.get("count", 256), "measurement_points.count", lo=1, hi=1 << 20),
         placement=_choice(m.get("placement", "surface"), "measurement_points.placement",
-                          ("surface", "hull")),
+                          ("surface", "hull", "qdeim")),
         supersample=_int(m.get("supersample", 8), "measurement_points.supersample",
                          lo=1, hi=256),
         seed=_int(m.get("seed", 1), "measurement_points.seed", lo=0),
+        candidates=_int(m.get("candidates", 0), "measurement_points.candidates", lo=0,
+                        hi=1 << 20),
     )
 
     lt = _section(LightsSpec, root.get("lights", {}), "lights")

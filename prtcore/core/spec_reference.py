@@ -25,7 +25,11 @@ DOCS: dict[str, str] = {
                   "(refuse when TEXCOORD_1 is missing or invalid)",
     "measurement_points.count": "P, measurement points, 1–1048576",
     "measurement_points.placement": "`surface` (blue noise on the asset) · `hull` (on "
-                                    "its convex hull)",
+                                    "its convex hull) · `qdeim` (chosen for the transfer "
+                                    "from blue-noise candidates by pivoted QR on their "
+                                    "direct light, Drmač & Gugercin 2016)",
+    "measurement_points.candidates": "`qdeim`: blue-noise candidates the points are "
+                                     "chosen from (0: 8 × count)",
     "measurement_points.supersample": "samples averaged per measurement point, 1–256",
     "measurement_points.seed": "seed of the placement",
     "lights.count": "K, training lighting configurations, 1–65536",

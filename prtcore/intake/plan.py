@@ -168,8 +168,10 @@ def plan_asset(scene: Scene, spec: BakeSpec) -> Plan:
     stages = [
         repair, remesh, uv, keyframes,
         StagePlan("texels", "run", f"{R}×{R} atlas, padding {pad}"),
-        StagePlan("points", "run", f"{mp.count} measurement points, {mp.placement}, "
-                  f"supersample {mp.supersample}"),
+        StagePlan("points", "run", f"{mp.count} measurement points, {mp.placement}"
+                  + (f" from {mp.candidates or 8 * mp.count} candidates after transport"
+                     if mp.placement == "qdeim" else "")
+                  + f", supersample {mp.supersample}"),
         StagePlan("lights", "run", f"{lt.count} lights + {lt.holdout} held out, {fams} "
                   f"({', '.join(types)})"),
         StagePlan("transport", "run", f"{tr.gather_rays} gather rays, "
