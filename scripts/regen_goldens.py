@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         renders = Path(tmp)
         env = {k: v for k, v in os.environ.items() if not k.startswith("PRT_")}
         env["PRT_GOLDEN_RENDERS"] = str(renders)
+        env["COLUMNS"] = "1000"  # pytest cuts the summary's messages to the terminal width
         log = renders / "pytest.log"
         with open(log, "w") as f:
             proc = subprocess.run(
