@@ -1,0 +1,89 @@
+"""Bakes with a spec that names only the light family (issue 13): every other key at its
+default. Prints, per scene, P, K, n, the pooled held-out error and projection bound, their
+ratio, the verdict and the bake time; writes benchmarks/results/default_bakes.json.
+
+    .venv/bin/python benchmarks/default_bakes.py [--scenes cornell,open_room,...]
+        [--reference-spp N]   # judge against the path tracer, noise removed (slow)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from prtcore.core.spec import parse_spec  # noqa: E402
+from prtcore.io.bundle import read_manifest  # noqa: E402
+from prtcore.pipeline import bake  # noqa: E402
+from prtcore.scenes import exterior, open_room  # noqa: E402
+from prtcore.scenes.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402
+
+SHARED = ROOT.parent / "shared" / "assets"
+AROUND = [{"type": "point", "position": {"shell": [1.5, 3.0]},
+           "intensity": {"uniform": [1.0, 10.0]}}]
+SUN = [{"type": "directional", "position": {"shell": [2.0, 2.0]},
+        "aim": {"jitter": 0.2}, "intensity": {"uniform": [1.0, 3.0]}}]
+
+
+def scenes(tmp: Path) -> dict[str, tuple[Path, list]]:
+    return {
+        "cornell": (write_cornell_box(tmp / "cornell.glb"),
+                    EXAMPLE_SPEC["lights"]["families"]),
+        "open_room": (open_room.write_open_room(tmp / "room.glb"), open_room.LIGHT_FAMILIES),
+        "exterior": (exterior.write_exterior(tmp / "house.glb"), exterior.LIGHT_FAMILIES),
+        "Duck": (SHARED / "Duck.glb", AROUND),
+        "monkey": (SHARED / "monkey.glb", AROUND),
+        "BoxTextured": (SHARED / "BoxTextured.glb", AROUND),
+        "CesiumMilkTruck": (SHARED / "CesiumMilkTruck.glb", SUN),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", default=None)
+    ap.add_argument("--reference-spp", type=int, default=0)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
+                                        "default_bakes.json"))
+    args = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="prt-defaults-"))
+    todo = scenes(tmp)
+    if args.scenes:
+        todo = {k: v for k, v in todo.items() if k in args.scenes.split(",")}
+    rows = []
+    print(f"{'scene':<16s} {'P':>4s} {'K':>4s} {'n':>3s} {'error':>7s} {'bound':>7s} "
+          f"{'ratio':>6s} {'verdict':>8s} {'time s':>7s}")
+    for name, (asset, families) in todo.items():
+        spec = {"lights": {"families": families}}
+        if args.reference_spp:
+            spec["validate"] = {"reference_spp": args.reference_spp}
+        t0 = time.perf_counter()
+        out = bake(asset, parse_spec(spec), tmp / name, quiet=True)
+        seconds = time.perf_counter() - t0
+        m = read_manifest(out)
+        v = m["verdict"]
+        row = {"scene": name, "P": m["points"]["count"], "K": m["fit"]["configurations"],
+               "n": v["n"], "error": v["error"], "bound": v["bound"], "ratio": v["ratio"],
+               "verdict": v["status"], "against": v["against"], "seconds": seconds,
+               "causes": v["causes"]}
+        rows.append(row)
+
+        def pct(x):
+            return "—" if x is None else f"{100 * x:.1f}%"
+        print(f"{name:<16s} {row['P']:>4d} {row['K']:>4d} {row['n']:>3d} "
+              f"{pct(row['error']):>7s} {pct(row['bound']):>7s} "
+              f"{row['ratio'] if row['ratio'] is None else round(row['ratio'], 2)!s:>6s} "
+              f"{row['verdict']:>8s} {seconds:>7.1f}", flush=True)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
