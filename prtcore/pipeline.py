@@ -103,12 +103,14 @@ METHOD = "data_driven"
 
 def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
          force: bool = False, limits: IntakeLimits | None = None,
-         callback: ProgressCallback | None = None) -> Path:
+         callback: ProgressCallback | None = None, source_name: str | None = None) -> Path:
     """asset + spec → bundle directory ``out`` (docs/bundle.md). Returns ``out``.
 
     Stages: intake → lights → keyframes → transport → the method's fit and report →
     export. The method (:mod:`prtcore.methods`) writes its own files and manifest
     sections; this function writes the asset and the sections every bundle has.
+    source_name : the asset's name as its owner knows it (the service stores uploads
+    under a fixed name); the manifest's ``asset.source``, default the file's name.
     """
     import time
 
@@ -151,7 +153,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         sections, report = m.write(tmp, inputs, result)
         _write_run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         common = {
-            "asset": {"source": Path(str(asset)).name, "sha256": sha256_file(Path(asset)),
+            "asset": {"source": source_name or Path(str(asset)).name,
+                      "sha256": sha256_file(Path(asset)),
                       "file": "asset.glb", "triangles": scene.triangle_count},
             "units": {"length": "m", "up": "+Y", "handedness": "right",
                       "radiance": "linear RGB outgoing radiance (albedo/pi * E)",

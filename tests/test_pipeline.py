@@ -41,3 +41,19 @@ def test_bake_times_its_stages_in_the_listed_order(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["stage_seconds"] == timings
     assert "export" in (out / "report.txt").read_text().split("bake stages:")[1]
+
+
+def test_the_source_name_is_the_manifests(tmp_path):
+    from prtcore import bake, read_manifest
+
+    asset = write_cornell_box(tmp_path / "stored.glb")
+    spec = parse_spec({"atlas": {"resolution": 16, "padding": 0},
+                       "measurement_points": {"count": 4, "supersample": 1},
+                       "lights": {"count": 6, "holdout": 0, "families": [
+                           {"type": "point", "position": {"box": [[-0.5, 1.3, -0.5],
+                                                                  [0.5, 1.7, 0.5]]}}]},
+                       "transport": {"gather_rays": 4}, "fit": {"basis": 2}})
+    out = bake(asset, spec, tmp_path / "b", quiet=True, source_name="My Model.glb")
+    assert read_manifest(out)["asset"]["source"] == "My Model.glb"
+    out = bake(asset, spec, tmp_path / "c", quiet=True)
+    assert read_manifest(out)["asset"]["source"] == "stored.glb"

@@ -117,8 +117,9 @@ def _bake(settings: Settings, job_id: str, token: str, asset_name: str, spec_jso
     artifacts.clean_partials(root, job_id)
     asset = artifacts.input_dir(root, job_id) / asset_name
     out = artifacts.bundle_dir(root, job_id)
+    job = store.get(job_id)
     bake(asset, spec, out, quiet=True, force=True, limits=IntakeLimits.from_env(),
-         callback=callback)
+         callback=callback, source_name=job.original_name if job else None)
     ours, _cancel = store.progress(job_id, token, "package", done[0], timings)
     if not ours:
         raise Stop("lost")

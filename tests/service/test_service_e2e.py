@@ -76,6 +76,7 @@ def test_submit_poll_download_relight(make_cluster, shared_assets, tmp_path):
     lm = read_manifest(local)
     assert manifest["spec_sha256"] == lm["spec_sha256"]
     assert manifest["asset"]["sha256"] == hashlib.sha256(duck.read_bytes()).hexdigest()
+    assert manifest["asset"]["source"] == "Duck.glb"  # the upload's name, not asset.glb
     assert manifest["asset"]["triangles"] == lm["asset"]["triangles"] > 0
     assert (manifest["atlas"]["width"], manifest["atlas"]["height"]) == (32, 32)
     assert manifest["atlas"]["padding"] == 2 and manifest["atlas"]["uv"] == "TEXCOORD_1"
