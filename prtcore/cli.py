@@ -261,16 +261,21 @@ def build_parser() -> argparse.ArgumentParser:
     common(sp)
     sp.set_defaults(func=_cmd_bake)
 
+    def runtime_args(sp: argparse.ArgumentParser, out_help: str) -> None:
+        """The options relight and render share: the bundle, the lights, the output, the
+        keyframe time and the basis count."""
+        sp.add_argument("bundle", help="bundle directory")
+        sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
+        sp.add_argument("--out", required=True, help=out_help)
+        sp.add_argument("--time", type=float, default=None,
+                        help="keyframe bundles: seconds into the animation (nearest "
+                             "keyframe; default the first; outside the animation: the "
+                             "nearest keyframe with a warning)")
+        sp.add_argument("--basis", type=int, default=None,
+                        help="basis elements to use, mean included (default: all)")
+
     sp = sub.add_parser("relight", help="runtime algorithm on the CPU from a bundle")
-    sp.add_argument("bundle", help="bundle directory")
-    sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
-    sp.add_argument("--out", required=True, help="output .exr (RGBA float, atlas size)")
-    sp.add_argument("--time", type=float, default=None,
-                    help="keyframe bundles: seconds into the animation (nearest keyframe; "
-                         "default the first; outside the animation: the nearest keyframe "
-                         "with a warning)")
-    sp.add_argument("--basis", type=int, default=None,
-                    help="basis elements to use, mean included (default: all)")
+    runtime_args(sp, "output .exr (RGBA float, atlas size)")
     sp.set_defaults(func=_cmd_relight)
 
     sp = sub.add_parser("report", help="error against run time of a bundle")
@@ -291,16 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=_cmd_report)
 
     sp = sub.add_parser("render", help="headless OpenGL render of a bundle (EGL)")
-    sp.add_argument("bundle", help="bundle directory")
-    sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
-    sp.add_argument("--camera", required=True, help="camera JSON (prtcore/camera.py)")
-    sp.add_argument("--out", required=True, help="output .png (tone-mapped) or .exr (linear)")
-    sp.add_argument("--time", type=float, default=None,
-                    help="keyframe bundles: seconds into the animation (nearest keyframe; "
-                         "default the first; outside the animation: the nearest keyframe "
-                         "with a warning)")
-    sp.add_argument("--basis", type=int, default=None,
-                    help="basis elements to use, mean included (default: all)")
+    runtime_args(sp, "output .png (tone-mapped) or .exr (linear)")
+    sp.add_argument("--camera", required=True, help="camera file (docs/lights.md)")
     sp.add_argument("--indirect-only", action="store_true", help="indirect term only")
     sp.add_argument("--no-indirect", action="store_true",
                     help="direct light with shadows only (for comparison)")
