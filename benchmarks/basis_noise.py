@@ -45,21 +45,14 @@ if str(ROOT) not in sys.path:
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import parse_spec  # noqa: E402
 from prtcore.emitters.families import sample_configurations  # noqa: E402
+from prtcore.fit.model import relative_rmse  # noqa: E402
 from prtcore.fit.transfer import fit_transfer, projection_bound, reconstruct  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.receivers.smoothing import smooth_texels, smoothing_operator  # noqa: E402
 from prtcore.receivers.texels import texels_to_image  # noqa: E402
 from prtcore.scenes import open_room  # noqa: E402
 from prtcore.scenes.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402
-
-try:
-    from prtcore.fit.model import relative_rmse
-except ImportError:  # pragma: no cover - before the fit split
-    from prtcore.fit.transfer import relative_rmse
-try:
-    from prtcore.transport.dataset import bake_dataset
-except ImportError:  # pragma: no cover - before the transport split
-    from prtcore.transport.surface import bake_dataset
+from prtcore.transport.dataset import bake_dataset  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SCENES = {"open_room": (open_room.write_open_room, open_room.LIGHT_FAMILIES),

@@ -66,23 +66,14 @@ if str(ROOT) not in sys.path:
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import PointsSpec, parse_spec  # noqa: E402
 from prtcore.emitters.families import sample_configurations  # noqa: E402
+from prtcore.fit.model import relative_rmse  # noqa: E402
 from prtcore.fit.transfer import fit_transfer, projection_bound, reconstruct  # noqa: E402
 from prtcore.intake.points import place_measurement_points  # noqa: E402
 from prtcore.intake.sensors import concat_points, restrict_points, select_sensors  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.scenes import exterior, open_room  # noqa: E402
 from prtcore.scenes.cornell import EXAMPLE_SPEC, write_cornell_box  # noqa: E402
-
-# prtcore.fit and prtcore.transport are being split into modules (issue 12): take the
-# functions from where they live now, falling back to where they lived.
-try:
-    from prtcore.fit.model import relative_rmse
-except ImportError:  # pragma: no cover - before the fit split
-    from prtcore.fit.transfer import relative_rmse
-try:
-    from prtcore.transport.dataset import bake_dataset
-except ImportError:  # pragma: no cover - before the transport split
-    from prtcore.transport.surface import bake_dataset
+from prtcore.transport.dataset import bake_dataset  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "assets"
 RESULTS = ROOT / "benchmarks" / "results"

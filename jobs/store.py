@@ -331,29 +331,23 @@ class JobStore:
     def heartbeat(self, job_id: str, token: str, lease_s: float) -> tuple[bool, bool]:
         """Renew the lease. Returns ``(still_ours, cancel_requested)``."""
         now = time.time()
-        with self._tx() as conn:
-            n = conn.execute(
-                jobs.update().where(jobs.c.id == job_id, jobs.c.lease_token == token,
-                                    jobs.c.status == "running")
-                .values(lease_expires=now + lease_s, heartbeat_at=now)
-            ).rowcount
-            if n != 1:
-                return False, False
-            cancel = conn.execute(sa.select(jobs.c.cancel_requested)
-                                  .where(jobs.c.id == job_id)).scalar_one()
-        return True, bool(cancel)
+        return self._update_if_ours(job_id, token, lease_expires=now + lease_s,
+                                    heartbeat_at=now)
 
     @transient_retry
     def progress(self, job_id: str, token: str, stage: str, progress: float,
                  timings: dict[str, float]) -> tuple[bool, bool]:
         """Publish stage/progress. Returns ``(still_ours, cancel_requested)``."""
-        now = time.time()
+        return self._update_if_ours(job_id, token, stage=stage, progress=progress,
+                                    updated_at=time.time(), timings_json=json.dumps(timings))
+
+    def _update_if_ours(self, job_id: str, token: str, **values) -> tuple[bool, bool]:
+        """Set ``values`` on a running job only while ``token`` holds its lease, in one
+        transaction. Returns ``(still_ours, cancel_requested)``."""
         with self._tx() as conn:
             n = conn.execute(
                 jobs.update().where(jobs.c.id == job_id, jobs.c.lease_token == token,
-                                    jobs.c.status == "running")
-                .values(stage=stage, progress=progress, updated_at=now,
-                        timings_json=json.dumps(timings))
+                                    jobs.c.status == "running").values(**values)
             ).rowcount
             if n != 1:
                 return False, False
