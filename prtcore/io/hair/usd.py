@@ -17,7 +17,6 @@ and the prim's attribute (``/Hair/curves.points[3]``).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ import numpy as np
 from prtcore.core.errors import AssetError, LimitExceeded, UnsupportedAsset
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
+from prtcore.io.hair.checks import checked_size, refuse_bad
 
 #: line segments each cubic segment is tessellated into
 CUBIC_STEPS = 4
@@ -76,11 +76,7 @@ def read_usd_hair(path: str | Path, limits: IntakeLimits | None = None,
                   default_color=DEFAULT_COLOR) -> Hair:
     """Every BasisCurves prim of a ``.usd``/``.usda``/``.usdc`` file → one Hair."""
     limits = limits or IntakeLimits()
-    file = str(path)
-    size = os.stat(file).st_size
-    if size > limits.max_file_bytes:
-        raise LimitExceeded(file, "", f"file is {size} bytes",
-                            limit=f"max_file_bytes={limits.max_file_bytes}")
+    file, _ = checked_size(path, limits)
     Usd, UsdGeom = _pxr()
     try:
         stage = Usd.Stage.Open(file)
@@ -131,10 +127,7 @@ def read_usd_hair(path: str | Path, limits: IntakeLimits | None = None,
         if len(pts) != nverts:
             raise AssetError(file, f"{where}.points", f"{len(pts)} points, curveVertexCounts "
                              f"sum to {nverts}")
-        bad = ~np.isfinite(pts).all(axis=1)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise AssetError(file, f"{where}.points[{i}]", "is not finite (NaN or infinite)")
+        refuse_bad(file, f"{where}.points", pts)
         segs = (counts - 1) if kind == "linear" else np.array(
             [_cubic_segments(int(c), basis) for c in counts])
         if (segs < 1).any():

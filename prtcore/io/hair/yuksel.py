@@ -16,7 +16,6 @@ transport treats fibres as opaque). Thickness is the fibre's diameter.
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 from prtcore.core.errors import AssetError, LimitExceeded, UnsupportedAsset
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
+from prtcore.io.hair.checks import checked_size, refuse_bad
 
 MAGIC = b"HAIR"
 HEADER = struct.Struct("<4sIIII f f 3f 88s")
@@ -34,30 +34,10 @@ KNOWN_FLAGS = 0b11111
 MAX_SEGMENTS = 0xFFFF
 
 
-def _refuse_bad(file: str, field: str, values: np.ndarray, *, positive: bool = False,
-                nonnegative: bool = False) -> None:
-    """AssetError naming the first non-finite (or out-of-range) element of ``values``."""
-    flat = values.reshape(len(values), -1)
-    bad = ~np.isfinite(flat).all(axis=1)
-    what = "is not finite (NaN or infinite)"
-    if not bad.any() and positive:
-        bad, what = (flat <= 0).any(axis=1), "is not positive"
-    if not bad.any() and nonnegative:
-        bad, what = (flat < 0).any(axis=1), "is negative"
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise AssetError(file, f"{field}[{i}]", f"{what} ({', '.join(map(str, flat[i]))}); "
-                         f"{int(bad.sum())} such entries")
-
-
 def read_hair(path: str | Path, limits: IntakeLimits | None = None) -> Hair:
     """A ``.hair`` file → :class:`~prtcore.core.hair.Hair` (float64, world = file space)."""
     limits = limits or IntakeLimits()
-    file = str(path)
-    size = os.stat(file).st_size
-    if size > limits.max_file_bytes:
-        raise LimitExceeded(file, "", f"file is {size} bytes",
-                            limit=f"max_file_bytes={limits.max_file_bytes}")
+    file, size = checked_size(path, limits)
     if size < HEADER.size:
         raise AssetError(file, "header", f"file is {size} bytes, shorter than the "
                          f"{HEADER.size}-byte header")
@@ -109,20 +89,20 @@ def read_hair(path: str | Path, limits: IntakeLimits | None = None) -> Hair:
                              f"{points} points, but the strands' segments need "
                              f"{int(segments.sum()) + strands}")
         pos = array("<f4", 3 * points, "points").reshape(points, 3).astype(np.float64)
-        _refuse_bad(file, "points", pos)
+        refuse_bad(file, "points", pos)
         if flags & HAS_THICKNESS:
             thick = array("<f4", points, "thickness").astype(np.float64)
-            _refuse_bad(file, "thickness", thick, positive=True)
+            refuse_bad(file, "thickness", thick, positive=True)
         else:
-            _refuse_bad(file, "header.d_thickness", np.array([d_thickness]), positive=True)
+            refuse_bad(file, "header.d_thickness", np.array([d_thickness]), positive=True)
             thick = np.full(points, float(d_thickness))
         if flags & HAS_TRANSPARENCY:
-            _refuse_bad(file, "transparency", array("<f4", points, "transparency"))
+            refuse_bad(file, "transparency", array("<f4", points, "transparency"))
         if flags & HAS_COLOR:
             color = array("<f4", 3 * points, "color").reshape(points, 3).astype(np.float64)
-            _refuse_bad(file, "color", color, nonnegative=True)
+            refuse_bad(file, "color", color, nonnegative=True)
         else:
-            _refuse_bad(file, "header.d_color", np.array([d_color]), nonnegative=True)
+            refuse_bad(file, "header.d_color", np.array([d_color]), nonnegative=True)
             color = np.tile(np.asarray(d_color, dtype=np.float64), (points, 1))
     offsets = np.concatenate([[0], np.cumsum(segments + 1)]).astype(np.int64)
     return Hair(offsets=offsets, points=pos, thickness=thick, color=color,
