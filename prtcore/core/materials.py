@@ -187,3 +187,12 @@ def apply_material_spec(scene: Scene, materials: dict) -> Scene:
             mats.append(replace(m, subsurface=replace(m.subsurface,
                                                       transmission=o.transmission)))
     return scene.replace(materials=tuple(mats))
+
+
+def clamp_albedo(albedo: np.ndarray) -> tuple[np.ndarray, int]:
+    """Clamp to [0, ALBEDO_MAX] per channel for transport.
+
+    Returns the clamped (n, 3) array and how many values were clamped above (to report).
+    """
+    over = int(np.count_nonzero(albedo > ALBEDO_MAX))
+    return np.clip(albedo, 0.0, ALBEDO_MAX), over
