@@ -69,7 +69,7 @@ def test_closed_non_absorbing_medium_returns_all_light_and_channels_share_walks(
 
 
 def test_operator_selection_and_memory(tmp_path):
-    scene, texels, _ = _sphere(tmp_path, floor=True)
+    scene, _, _ = _sphere(tmp_path, floor=True)
     assert operators_for(scene) == TRANSLUCENT_OPERATORS
     spec = TransportSpec(subsurface_walks=64)
     with_walks = estimate_bake_bytes(1000, 10, spec, TRANSLUCENT_OPERATORS)

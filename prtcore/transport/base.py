@@ -14,9 +14,9 @@ anything is allocated (:func:`prtcore.transport.dataset.check_bake_memory`).
 Members today: ``"surface"``, the surface inter-reflection gather
 (:mod:`prtcore.transport.surface`), and ``"subsurface"``, the random walks through the
 media of translucent materials (:mod:`prtcore.transport.subsurface`, docs/subsurface.md;
-the scene's materials choose it, :func:`prtcore.transport.dataset.operators_for`). Each member is a module of this package that defines a
-subclass and registers it with :func:`register`; ``prtcore.transport`` imports the members
-(one line each).
+the scene's materials choose it, :func:`prtcore.transport.dataset.operators_for`). Each
+member is a module of this package that defines a subclass and registers it with
+:func:`register`; ``prtcore.transport`` imports the members (one line each).
 
 Where the next one plugs in: the **subsurface random walk** is
 ``prtcore/transport/subsurface.py`` — a ``SubsurfaceWalk(TransportOperator)`` with

@@ -130,8 +130,11 @@ def _walks(tracer: RayTracer, mapper: HitMapper, origin: np.ndarray, direction: 
             live, pos, d = live[~capped], pos[~capped], d[~capped]
         d = sample_hg(d, anisotropy, rng.random((len(live), 2)))
     stats["capped"] += len(live)
-    cat = (lambda a: np.concatenate(a) if a else np.zeros(0, np.int64))
-    return cat(out_i), cat(out_tex), cat(out_n), stats
+    return _cat(out_i), _cat(out_tex), _cat(out_n), stats
+
+
+def _cat(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0, np.int64)
 
 
 def subsurface_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, walks: int,
