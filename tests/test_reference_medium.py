@@ -60,7 +60,7 @@ def _walk(thickness, width, albedo, directions, seed=0):
     tracer, faces = _slab(thickness, width)
     n = len(directions)
     origin = np.tile([0.0, thickness / 2 - 1e-6 * thickness, 0.0], (n, 1))
-    idx, tri, bary, w_out, weight = medium_walk(tracer, _medium(albedo), faces, origin,
+    idx, tri, bary, _, weight = medium_walk(tracer, _medium(albedo), faces, origin,
                                                 directions, np.random.default_rng(seed))
     exit_y = tracer.surface_point(tri, bary)[:, 1]
     return idx, exit_y, weight[:, 0]
@@ -76,6 +76,16 @@ def test_semi_infinite_slab_reflects_the_spherical_albedo(omega):
     noise = w[top].std() / np.sqrt(n) + 1e-4
     # tolerance: 4 standard errors + 0.005 for the finite slab (40 mean free paths)
     assert r == pytest.approx(spherical_albedo(omega), abs=4 * noise + 0.005)
+
+
+def test_the_albedo_inversion_gives_back_its_colour_as_the_spherical_albedo():
+    # Chiang et al. 2016's α(A): a semi-infinite medium of albedo α(A) reflects ≈ A of
+    # diffuse light (measured: within 0.005 for A in 0.3 … 0.8)
+    from prtcore.core.materials import single_scattering_albedo
+
+    for a in (0.3, 0.5, 0.8):
+        assert spherical_albedo(float(single_scattering_albedo(a))) == pytest.approx(
+            a, abs=0.01)
 
 
 def test_absorbing_slab_transmits_2_e3_diffuse_and_beer_lambert_at_normal_incidence():

@@ -47,6 +47,16 @@ geometry (a floor texel under a block: most probe rays from it hit back faces) a
 out of the texel's mean, which is then the mean over the texel's visible part
 (``buried_probes``).
 
+Translucent materials (docs/subsurface.md): the boundary sends ρ_b/π · E to both sides,
+E the irradiance from outside plus inside. So at a translucent vertex the path goes on
+outside (cosine about the shading normal) or inside (cosine about its opposite) with
+probability ½ each, its throughput doubled; inside, a volumetric random walk of the
+reference's own (:func:`prtcore.reference.medium.medium_walk`: delta tracking with
+per-channel weights, Henyey–Greenstein scattering) carries it to the boundary, where the
+exit is the next vertex (next-event estimation there as at any vertex; its MIS weight is
+1, since the light strategy only reaches vertices seen from outside). For the light
+strategy at a translucent vertex the path density is halved (:func:`_connect`).
+
 The paths do not depend on the lights, so :func:`reference_lightmaps` traces them once
 for any number of light configurations; light sampling and next-event estimation run per
 distinct light, and a configuration sums its lights (linear, as transport is).
