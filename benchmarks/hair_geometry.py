@@ -71,7 +71,7 @@ def run(strands: int, rays: int) -> list[dict]:
     hair = hairball(strands=strands, seed=0)
     space = build_strand_space(hair, 10)
     per = max(1, rays // space.count)
-    origin, normal, _ = space.surface_samples(per, seed=1)
+    origin, normal, _, _ = space.surface_samples(per, seed=1)
     origin, normal = origin.reshape(-1, 3)[:rays], normal.reshape(-1, 3)[:rays]
     rng = np.random.default_rng(2)
     u = rng.random(len(origin))

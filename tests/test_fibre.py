@@ -31,7 +31,7 @@ def test_single_fibre_direct_is_the_radially_averaged_closed_form(theta_deg):
     tracer, _ = hair_tracer(s)
     th = math.radians(theta_deg)
     light = _sun([-math.sin(th), 0.0, -math.cos(th)])
-    got = fibre_direct(s, tracer, [light], samples=64, seed=1)[:, 0]
+    got = fibre_direct(s, tracer, [light], samples=64, seed=1).mean[:, 0]
     expect = rho * 3.0 * math.sin(th) / math.pi ** 2
     np.testing.assert_allclose(got, np.tile(expect, (s.count, 1)), rtol=2e-3)
 
@@ -46,7 +46,7 @@ def test_a_fibre_in_front_shadows_the_one_behind(offset, lo, hi):
                    np.array([[0.03, offset, -1], [0.03, offset, 1.0]])], 0.01)
     s = build_strand_space(h, 2)
     tracer, _ = hair_tracer(s)
-    d = fibre_direct(s, tracer, [_sun([1.0, 0, 0])], samples=256, seed=2)[:, 0, 0]
+    d = fibre_direct(s, tracer, [_sun([1.0, 0, 0])], samples=256, seed=2).mean[:, 0, 0]
     front, back = d[:2].mean(), d[2:].mean()
     assert front == pytest.approx(0.5 * 3 / math.pi ** 2, rel=5e-3)
     assert lo * front <= back <= hi * front
@@ -69,3 +69,24 @@ def test_gather_rows_are_hit_fractions_and_a_lone_fibre_sees_nothing():
     assert 0.05 < rows.mean() < 0.95  # a tangle: some rays hit other fibres, some escape
     # no texel gathers from itself through its own straight segment
     assert np.abs(g.diagonal()).max() < 0.5
+
+
+def test_direct_harmonics_follow_the_lit_side():
+    """A sun across a lone fibre: L(φ) = ρE/π max(0, cos(φ − φ_sun)) has first harmonic
+    ρE/(2π) (cos φ_sun, sin φ_sun) in the fibre's frame."""
+    h = make_hair([np.array([[0, 0, -1], [0, 0, 1.0]])], 0.01, color=(0.5, 0.5, 0.5))
+    s = build_strand_space(h, 2)
+    tracer, _ = hair_tracer(s)
+    to_sun = np.array([0.6, 0.8, 0.0])
+    d = fibre_direct(s, tracer, [_sun(-to_sun)], samples=128, seed=4, harmonics=2)
+    u = s.normal[0]
+    v = np.cross(s.tangent[0], u)
+    expect = 0.5 * 3 / (2 * math.pi) * np.array([to_sun @ u, to_sun @ v])
+    np.testing.assert_allclose(d.harmonics[:2, :, 0, 0].T, np.tile(expect, (2, 1)),
+                               atol=2e-3 * 0.5 * 3 / math.pi)
+    # second harmonic of max(0, cos): 2/(3π) · ρE/π along 2φ_sun
+    c2 = 2 / (3 * math.pi) * 0.5 * 3 / math.pi
+    ang = 2 * math.atan2(to_sun @ v, to_sun @ u)
+    np.testing.assert_allclose(d.harmonics[2:, 0, 0, 0], c2 * np.array([math.cos(ang),
+                                                                        math.sin(ang)]),
+                               atol=2e-3 * 0.5 * 3 / math.pi)

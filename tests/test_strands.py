@@ -70,7 +70,7 @@ def test_texels_cover_equal_arc_intervals_on_the_polyline():
 def test_surface_samples_lie_on_the_circumscribed_cylinder():
     h = make_hair([np.array([[0, 0, 0], [0, 0, 1.0]])], 0.02)
     s = build_strand_space(h, 2)
-    origin, normal, axis = s.surface_samples(8, seed=3)
+    origin, normal, axis, phi = s.surface_samples(8, seed=3)
     np.testing.assert_allclose(np.abs(normal[..., 2]), 0, atol=1e-12)  # ⟂ the fibre
     np.testing.assert_allclose(np.linalg.norm(origin - axis, axis=2),
                                0.01 * circumradius_scale(3) * 1.001)

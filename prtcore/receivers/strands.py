@@ -126,7 +126,7 @@ class StrandSpace:
         }
 
     def surface_samples(self, per_texel: int, seed: int
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Stratified points on every texel's fibre surface, for direct light and gather
         origins: ``per_texel`` (J) samples, stratified in azimuth (J strata, a random
         phase per texel) and jittered uniformly in arc length within the interval.
@@ -141,15 +141,16 @@ class StrandSpace:
         t, j = self.count, per_texel
         frac = rng.random((t, j))
         arc = self.arc[:, :1] + frac * (self.arc[:, 1:] - self.arc[:, :1])
-        axis, tangent, u = _along(self.hair, np.repeat(self.strand, j), arc.ravel())
+        axis, tangent, u = axis_frame(self.hair, np.repeat(self.strand, j), arc.ravel())
         v = np.cross(tangent, u)
         phase = rng.random((t, 1))
         phi = (2 * np.pi * (np.arange(j)[None, :] + phase) / j).ravel()
         normal = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
-        off = _interp_points(self.hair, outside_offset(self.hair)[:, None],
+        off = interp_points(self.hair, outside_offset(self.hair)[:, None],
                              np.repeat(self.strand, j), arc.ravel())[:, 0]
         origin = axis + off[:, None] * normal
-        return (origin.reshape(t, j, 3), normal.reshape(t, j, 3), axis.reshape(t, j, 3))
+        return (origin.reshape(t, j, 3), normal.reshape(t, j, 3), axis.reshape(t, j, 3),
+                phi.reshape(t, j))
 
 
 def _global_arc(hair: Hair) -> np.ndarray:
@@ -159,7 +160,7 @@ def _global_arc(hair: Hair) -> np.ndarray:
     return hair.arc_length + np.repeat(start, np.diff(hair.offsets))
 
 
-def _interp_points(hair: Hair, values: np.ndarray, strand: np.ndarray, arc: np.ndarray
+def interp_points(hair: Hair, values: np.ndarray, strand: np.ndarray, arc: np.ndarray
                    ) -> np.ndarray:
     """Per-point ``values`` (p, c) interpolated linearly in arc length at (strand, arc)."""
     g = _global_arc(hair)
@@ -168,7 +169,7 @@ def _interp_points(hair: Hair, values: np.ndarray, strand: np.ndarray, arc: np.n
     return np.stack([np.interp(q, g, values[:, c]) for c in range(values.shape[1])], axis=1)
 
 
-def _along(hair: Hair, strand: np.ndarray, arc: np.ndarray
+def axis_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axis point, unit tangent (the direction of the segment holding the point) and unit
     transported u ⟂ it (each (n, 3)) at (strand, arc)."""
@@ -188,6 +189,22 @@ def _along(hair: Hair, strand: np.ndarray, arc: np.ndarray
     n = np.linalg.norm(uu, axis=1, keepdims=True)
     uu = np.where(n > 1e-9, uu / np.maximum(n, 1e-300), orthonormal_frame(tan)[0])
     return pos, tan, uu
+
+
+def azimuth_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray, points: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For points near the fibre at (strand, arc): the axis point (n, 3), the unit radial
+    direction to each point (n, 3) and its azimuth's (cos φ, sin φ) (n, 2) in the fibre's
+    transported frame (u, v = tangent × u) — the convention of
+    :meth:`StrandSpace.surface_samples`."""
+    axis, tan, u = axis_frame(hair, strand, arc)
+    radial = points - axis
+    radial -= np.einsum("ij,ij->i", radial, tan)[:, None] * tan
+    n = np.linalg.norm(radial, axis=1, keepdims=True)
+    radial = np.where(n > 0, radial / np.maximum(n, 1e-300), u)
+    cs = np.stack([np.einsum("ij,ij->i", radial, u),
+                   np.einsum("ij,ij->i", radial, np.cross(tan, u))], axis=1)
+    return axis, radial, cs
 
 
 def strands_per_row(strands: int, texels_per_strand: int) -> int:
@@ -210,8 +227,8 @@ def build_strand_space(hair: Hair, texels_per_strand: int = DEFAULT_TEXELS_PER_S
     length = hair.strand_length[strand]
     arc = np.stack([slot * length / n, (slot + 1) * length / n], axis=1)
     mid = arc.mean(axis=1)
-    position, tangent, u = _along(hair, strand, mid)
-    extra = _interp_points(hair, np.concatenate([hair.thickness[:, None] / 2, hair.color],
+    position, tangent, u = axis_frame(hair, strand, mid)
+    extra = interp_points(hair, np.concatenate([hair.thickness[:, None] / 2, hair.color],
                                                 axis=1), strand, mid)
     radius, albedo = extra[:, 0], extra[:, 1:]
     footprint = np.stack([tangent * (length / n)[:, None], u * (2 * radius)[:, None]], axis=1)
