@@ -31,10 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from prtcore.core.scene import Light  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.reference.fibres import fibre_reference, noise_corrected_error  # noqa: E402
-from prtcore.scenes.hair import hairball  # noqa: E402
+from prtcore.scenes.hair import tangle, tangle_lights  # noqa: E402
 from prtcore.transport.fibre import (  # noqa: E402
     fibre_direct,
     fibre_gather,
@@ -43,10 +42,7 @@ from prtcore.transport.fibre import (  # noqa: E402
 )
 from prtcore.transport.solve import solve_indirect  # noqa: E402
 
-LIGHTS = [Light(type="directional", color=np.ones(3), intensity=3.0,
-                direction=np.array([0.0, -1.0, 0.0])),
-          Light(type="point", color=np.ones(3), intensity=0.05,
-                position=np.array([0.08, 0.05, 0.0]))]
+LIGHTS = tangle_lights()
 
 
 def main() -> None:
@@ -57,8 +53,7 @@ def main() -> None:
     ap.add_argument("--paths", type=int, default=1024)
     ap.add_argument("--texels", type=int, default=300)
     args = ap.parse_args()
-    hair = hairball(strands=args.strands, segments=12, radius=0.03, length=0.06, seed=0,
-                    diameter=3e-4)
+    hair = tangle(args.strands)
     space = build_strand_space(hair, 4)
     tracer, mesh = hair_tracer(space)
     t0 = time.perf_counter()

@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from prtcore.core.hair import make_hair
-from prtcore.core.scene import Light
 from prtcore.receivers.strands import build_strand_space
 from prtcore.reference.fibres import fibre_reference, noise_corrected_error
-from prtcore.scenes.hair import hairball
+from prtcore.scenes.hair import tangle, tangle_lights
 from prtcore.transport.fibre import (
     fibre_direct,
     fibre_gather,
@@ -19,10 +18,7 @@ from prtcore.transport.fibre import (
 )
 from prtcore.transport.solve import solve_indirect
 
-LIGHTS = [Light(type="directional", color=np.ones(3), intensity=3.0,
-                direction=np.array([0.0, -1.0, 0.0])),
-          Light(type="point", color=np.ones(3), intensity=0.05,
-                position=np.array([0.08, 0.05, 0.0]))]
+LIGHTS = tangle_lights()
 
 
 def test_a_lone_fibre_receives_no_indirect_light():
@@ -45,8 +41,8 @@ def test_noise_corrected_error_removes_the_reference_noise():
 
 
 @pytest.fixture(scope="module")
-def tangle():
-    h = hairball(strands=600, segments=12, radius=0.03, length=0.06, seed=0, diameter=3e-4)
+def solved():
+    h = tangle(600)
     s = build_strand_space(h, 4)
     tracer, mesh = hair_tracer(s)
     direct = fibre_direct(s, tracer, LIGHTS, samples=8, seed=1)
@@ -61,19 +57,19 @@ def tangle():
     return sel, const, harm, ref, avg
 
 
-def test_fast_fibre_transport_matches_its_own_model_without_bias(tangle):
+def test_fast_fibre_transport_matches_its_own_model_without_bias(solved):
     """Against a reference that makes the same radially constant assumption, the gather
     and solve are unbiased (what is left is the gather's per-texel noise)."""
-    sel, const, _, _, avg = tangle
+    sel, const, _, _, avg = solved
     err = noise_corrected_error(const[sel].astype(float), *avg)
     assert abs(err["bias"]) < 0.04, err
 
 
-def test_harmonic_first_bounce_removes_most_of_the_radial_bias(tangle):
+def test_harmonic_first_bounce_removes_most_of_the_radial_bias(solved):
     """Against the diffuse-fibre reference (each hit shaded with its own normal): radially
     constant storage is biased bright; the direct light's first harmonic in the first
     bounce removes most of it (benchmarks/hair_accuracy.py gives the figures)."""
-    sel, const, harm, ref, _ = tangle
+    sel, const, harm, ref, _ = solved
     e_const = noise_corrected_error(const[sel].astype(float), *ref)
     e_harm = noise_corrected_error(harm[sel].astype(float), *ref)
     assert e_const["bias"] > 0.06, e_const

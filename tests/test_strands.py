@@ -74,7 +74,9 @@ def test_surface_samples_lie_on_the_circumscribed_cylinder():
     np.testing.assert_allclose(np.abs(normal[..., 2]), 0, atol=1e-12)  # ⟂ the fibre
     np.testing.assert_allclose(np.linalg.norm(origin - axis, axis=2),
                                0.01 * circumradius_scale(3) * 1.001)
-    # azimuths stratified: the mean normal of a texel's 8 samples vanishes
+    # azimuths stratified: one per 45° sector, so the mean normal of 8 samples vanishes
+    step = np.sort(np.mod(phi - phi[:, :1], 2 * np.pi), axis=1)
+    np.testing.assert_allclose(step, np.tile(np.arange(8) * np.pi / 4, (2, 1)), atol=1e-12)
     np.testing.assert_allclose(normal.mean(axis=1), 0, atol=1e-12)
     assert (axis[0, :, 2] <= 0.5).all() and (axis[1, :, 2] >= 0.5).all()
 
