@@ -156,3 +156,36 @@ def test_matches_reference_sphere(tmp_path, mfp):
         rmse, bias = compare(fast[:, k], ref[k], err[k])
         print(f"sphere mfp {mfp} light {k}: rRMSE {rmse:.4f} bias {bias:+.4f}")
         assert rmse <= 0.05 and abs(bias) <= 0.01, (k, rmse, bias)
+
+
+def test_prtcore_bake_relight_report_on_a_translucent_asset(tmp_path, capsys):
+    # End to end through the command line: the walks run as their own stage, the
+    # bundle's asset.glb keeps the medium (validation reads it), relight and report work
+    # unchanged on the bundle.
+    import json
+
+    from prtcore.cli import main
+    from prtcore.io.bundle import read_manifest
+    from prtcore.scenes.translucent import write_translucent_sphere
+
+    asset = write_translucent_sphere(tmp_path / "s.glb", subdivisions=2, mean_free_path=0.3)
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps({
+        "atlas": {"resolution": 32, "padding": 2},
+        "measurement_points": {"count": 8, "supersample": 2},
+        "lights": {"count": 12, "holdout": 3, "families": [
+            {"type": "point", "position": {"box": [[-1.5, 1.5, -1.5], [1.5, 2.5, 1.5]]}}]},
+        "transport": {"gather_rays": 8, "subsurface_walks": 8}, "fit": {"basis": 4}}))
+    out = tmp_path / "b"
+    # (a 32² bake of 12 lights is no good fit; the verdict is not what this checks)
+    assert main(["bake", str(asset), "--spec", str(spec), "--out", str(out), "--quiet",
+                 "--allow-poor"]) == 0
+    manifest = read_manifest(out)
+    assert "subsurface walks" in manifest["timings"]
+    assert load_asset(out / "asset.glb").materials[0].subsurface is not None
+    light = tmp_path / "light.json"
+    light.write_text(json.dumps({"type": "point", "color": [1, 1, 1], "intensity": 10,
+                                 "position": [0, 0.5, -2.5]}))
+    assert main(["relight", str(out), "--light", str(light), "--out",
+                 str(tmp_path / "r.exr")]) == 0
+    assert main(["report", str(out)]) == 0
