@@ -197,10 +197,11 @@ def test_matches_reference_fin(tmp_path):
     # floor (prtcore.scenes.translucent.write_translucent_fin) at 128², a light behind the
     # fin (its light shines through) and a spot from the front, reference at 1024 spp:
     # relative RMSE ≤ 5 %, bias ≤ 1 % per configuration over all texels. ~10 min.
+    from test_transport import compare
+
     from prtcore.core.scene import Light
     from prtcore.intake.uv import generate_uv1
     from prtcore.scenes.translucent import write_translucent_fin
-    from test_transport import compare
 
     scene = generate_uv1(load_asset(write_translucent_fin(tmp_path / "fin.glb")), 128, 2)
     texels = build_texel_space(scene, 128, 128, padding=2)
