@@ -144,9 +144,10 @@ def test_matches_reference_sphere_quick(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("mfp", [0.1, 1.0])
 def test_matches_reference_sphere(tmp_path, mfp):
-    # ~5 min per mean free path. Acceptance: the translucent sphere (radius 1) over a floor at 96², mean free path
-    # 0.1 and 1 (0.05× and 0.5× its size), two lights, reference at 2048 spp: relative
-    # RMSE ≤ 5 %, bias ≤ 1 % per configuration, over all texels (sphere and floor).
+    # ~5 min per mean free path. Acceptance: the translucent sphere (radius 1) over a
+    # floor at 96², mean free path 0.1 and 1 (0.05× and 0.5× its size), two lights,
+    # reference at 2048 spp: relative RMSE ≤ 5 %, bias ≤ 1 % per configuration, over all
+    # texels (sphere and floor).
     from test_transport import compare
 
     scene, texels, tracer = _sphere(tmp_path, floor=True, res=96, mean_free_path=mfp,
