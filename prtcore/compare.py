@@ -37,9 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.materials import CLAMP_TO_EDGE, sample_texture
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
-from prtcore.core.scene import Light
+from prtcore.core.scene import Light, Texture
 from prtcore.core.spec import BakeSpec, parse_spec
 from prtcore.emitters.environment import light_sh
 from prtcore.emitters.families import sample_configurations
@@ -82,17 +83,9 @@ def default_camera(width: int, height: int) -> Camera:
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(m, c) bilinear lookup of (H, W, c) at uv (m, 2), origin top-left, edges clamped."""
-    h, w = image.shape[:2]
-    x, y = uv[:, 0] * w - 0.5, uv[:, 1] * h - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    xa, xb = np.clip(x0, 0, w - 1), np.clip(x0 + 1, 0, w - 1)
-    ya, yb = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
-    img = image.astype(np.float64)
-    return ((img[ya, xa] * (1 - fx) + img[ya, xb] * fx) * (1 - fy)
-            + (img[yb, xa] * (1 - fx) + img[yb, xb] * fx) * fy)
+    """(m, c) float64 bilinear lookup of an atlas image (H, W, c) at lightmap ``uv`` (m, 2),
+    edges clamped (as the GL sampler of a lightmap)."""
+    return sample_texture(Texture(image, CLAMP_TO_EDGE, CLAMP_TO_EDGE), uv)
 
 
 def _bundle_bytes(bundle: Path, manifest: dict) -> int:

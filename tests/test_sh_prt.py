@@ -27,7 +27,7 @@ def baked(tmp_path_factory):
 
 
 def test_texture_files_round_trip_and_are_dilated(baked, tmp_path):
-    scene, texels, _, tex = baked
+    _, texels, _, tex = baked
     names = sh_prt.write_transfer_textures(tmp_path, tex, dtype="float")
     assert names == [f"sh_transfer_{c}_{k:02d}.exr" for c in "RGB" for k in range(3)]
     back = sh_prt.read_transfer_textures(tmp_path, 3)
@@ -60,7 +60,7 @@ def test_storage_and_memory_table(baked):
     assert {(r["storage"], r["size"], r["bands"]) for r in rows} == {
         ("vertex", len(scene.positions), 3), ("texture", 256, 3), ("texture", 512, 3),
         ("vertex", len(scene.positions), 5), ("texture", 256, 5), ("texture", 512, 5)}
-    big = [r for r in rows if r["size"] == 512 and r["bands"] == 5][0]
+    big = next(r for r in rows if r["size"] == 512 and r["bands"] == 5)
     assert big["bytes"] == 512 * 512 * 3 * 25 * 2
 
 

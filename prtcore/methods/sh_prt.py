@@ -30,8 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core import sh
+from prtcore.core.materials import CLAMP_TO_EDGE, sample_texture
 from prtcore.core.raytrace import RayTracer
-from prtcore.core.scene import Scene
+from prtcore.core.scene import Scene, Texture
 from prtcore.io.imageio import read_image, write_exr
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
@@ -153,19 +154,9 @@ def evaluate_texture(image: np.ndarray, uv: np.ndarray, light: np.ndarray) -> np
     """The fragment-shader variant on the CPU: bilinear transfer at lightmap ``uv`` (m, 2)
     (TEXCOORD_1, origin top-left, clamped at the edges) dotted with light SH (L², 3).
     Returns (m, 3) float64 outgoing radiance."""
-    h, w = image.shape[:2]
-    x = np.asarray(uv[:, 0]) * w - 0.5
-    y = np.asarray(uv[:, 1]) * h - 0.5
-    x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
-    xs = np.clip(np.stack([x0, x0 + 1]), 0, w - 1)
-    ys = np.clip(np.stack([y0, y0 + 1]), 0, h - 1)
-    # shade each corner, then filter (linear, so the same as filtering the transfer)
+    # shade the texels, then filter: linear, so the same as filtering the transfer
     lit = np.einsum("hwcl,lc->hwc", image.astype(np.float64), np.asarray(light, np.float64))
-    top = lit[ys[0], xs[0]] * (1 - fx) + lit[ys[0], xs[1]] * fx
-    bot = lit[ys[1], xs[0]] * (1 - fx) + lit[ys[1], xs[1]] * fx
-    return top * (1 - fy) + bot * fy
+    return sample_texture(Texture(lit, CLAMP_TO_EDGE, CLAMP_TO_EDGE), np.asarray(uv))
 
 
 def evaluate_vertex(scene: Scene, transfer: ShTransfer, triangle: np.ndarray,
