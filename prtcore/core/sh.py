@@ -305,6 +305,28 @@ def clamped_cosine_zonal(bands: int) -> np.ndarray:
     return a * np.sqrt((2 * np.arange(bands) + 1) / (4.0 * np.pi))
 
 
+def phong_zonal(exponent: float, bands: int) -> np.ndarray:
+    """(L,) float64 zonal coefficients of the normalised Phong lobe about the polar axis,
+    ``(n+1)/(2π) · max(0, cos θ)^n`` (integral 1 over the sphere), n = ``exponent`` ≥ 0.
+
+    Integrated by Gauss–Legendre in cos θ over [0, 1] with enough nodes to be exact for
+    integer n (the integrand is a polynomial there); accurate to rounding for fractional n
+    ≥ 1 with the same nodes doubled.
+    """
+    bands = _check_bands(bands)
+    if not exponent >= 0:
+        raise ValueError(f"Phong exponent must be ≥ 0, got {exponent!r}")
+    nodes = math.ceil(exponent) // 2 + bands + 8
+    if exponent != int(exponent):
+        nodes *= 2
+    z, w = np.polynomial.legendre.leggauss(nodes)
+    z, w = 0.5 * (z + 1.0), 0.5 * w  # onto [0, 1]
+    lobe = (exponent + 1.0) / (2.0 * np.pi) * z ** exponent
+    polar = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
+    y0 = basis(polar, bands)[:, [l * (l + 1) for l in range(bands)]]
+    return 2.0 * np.pi * (w * lobe) @ y0
+
+
 def convolve_zonal(coeffs: np.ndarray, zonal: np.ndarray) -> np.ndarray:
     """Convolution of a function (coeffs (L², ...)) with a kernel symmetric about the polar
     axis (its zonal coefficients (L,)): ``c'_lm = √(4π/(2l+1)) z_l c_lm`` (Funk–Hecke).

@@ -132,3 +132,52 @@ def reference_environment(scene: Scene, tracer: RayTracer, env: Environment,
     a, b = halves
     return EnvironmentReference(0.5 * (a + b), a, b, ((a - b) ** 2).mean(axis=1) / 4.0,
                                 int(spp))
+
+
+def reference_phong(tracer: RayTracer, env: Environment, position: np.ndarray,
+                    geometric_normal: np.ndarray, reflected: np.ndarray,
+                    specular: np.ndarray, exponent: float, spp: int, seed: int = 0,
+                    lobe_bands: int | None = None) -> EnvironmentReference:
+    """Glossy (Phong) outgoing radiance from direct environment light, by Monte Carlo:
+    ``ρ_s ∫ L(ω) V(x, ω) lobe(ω) dω`` with ``lobe = (n+1)/(2π) max(0, ω·r)^n`` about the
+    mirror direction r (``reflected`` (m, 3)), or — with ``lobe_bands`` — that lobe's SH
+    truncation to ``lobe_bands`` bands (the same band limit as an SH renderer; it may be
+    negative). Directions uniform over each point's geometric hemisphere (V = 0 below it),
+    ``spp`` (even) per point, two independent halves for the noise. L is the map's pixel
+    lookup. position, geometric_normal, specular : (m, 3) float64."""
+    from prtcore.core import sh
+    from prtcore.core.geometry import directions_around
+
+    if int(spp) != spp or spp < 2 or spp % 2:
+        raise ValueError(f"reference: spp must be an even integer ≥ 2, got {spp!r}")
+    m = len(position)
+    kernel = None
+    if lobe_bands is not None:
+        z = sh.phong_zonal(exponent, lobe_bands)
+        kernel = (np.sqrt(4.0 * np.pi / (2 * np.arange(lobe_bands) + 1)) * z)[
+            sh.band_of(lobe_bands)]
+    halves = []
+    for half in range(2):
+        total = np.zeros((m, 3))
+        idx = np.tile(np.arange(m), int(spp) // 2)
+        for start in range(0, len(idx), CHUNK):
+            ti = idx[start:start + CHUNK]
+            rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(half, start)))
+            u = rng.random((len(ti), 2))
+            gn = geometric_normal[ti]
+            d = directions_around(gn, u[:, 0], 2.0 * math.pi * u[:, 1])
+            free = ~tracer.occluded(position[ti] + gn * tracer.offset, d)
+            if kernel is None:
+                lobe = (exponent + 1.0) / (2.0 * math.pi) * np.clip(
+                    np.einsum("ij,ij->i", d, reflected[ti]), 0.0, None) ** exponent
+            else:
+                # the zonal kernel about r evaluated at d: Σ_l k_l Σ_m Y_lm(r) Y_lm(d)
+                lobe = np.einsum("il,il->i", sh.basis(d, lobe_bands) * kernel,
+                                 sh.basis(reflected[ti], lobe_bands))
+            v = 2.0 * math.pi * (free * lobe)[:, None] * env.radiance(d)
+            for c in range(3):
+                total[:, c] += np.bincount(ti, weights=v[:, c], minlength=m)
+        halves.append(np.asarray(specular, np.float64) * total / (spp // 2))
+    a, b = halves
+    return EnvironmentReference(0.5 * (a + b), a, b, ((a - b) ** 2).mean(axis=1) / 4.0,
+                                int(spp))
