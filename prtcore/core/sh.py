@@ -327,21 +327,27 @@ def phong_zonal(exponent: float, bands: int) -> np.ndarray:
     return 2.0 * np.pi * (w * lobe) @ y0
 
 
+def zonal_kernel(zonal: np.ndarray) -> np.ndarray:
+    """(L²,) float64 Funk–Hecke scale of each coefficient for a kernel with zonal
+    coefficients ``zonal`` (L,): ``√(4π/(2l+1)) z_l`` at every m of band l. Convolving a
+    function with the kernel multiplies its coefficients by this; the kernel turned to a
+    direction a is ``zonal_kernel(z) * basis(a)``."""
+    z = np.asarray(zonal, dtype=np.float64)
+    bands = z.shape[0]
+    return (np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z)[band_of(bands)]
+
+
 def convolve_zonal(coeffs: np.ndarray, zonal: np.ndarray) -> np.ndarray:
     """Convolution of a function (coeffs (L², ...)) with a kernel symmetric about the polar
     axis (its zonal coefficients (L,)): ``c'_lm = √(4π/(2l+1)) z_l c_lm`` (Funk–Hecke).
     With :func:`clamped_cosine_zonal` this turns radiance into irradiance."""
     coeffs = np.asarray(coeffs, dtype=np.float64)
-    bands = _bands_of(coeffs.shape[0])
-    z = np.asarray(zonal, dtype=np.float64)[:bands]
-    scale = np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z
-    return coeffs * scale[band_of(bands)].reshape(-1, *([1] * (coeffs.ndim - 1)))
+    scale = zonal_kernel(np.asarray(zonal)[:_bands_of(coeffs.shape[0])])
+    return coeffs * scale.reshape(-1, *([1] * (coeffs.ndim - 1)))
 
 
 def zonal_to_direction(zonal: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Coefficients (L²,) of a kernel with zonal coefficients ``zonal`` (L,) turned so its
     symmetry axis is the unit ``axis`` (3,): ``c_lm = √(4π/(2l+1)) z_l Y_lm(axis)``."""
-    z = np.asarray(zonal, dtype=np.float64)
-    bands = z.shape[0]
-    y = basis(np.asarray(axis, dtype=np.float64)[None, :], bands)[0]
-    return y * (np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z)[band_of(bands)]
+    k = zonal_kernel(zonal)
+    return basis(np.asarray(axis, dtype=np.float64)[None, :], _bands_of(len(k)))[0] * k

@@ -200,9 +200,7 @@ def phong_from_radiance_sh(lv: np.ndarray, reflected: np.ndarray, exponent: floa
     zonal coefficients, evaluated at the mirror directions ``reflected`` (n, 3);
     ``specular`` ρ_s (n, 3). Returns (n, 3) float64."""
     bands = math.isqrt(lv.shape[2])
-    z = sh.phong_zonal(exponent, bands)
-    k = (np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z)[sh.band_of(bands)]
-    y = sh.basis(reflected, bands) * k
+    y = sh.basis(reflected, bands) * sh.zonal_kernel(sh.phong_zonal(exponent, bands))
     return np.asarray(specular, np.float64) * np.einsum("pcl,pl->pc", lv, y)
 
 

@@ -106,9 +106,7 @@ def vertex_samples(scene: Scene) -> SurfaceSamples:
 def unshadowed_transfer(samples: SurfaceSamples, bands: int) -> ShTransfer:
     """Closed-form unshadowed diffuse transfer (no rays)."""
     rho, _ = clamp_albedo(np.asarray(samples.albedo, np.float64))
-    zonal = sh.clamped_cosine_zonal(bands)
-    k = sh.basis(samples.normal, bands) * (
-        np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * zonal)[sh.band_of(bands)]
+    k = sh.basis(samples.normal, bands) * sh.zonal_kernel(sh.clamped_cosine_zonal(bands))
     return ShTransfer(rho[:, :, None] / math.pi * k[:, None, :], "unshadowed", bands, 0)
 
 
