@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
-
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
@@ -19,8 +17,7 @@ from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.base import operator_for
-from prtcore.transport.dataset import Dataset
-from prtcore.transport.direct import direct_radiance
+from prtcore.transport.dataset import Dataset, direct_at_points
 from prtcore.transport.fibre import fibre_direct, harmonic_first_bounce
 from prtcore.transport.solve import solve_indirect
 
@@ -43,13 +40,7 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     rays0 = tracer.rays_traced
     term = operator_for("fibre").build(scene, space, tracer, spec, timer)
     rays1 = tracer.rays_traced
-    with timer.stage("direct points"):
-        cl = direct_radiance(None, tracer, lights, points.cluster_position,
-                             points.cluster_normal, points.cluster_albedo, timer,
-                             "direct points")
-        k = len(lights)
-        direct_points = points.average_clusters(
-            cl.reshape(len(cl), 3 * k).astype(np.float64)).astype(np.float32).reshape(-1, k, 3)
+    direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
     with timer.stage("direct fibres"):
         direct = fibre_direct(space, tracer, lights, max(4, spec.direct_samples),
