@@ -181,3 +181,42 @@ def memory_table(vertices: int, texture_sizes: tuple[int, ...], bands_list: tupl
             rows.append({"storage": "texture", "size": s, "bands": b, "coefficients": n,
                          "bytes": s * s * 3 * n * TEXTURE_BYTES})
     return rows
+
+
+# ---------------------------------------------------------------------------------------
+# Glossy Phong at runtime (the poster's TP and TPFL)
+
+
+def reflect(view: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Mirror directions (n, 3) of unit ``view`` directions (toward the viewer) about unit
+    ``normal`` (n, 3)."""
+    return 2.0 * np.einsum("ij,ij->i", view, normal)[:, None] * normal - view
+
+
+def phong_from_radiance_sh(lv: np.ndarray, reflected: np.ndarray, exponent: float,
+                           specular: np.ndarray) -> np.ndarray:
+    """Glossy outgoing radiance ``ρ_s ∫ (LV)(ω) (n+1)/(2π) cos^n∠(ω, r) dω`` from the SH of
+    the shadowed incident radiance ``lv`` (n, 3, L²): Funk–Hecke with the Phong lobe's
+    zonal coefficients, evaluated at the mirror directions ``reflected`` (n, 3);
+    ``specular`` ρ_s (n, 3). Returns (n, 3) float64."""
+    bands = math.isqrt(lv.shape[2])
+    y = sh.basis(reflected, bands) * sh.zonal_kernel(sh.phong_zonal(exponent, bands))
+    return np.asarray(specular, np.float64) * np.einsum("pcl,pl->pc", lv, y)
+
+
+def glossy_tp(visibility: np.ndarray, light: np.ndarray, reflected: np.ndarray,
+              exponent: float, specular: np.ndarray) -> np.ndarray:
+    """TP: the light's SH (L², 3) times the stored visibility SH (n, L²) by the triple
+    product (:func:`prtcore.core.sh.product_matrix`, once per light and channel), then the
+    Phong lobe at the mirror directions. Returns (n, 3) float64."""
+    light = np.asarray(light, np.float64)
+    mats = np.stack([sh.product_matrix(light[:, c]) for c in range(3)])  # (3, k, j)
+    lv = np.einsum("ckj,pj->pck", mats, visibility)
+    return phong_from_radiance_sh(lv, reflected, exponent, specular)
+
+
+def glossy_tpfl(fixed: np.ndarray, reflected: np.ndarray, exponent: float,
+                specular: np.ndarray) -> np.ndarray:
+    """TPFL: the stored SH of ``L·V`` for the fixed light (n, 3, L²) and the Phong lobe at
+    the mirror directions (no triple product at runtime). Returns (n, 3) float64."""
+    return phong_from_radiance_sh(fixed, reflected, exponent, specular)
