@@ -16,19 +16,16 @@ from __future__ import annotations
 import io
 import json
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from browser import launch, viewer_bundle, wait_ready
 from golden_images import check_golden
 from PIL import Image
-from scenes import tiny_spec
 
-from prtcore import pipeline
 from prtcore.cli import main
 from prtcore.core.raytrace import RayTracer
-from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import light_from_dict
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
@@ -37,29 +34,15 @@ from prtcore.runtime.cpu import shade_points
 from prtcore.viewer.server import ViewerServer
 
 ROOT = Path(__file__).resolve().parents[1]
-CORNELL = ROOT / "examples" / "cornell_box.glb"
 CAMERA = json.loads((ROOT / "examples" / "cameras" / "cornell.json").read_text())
-#: WebGL2 without a GPU: SwiftShader, asked for explicitly.
-CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 #: A light of the bake's family (a point light inside the box, off every axis).
 LIGHT = {"type": "point", "color": [1.0, 0.9, 0.8], "intensity": 2.0,
          "position": [0.23, 1.41, 0.37]}
 
 
-def chromium() -> str:
-    path = os.environ.get("PRT_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-    assert os.access(path, os.X_OK), (
-        f"Chromium not found at {path}: install it with `bash scripts/browser.sh` (the README's "
-        "test command does)")
-    return path
-
-
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory) -> Path:
-    """The Cornell box, small, with a half-float basis (the browser's texture format)."""
-    spec = tiny_spec(output={"dtype": "half"})
-    out = tmp_path_factory.mktemp("viewer") / "cornell"
-    return pipeline.bake(CORNELL, parse_spec(spec), out, quiet=True)
+    return viewer_bundle(tmp_path_factory.mktemp("viewer") / "cornell")
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +50,7 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=chromium(), args=CHROMIUM_ARGS)
+        b = launch(pw)
         yield b
         b.close()
 
@@ -82,9 +65,7 @@ def viewer(bundle, browser):
         page.on("console", lambda m: m.type == "error" and log.append(f"console: {m.text}"))
         page.on("pageerror", lambda e: log.append(f"pageerror: {e}"))
         page.goto(server.url)
-        page.wait_for_function("window.prt && (window.prt.ready || window.prt.error)",
-                               timeout=60_000)
-        assert page.evaluate("prt.error") is None, page.evaluate("prt.error")
+        wait_ready(page)
         yield page, log
         page.close()
 
@@ -178,6 +159,25 @@ def test_camera_pixel_is_direct_plus_indirect(viewer):
     assert indirect.max() > 0 and direct.max() > 0
     np.testing.assert_allclose(full, direct + indirect, rtol=1e-5, atol=1e-7)
     assert 0 < albedo.max() <= 0.99
+
+
+@pytest.mark.parametrize("mode", ["full", "direct", "indirect", "albedo", "element", "points",
+                                  "checker", "uv"])
+def test_every_mode_draws(viewer, mode):
+    """Each mode of the page draws something that is not one flat colour (the canvas as the
+    user sees it), and the basis slider truncates: with n = 1 only the mean is left, u = 0."""
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    page.evaluate("o => prt.set(o)", {"mode": mode, "element": 1, "exposure": 0})
+    img = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("RGB"))
+    assert img.reshape(-1, 3).std(axis=0).max() > 5, mode
+    if mode == "full":
+        page.evaluate("o => prt.set(o)", {"basis": 1})
+        r = _set_light(page, LIGHT)
+        assert not np.any(r["u"]) and r["s"] > 0
+        page.evaluate("o => prt.set(o)", {"basis": page.evaluate("prt.bundle.nBasis")})
+        assert np.any(_set_light(page, LIGHT)["u"])
+    page.evaluate("o => prt.set(o)", {"mode": "full"})
 
 
 def test_out_of_family_badge(viewer):
