@@ -87,8 +87,10 @@ def test_page_states_the_bundle(viewer, bundle):
 
 def test_u_is_numpy_transfer_times_x(viewer, bundle):
     """u read back from the page = M·x' + s·b in numpy (float64) from transfer.bin and the
-    page's own x, to 1e-4 of the largest |u|; and the page's x (shadow maps) matches the CPU
-    runtime's ray-traced x (relative Frobenius error ≤ 2 %)."""
+    page's own x, to 1e-4 of the largest |u| (measured: 2e-16); and the page's x (shadow maps)
+    matches the CPU runtime's ray-traced x to 1e-3 relative Frobenius error (measured: 6e-8;
+    a measurement point that the shadow map and the ray tracer see differently, lit or in
+    shadow, would cost percents)."""
     page, _ = viewer
     r = _set_light(page, LIGHT)
     m = read_manifest(bundle)
@@ -106,7 +108,7 @@ def test_u_is_numpy_transfer_times_x(viewer, bundle):
     scene = load_asset(bundle / "asset.glb")
     want = shade_points(data, [light_from_dict(LIGHT)],
                         RayTracer(scene.positions, scene.faces, scene.radius))
-    assert np.linalg.norm(x - want) <= 0.02 * np.linalg.norm(want)
+    assert np.linalg.norm(x - want) <= 1e-3 * np.linalg.norm(want)
 
 
 @pytest.fixture(scope="module")
@@ -125,16 +127,17 @@ def relit(viewer, bundle, tmp_path_factory):
 
 def test_indirect_texel_matches_relight(relit):
     """The page's indirect lightmap against `prtcore relight`: at a known texel (the
-    brightest covered one) to 2 % and over all covered texels to 2 % relative RMSE (the
-    remaining difference: shadow map against ray-traced shadows at the points)."""
+    brightest covered one) and over all covered texels (relative RMSE), to 1e-3 (measured:
+    1e-7 and 7e-8: the half-float basis is the same data in both; what could differ is x,
+    shadow map against ray-traced shadows at the points)."""
     got, want = relit
     cov = want[:, :, 3] > 0
     np.testing.assert_array_equal(got[:, :, 3] > 0.5, cov)  # coverage.exr, same orientation
     lum = np.where(cov, want[:, :, :3].sum(axis=2), -1)
     y, x = np.unravel_index(np.argmax(lum), lum.shape)
-    assert np.abs(got[y, x, :3] - want[y, x, :3]).max() <= 0.02 * want[y, x, :3].max()
+    assert np.abs(got[y, x, :3] - want[y, x, :3]).max() <= 1e-3 * want[y, x, :3].max()
     err = np.sqrt(((got[cov, :3] - want[cov, :3]) ** 2).mean() / (want[cov, :3] ** 2).mean())
-    assert err <= 0.02
+    assert err <= 1e-3
 
 
 def test_v_orientation(relit):
