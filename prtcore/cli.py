@@ -106,12 +106,18 @@ def _warn_time(command: str, manifest: dict, time: float | None) -> None:
 def _posed_runtime(command: str, bundle: Path, time: float | None):
     """(manifest, runtime data, scene, keyframe) of a bundle, posed at the keyframe nearest
     ``time`` for keyframe bundles (with the --time warning)."""
+    from prtcore.intake.hair import hair_scene
     from prtcore.io.bundle import load_runtime, read_manifest
     from prtcore.io.gltf.loader import load_asset
+    from prtcore.io.hair import is_hair_file, load_hair
 
     manifest = read_manifest(bundle)
     data = load_runtime(bundle, manifest)
-    scene = load_asset(bundle / manifest["asset"]["file"])
+    asset = bundle / manifest["asset"]["file"]
+    if is_hair_file(asset):  # a hair bundle: the fibres shadow the measurement points
+        scene = hair_scene(load_hair(asset))
+    else:
+        scene = load_asset(asset)
     key = None
     if manifest.get("keyframes") or time is not None:  # pose at the nearest keyframe
         from prtcore.keyframes.pose import bundle_at_time

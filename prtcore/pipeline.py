@@ -114,9 +114,20 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.emitters.families import sample_configurations
     from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
     from prtcore.io.gltf.export import write_glb
+    from prtcore.io.hair import is_hair_file
     from prtcore.methods.base import BakeInputs, method
     from prtcore.transport.dataset import bake_dataset, check_bake_memory, operators_for
 
+    if is_hair_file(asset):  # strands instead of a lightmap (docs/hair.md)
+        from prtcore.hairbake import bake_hair
+
+        out, m, result, seconds = bake_hair(
+            asset, spec, out, run_files=_write_run_files, exclude=RUN_FILES, quiet=quiet,
+            force=force, limits=limits, callback=callback, source_name=source_name)
+        _finish_run_files(out, m, result, seconds)
+        if not quiet:
+            print(m.summary(result, seconds, with_verdict=False))
+        return out
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)

@@ -180,6 +180,22 @@ class ShPrtSpec:
 
 
 @dataclass(frozen=True)
+class HairSpec:
+    """``hair``: how a hair asset (``.hair``, USD BasisCurves) is baked (docs/hair.md)."""
+
+    #: texels along each strand in the strand texture (paper: 10)
+    texels_per_strand: int = 10
+    #: fibre colour for every strand, linear RGB; null: the file's colours
+    albedo: tuple[float, float, float] | None = None
+    #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
+    fibre: str = "diffuse"
+
+
+#: fibre models a hair bake can use
+FIBRE_MODELS = ("diffuse",)
+
+
+@dataclass(frozen=True)
 class BakeSpec:
     atlas: AtlasSpec = AtlasSpec()
     prepare: PrepareSpec = PrepareSpec()
@@ -192,6 +208,7 @@ class BakeSpec:
     validate: ValidateSpec = ValidateSpec()
     method: MethodSpec = MethodSpec()
     sh_prt: ShPrtSpec = ShPrtSpec()
+    hair: HairSpec = HairSpec()
     #: material name → :class:`MaterialOverride`
     materials: dict = field(default_factory=dict)
 
@@ -548,6 +565,20 @@ def _parse(data: Any) -> BakeSpec:
         raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
                         "animation is set)")
 
+    hs = _section(HairSpec, root.get("hair", {}), "hair")
+    albedo = hs.get("albedo")
+    if albedo is not None:
+        if not isinstance(albedo, list) or len(albedo) != 3:
+            raise SpecError("hair.albedo", "expected null or [r, g, b]")
+        albedo = tuple(_num(x, f"hair.albedo[{i}]", lo=0.0, hi=1.0)
+                       for i, x in enumerate(albedo))
+    hair = HairSpec(
+        texels_per_strand=_int(hs.get("texels_per_strand", 10), "hair.texels_per_strand",
+                               lo=1, hi=4096),
+        albedo=albedo,
+        fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
+    )
+
     mats = root.get("materials", {})
     if not isinstance(mats, dict):
         raise SpecError("materials", f"expected an object of material names, got "
@@ -556,7 +587,8 @@ def _parse(data: Any) -> BakeSpec:
 
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
-                    validate=validate, method=method, sh_prt=sh_prt, materials=materials)
+                    validate=validate, method=method, sh_prt=sh_prt, hair=hair,
+                    materials=materials)
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

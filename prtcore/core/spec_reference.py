@@ -50,6 +50,11 @@ DOCS: dict[str, str] = {
                                   "(docs/subsurface.md), 1–4096",
     "transport.subsurface_max_scatter": "scattering events after which a walk is dropped "
                                         "(its light counts as absorbed), 1–1048576",
+    "hair.texels_per_strand": "texels along each strand of a hair asset's strand texture "
+                              "(docs/hair.md), 1–4096",
+    "hair.albedo": "null (the hair file's colours), or [r, g, b] in [0, 1]: one fibre "
+                   "colour for every strand",
+    "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged)",
     "fit.basis": "n, basis elements including the mean (1–4096), or `auto`",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
