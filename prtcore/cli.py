@@ -211,6 +211,22 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from prtcore.viewer.server import ViewerServer
+
+    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet)
+    print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)
+    if not args.no_browser:
+        import webbrowser
+
+        webbrowser.open(server.url)
+    try:
+        server.serve_forever()
+    finally:
+        server.close()
+    return 0
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     import json
 
@@ -351,6 +367,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--shadow-resolution", type=int, default=1024,
                     help="side of each shadow-map view")
     sp.set_defaults(func=_cmd_render)
+
+    sp = sub.add_parser("view", help="the web viewer of a bundle on 127.0.0.1 (WebGL2)")
+    sp.add_argument("bundle", help="bundle directory")
+    sp.add_argument("--port", type=int, default=8019, help="port (0: any free port)")
+    sp.add_argument("--no-browser", action="store_true",
+                    help="print the URL only; do not open a browser")
+    common(sp)
+    sp.set_defaults(func=_cmd_view)
 
     sp = sub.add_parser("reference", help="indirect lightmap by the independent path tracer")
     sp.add_argument("source", help="asset file or bundle directory")

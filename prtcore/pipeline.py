@@ -18,6 +18,7 @@ from prtcore.core.spec import BakeSpec, PointsSpec
 from prtcore.intake.plan import Plan
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
+from prtcore.io.imageio import EXR_ROW_ORDER
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.dataset import STAGES as TRANSPORT_STAGES
 
@@ -173,7 +174,10 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             "atlas": {"width": texels.width, "height": texels.height,
                       "padding": spec.atlas.padding, "uv": "TEXCOORD_1",
                       "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
-                      "covered_texels": texels.count, "coverage": "coverage.exr"},
+                      "covered_texels": texels.count, "coverage": "coverage.exr",
+                      # readers that store scanlines bottom-up (three.js EXRLoader) sample
+                      # at (u, 1 - v); docs/bundle.md
+                      "exr_row_order": EXR_ROW_ORDER},
         }
         run = {
             "spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
