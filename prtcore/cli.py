@@ -144,13 +144,36 @@ def _warn_family(command: str, data, lights, tracer) -> None:
               "bake's held-out figures", file=sys.stderr)
 
 
+def _relight_sh_prt(args: argparse.Namespace, bundle: Path) -> int:
+    """relight of an sh_prt bundle: distant lighting (an environment map and/or
+    directional lights, docs/sh_prt.md) → the lightmap of outgoing radiance."""
+    from prtcore.emitters.environment import load_distant_lighting
+    from prtcore.io.bundle import read_manifest
+    from prtcore.io.imageio import write_exr
+    from prtcore.methods.sh_prt import relight_bundle
+
+    for flag, value in (("--time", args.time), ("--basis", args.basis)):
+        if value is not None:
+            raise PrtError(f"{flag}: an sh_prt bundle has no keyframes or basis")
+    manifest = read_manifest(bundle)
+    image = relight_bundle(bundle, manifest, load_distant_lighting(args.light))
+    write_exr(args.out, image, dtype="float")
+    sec = manifest["sh_prt"]
+    print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, sh_prt {sec['storage']}, "
+          f"{sec['bands']} bands)")
+    return 0
+
+
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
+    from prtcore.io.bundle import read_manifest
     from prtcore.io.imageio import write_exr
     from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
+    if read_manifest(bundle).get("method") == "sh_prt":
+        return _relight_sh_prt(args, bundle)
     manifest, data, scene, key = _posed_runtime("relight", bundle, args.time)
     lights = load_light_file(args.light)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)

@@ -98,10 +98,6 @@ RUN_FILES = ("report.json", "report.png", "report.txt", "report_worst.png", "rep
              "manifest.json")
 
 
-#: the method every bake uses until the spec chooses one (issue 17 adds sh_prt)
-METHOD = "data_driven"
-
-
 def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
          force: bool = False, limits: IntakeLimits | None = None,
          callback: ProgressCallback | None = None, source_name: str | None = None) -> Path:
@@ -144,21 +140,23 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     with timer.stage("lights"):
         train, hold = sample_configurations(spec.lights, scene.center, scene.radius,
                                             scene.lights)
-    kfs = _keyframe_set(intake, len(train), len(hold), timer)
-    if kfs is not None and spec.measurement_points.placement == "qdeim":
-        raise SpecError("measurement_points.placement", "'qdeim' is not available for "
-                        "keyframe bakes yet (use 'surface')")
-    if kfs is None:
-        data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
-    else:
-        from prtcore.keyframes.pose import bake_keyframe_dataset
+    m = method(spec.method.name)
+    kfs, data = None, None
+    if m.needs_dataset:
+        kfs = _keyframe_set(intake, len(train), len(hold), timer)
+        if kfs is not None and spec.measurement_points.placement == "qdeim":
+            raise SpecError("measurement_points.placement", "'qdeim' is not available for "
+                            "keyframe bakes yet (use 'surface')")
+        if kfs is None:
+            data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
+        else:
+            from prtcore.keyframes.pose import bake_keyframe_dataset
 
-        data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
-    if spec.measurement_points.placement == "qdeim":
-        intake, data = _select_points(intake, data, len(train), timer)
+            data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
+        if spec.measurement_points.placement == "qdeim":
+            intake, data = _select_points(intake, data, len(train), timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
                         data=data)
-    m = method(METHOD)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:
@@ -194,7 +192,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
     validation = None
-    if spec.validate.reference_spp > 0 and len(hold):
+    if spec.validate.reference_spp > 0 and len(hold) and m.path_traced_validation:
         from prtcore.validate import validate_bundle
 
         with timer.stage("validate"):  # the verdict against the path tracer, noise removed
