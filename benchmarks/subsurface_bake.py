@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 import tempfile
 import time
@@ -36,8 +35,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for _p in (ROOT, ROOT / "benchmarks"):
+    if str(_p) not in sys.path:
+        sys.path.insert(0, str(_p))
+
+from bake_speed import add_equal_accuracy_args, equal_accuracy  # noqa: E402
 
 from prtcore.core.progress import StageTimer  # noqa: E402
 from prtcore.core.raytrace import RayTracer  # noqa: E402
@@ -46,7 +48,6 @@ from prtcore.emitters.families import sample_configurations  # noqa: E402
 from prtcore.methods.base import BakeInputs  # noqa: E402
 from prtcore.methods.data_driven import DataDriven  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
-from prtcore.reference.pathtracer import reference_lightmaps  # noqa: E402
 from prtcore.scenes.translucent import write_translucent_fin  # noqa: E402
 from prtcore.transport.dataset import bake_dataset  # noqa: E402
 
@@ -64,14 +65,6 @@ def make_spec(resolution: int, lights: int, holdout: int, points: int, walks: in
         "transport": {"gather_rays": rays, "subsurface_walks": walks},
         "fit": {"basis": 16, "gamma": gamma},
     })
-
-
-def rel_rmse(fast: np.ndarray, ref: np.ndarray, err: np.ndarray) -> float:
-    """Noise-corrected relative RMSE of one (T, 3) lightmap (the reference's own variance,
-    from its standard errors, subtracted)."""
-    ms = float(((fast - ref) ** 2).mean())
-    return math.sqrt(max(ms - float((err ** 2).mean()), 0.0)
-                     / max(float((ref ** 2).mean()), 1e-300))
 
 
 def camera_view(intake, values: np.ndarray, size: int = 256) -> np.ndarray:
@@ -177,40 +170,13 @@ def reference_equivalence(args, log) -> dict:
     configs = list(train[:args.configs])
     log(f"reference equivalence at {args.low_resolution}²: {texels.count} texels, "
         f"{len(configs)} configurations, high-spp reference {args.ref_spp_high} spp …")
-    t0 = time.perf_counter()
-    hi, hi_err = reference_lightmaps(scene, texels, [[c] for c in configs],
-                                     spp=args.ref_spp_high, seed=1, tracer=tracer)
-    t_hi = time.perf_counter() - t0
-    ds = bake_dataset(scene, texels, points, configs, (), spec.transport, tracer=tracer)
-    fast_err = [rel_rmse(ds.indirect[:, k].astype(np.float64), hi[k], hi_err[k])
-                for k in range(len(configs))]
-    fast_bias = [float(ds.indirect[:, k].mean() / hi[k].mean() - 1)
-                 for k in range(len(configs))]
-    levels = {}
-    for spp in args.ref_spp:
-        m, _ = reference_lightmaps(scene, texels, [[c] for c in configs], spp=spp, seed=2,
-                                   tracer=tracer)
-        levels[spp] = [rel_rmse(m[k], hi[k], hi_err[k]) for k in range(len(configs))]
-    c = []
-    for k in range(len(configs)):
-        s = np.array(list(levels), dtype=np.float64)
-        e = np.array([levels[x][k] for x in levels])
-        c.append(float((e / np.sqrt(s)).sum() / (1.0 / s).sum()))
-    spp_equal = [(ck / max(fk, 1e-9)) ** 2 for ck, fk in zip(c, fast_err, strict=True)]
-    t0 = time.perf_counter()
-    reference_lightmaps(scene, texels, [[configs[0]]], spp=args.ref_spp_timing, seed=3,
-                        tracer=tracer)
-    per_path = (time.perf_counter() - t0) / (args.ref_spp_timing * texels.count)
-    log(f"  fast rRMSE {np.round(fast_err, 4).tolist()}, bias "
-        f"{np.round(fast_bias, 4).tolist()}; reference c/√spp: c = {np.round(c, 3).tolist()}"
-        f" → spp at equal error {np.round(spp_equal, 1).tolist()}; "
-        f"{per_path * 1e6:.1f} µs per path")
-    return {"resolution": args.low_resolution, "texels": texels.count,
-            "configurations": len(configs), "high_spp": args.ref_spp_high,
-            "high_spp_seconds": t_hi, "fast_rel_rmse": fast_err, "fast_bias": fast_bias,
-            "reference_rel_rmse_by_spp": {str(k): v for k, v in levels.items()},
-            "reference_c": c, "spp_at_equal_error": spp_equal,
-            "spp_star": float(np.median(spp_equal)), "seconds_per_path": per_path}
+    out = equal_accuracy(scene, texels, points, tracer, configs, spec.transport, args)
+    log(f"  fast rRMSE {np.round(out['fast_rel_rmse'], 4).tolist()}, bias "
+        f"{np.round(out['fast_bias'], 4).tolist()}; reference c/√spp: c = "
+        f"{np.round(out['reference_c'], 3).tolist()} → spp at equal error "
+        f"{np.round(out['spp_at_equal_error'], 1).tolist()}; "
+        f"{out['seconds_per_path'] * 1e6:.1f} µs per path")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -221,13 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", type=int, default=256)
     ap.add_argument("--walks", type=int, default=16)
     ap.add_argument("--gather-rays", type=int, default=32)
-    ap.add_argument("--low-resolution", type=int, default=64)
-    ap.add_argument("--configs", type=int, default=3)
-    ap.add_argument("--ref-spp-high", type=int, default=2048)
-    ap.add_argument("--ref-spp", type=lambda s: [int(x) for x in s.split(",")],
-                    default=[16, 64, 256])
-    ap.add_argument("--ref-spp-timing", type=int, default=32)
-    ap.add_argument("--skip-reference", action="store_true")
+    add_equal_accuracy_args(ap, ref_spp_high=2048, ref_spp_timing=32)
     args = ap.parse_args(argv)
 
     def log(s: str) -> None:
