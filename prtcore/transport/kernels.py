@@ -49,15 +49,20 @@ def csr_dense(indptr, indices, data, x, out, chunks):  # pragma: no cover - comp
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def chebyshev_step(indptr, indices, data, rho, src, d, r, x, src_new, d_new, c_r, c_d,
-                   chunks, norm_d, norm_x):  # pragma: no cover - compiled
+def chebyshev_step(indptr, indices, data, e_indptr, e_indices, e_data, rho, src, d, r, x,
+                   src_new, d_new, c_r, c_d, chunks, norm_d,
+                   norm_x):  # pragma: no cover - compiled
     """One step of the Chebyshev iteration of :func:`prtcore.transport.solve._chebyshev`,
     all rows in one pass:
 
-    ``ad = G·src − d``; ``r += ad``; ``d_new = d·c_d + r·c_r``; ``x += d_new``;
+    ``ad = A·src − d``; ``r += ad``; ``d_new = d·c_d + r·c_r``; ``x += d_new``;
     ``src_new = ρ∘d_new`` (the next product's input), and the squared column norms of
     d_new and x.
 
+    A = G (indptr, indices, data: CSR float32) plus, on channel c's columns only, the
+    channel's own matrix (:class:`prtcore.transport.solve.ChannelProduct`; the subsurface
+    walks): e_indptr (3, T + 1) int64 into e_indices / e_data, all zero without. Rounding
+    as ChannelProduct: G's sum, then each channel matrix's own sum added to it.
     Arrays (T, 3k) float32 C-contiguous, column ``3·k + channel``: src = ρ∘d (read for all
     rows, so d_new and src_new are separate buffers), d, r, x (updated in place), src_new,
     d_new (written). rho (T, 3) float32; c_r, c_d (3,) float32 per channel; chunks :
@@ -67,6 +72,7 @@ def chebyshev_step(indptr, indices, data, rho, src, d, r, x, src_new, d_new, c_r
     ncol = d.shape[1]
     for ci in numba.prange(len(chunks) - 1):
         acc = np.empty(ncol, dtype=np.float32)
+        acc_c = np.empty(ncol // 3, dtype=np.float32)
         nd = norm_d[ci]
         nx = norm_x[ci]
         nd[:] = 0.0
@@ -78,6 +84,17 @@ def chebyshev_step(indptr, indices, data, rho, src, d, r, x, src_new, d_new, c_r
                 sj = src[indices[jj]]
                 for col in range(ncol):
                     acc[col] += g * sj[col]
+            for c in range(3):
+                if e_indptr[c, i] == e_indptr[c, i + 1]:
+                    continue
+                acc_c[:] = 0
+                for jj in range(e_indptr[c, i], e_indptr[c, i + 1]):
+                    g = e_data[jj]
+                    sj = src[e_indices[jj]]
+                    for kk in range(ncol // 3):
+                        acc_c[kk] += g * sj[3 * kk + c]
+                for kk in range(ncol // 3):
+                    acc[3 * kk + c] += acc_c[kk]
             di, ri, xi = d[i], r[i], x[i]
             dn, sn, rh = d_new[i], src_new[i], rho[i]
             for col in range(ncol):

@@ -300,17 +300,26 @@ def _chebyshev(product, rho32, b, lo, hi, max_bounces, tolerance):
     x = d.copy()  # x holds bounce 1
     src = np.multiply(d.reshape(shape), rho32[:, None, :]).reshape(t, -1)
     d_new, src_new = np.empty_like(d), np.empty_like(d)  # work arrays, swapped every step
-    parts = (len(product.chunks) - 1, d.shape[1])
+    shared = product.shared if isinstance(product, ChannelProduct) else product
+    if isinstance(product, ChannelProduct):  # the channels' matrices, stacked
+        e_indptr = np.stack([p.indptr for p in product.extra])
+        e_indptr += np.cumsum([0] + [len(p.data) for p in product.extra[:-1]])[:, None]
+        e_indices = np.concatenate([p.indices for p in product.extra])
+        e_data = np.concatenate([p.data for p in product.extra])
+    else:
+        e_indptr = np.zeros((3, t + 1), dtype=np.int64)
+        e_indices, e_data = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float32)
+    parts = (len(shared.chunks) - 1, d.shape[1])
     norm_d, norm_x = np.empty(parts), np.empty(parts)
-    numba.set_num_threads(product.threads)
+    numba.set_num_threads(shared.threads)
     n, resid, conv = 1, 1.0, False
     best = np.inf
     while n < max_bounces:
         rho_new = 1.0 / (2.0 * sigma - rho_k)
-        kernels.chebyshev_step(product.indptr, product.indices, product.data, rho32, src, d,
-                               r, x, src_new, d_new,
+        kernels.chebyshev_step(shared.indptr, shared.indices, shared.data, e_indptr,
+                               e_indices, e_data, rho32, src, d, r, x, src_new, d_new,
                                (2.0 * rho_new / delta).astype(np.float32),
-                               (rho_new * rho_k).astype(np.float32), product.chunks,
+                               (rho_new * rho_k).astype(np.float32), shared.chunks,
                                norm_d, norm_x)
         rho_k = rho_new
         d, d_new, src, src_new = d_new, d, src_new, src
