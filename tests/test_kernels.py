@@ -68,8 +68,8 @@ def test_chebyshev_step_is_the_numpy_step(channels):
     e_idx = np.concatenate([m.indices for m in extra] or [[]]).astype(np.int64)
     e_dat = np.concatenate([m.data for m in extra] or [[]]).astype(np.float32)
     kernels.chebyshev_step(g.indptr.astype(np.int64), g.indices.astype(np.int64), g.data,
-                           e_ptr, e_idx, e_dat, rho, src, flat[0], flat[1], flat[2], src_new, d_new, c_r, c_d,
-                           chunks, nd, nx)
+                           e_ptr, e_idx, e_dat, rho, src, flat[0], flat[1], flat[2],
+                           src_new, d_new, c_r, c_d, chunks, nd, nx)
     assert np.array_equal(flat[1], r_np.reshape(t, -1))
     assert np.array_equal(d_new, d_np.reshape(t, -1))
     assert np.array_equal(flat[2], x_np.reshape(t, -1))
