@@ -29,6 +29,17 @@ def row_chunks(rows: int, threads: int) -> np.ndarray:
     return np.linspace(0, rows, c + 1).astype(np.int64)
 
 
+@numba.njit(inline="always", cache=True)
+def _row_product(indptr, indices, data, x, i, acc):  # pragma: no cover - compiled
+    """acc (c,) float32 ← Σ_jj data[jj]·x[indices[jj]] over row i (zeroed first)."""
+    acc[:] = 0
+    for jj in range(indptr[i], indptr[i + 1]):
+        g = data[jj]
+        xj = x[indices[jj]]
+        for col in range(len(acc)):
+            acc[col] += g * xj[col]
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def csr_dense(indptr, indices, data, x, out, chunks):  # pragma: no cover - compiled
     """out[i] = Σ_jj data[jj]·x[indices[jj]] for every row i (float32, scipy's order).
@@ -36,16 +47,9 @@ def csr_dense(indptr, indices, data, x, out, chunks):  # pragma: no cover - comp
     indptr (T + 1,) / indices (nnz,) / data (nnz,) float32: CSR; x (n, c) float32
     C-contiguous; out (T, c) float32, overwritten; chunks : :func:`row_chunks`.
     """
-    ncol = x.shape[1]
     for ci in numba.prange(len(chunks) - 1):
         for i in range(chunks[ci], chunks[ci + 1]):
-            acc = out[i]
-            acc[:] = 0
-            for jj in range(indptr[i], indptr[i + 1]):
-                g = data[jj]
-                xj = x[indices[jj]]
-                for col in range(ncol):
-                    acc[col] += g * xj[col]
+            _row_product(indptr, indices, data, x, i, out[i])
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -78,12 +82,7 @@ def chebyshev_step(indptr, indices, data, e_indptr, e_indices, e_data, rho, src,
         nd[:] = 0.0
         nx[:] = 0.0
         for i in range(chunks[ci], chunks[ci + 1]):
-            acc[:] = 0
-            for jj in range(indptr[i], indptr[i + 1]):
-                g = data[jj]
-                sj = src[indices[jj]]
-                for col in range(ncol):
-                    acc[col] += g * sj[col]
+            _row_product(indptr, indices, data, src, i, acc)
             for c in range(3):
                 if e_indptr[c, i] == e_indptr[c, i + 1]:
                     continue
