@@ -16,19 +16,16 @@ from __future__ import annotations
 import io
 import json
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from browser import launch, viewer_bundle, wait_ready
 from golden_images import check_golden
 from PIL import Image
-from scenes import tiny_spec
 
-from prtcore import pipeline
 from prtcore.cli import main
 from prtcore.core.raytrace import RayTracer
-from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import light_from_dict
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
@@ -37,29 +34,15 @@ from prtcore.runtime.cpu import shade_points
 from prtcore.viewer.server import ViewerServer
 
 ROOT = Path(__file__).resolve().parents[1]
-CORNELL = ROOT / "examples" / "cornell_box.glb"
 CAMERA = json.loads((ROOT / "examples" / "cameras" / "cornell.json").read_text())
-#: WebGL2 without a GPU: SwiftShader, asked for explicitly.
-CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 #: A light of the bake's family (a point light inside the box, off every axis).
 LIGHT = {"type": "point", "color": [1.0, 0.9, 0.8], "intensity": 2.0,
          "position": [0.23, 1.41, 0.37]}
 
 
-def chromium() -> str:
-    path = os.environ.get("PRT_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-    assert os.access(path, os.X_OK), (
-        f"Chromium not found at {path}: install it with `bash scripts/browser.sh` (the README's "
-        "test command does)")
-    return path
-
-
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory) -> Path:
-    """The Cornell box, small, with a half-float basis (the browser's texture format)."""
-    spec = tiny_spec(output={"dtype": "half"})
-    out = tmp_path_factory.mktemp("viewer") / "cornell"
-    return pipeline.bake(CORNELL, parse_spec(spec), out, quiet=True)
+    return viewer_bundle(tmp_path_factory.mktemp("viewer") / "cornell")
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +50,7 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=chromium(), args=CHROMIUM_ARGS)
+        b = launch(pw)
         yield b
         b.close()
 
@@ -82,9 +65,7 @@ def viewer(bundle, browser):
         page.on("console", lambda m: m.type == "error" and log.append(f"console: {m.text}"))
         page.on("pageerror", lambda e: log.append(f"pageerror: {e}"))
         page.goto(server.url)
-        page.wait_for_function("window.prt && (window.prt.ready || window.prt.error)",
-                               timeout=60_000)
-        assert page.evaluate("prt.error") is None, page.evaluate("prt.error")
+        wait_ready(page)
         yield page, log
         page.close()
 
@@ -106,8 +87,10 @@ def test_page_states_the_bundle(viewer, bundle):
 
 def test_u_is_numpy_transfer_times_x(viewer, bundle):
     """u read back from the page = M·x' + s·b in numpy (float64) from transfer.bin and the
-    page's own x, to 1e-4 of the largest |u|; and the page's x (shadow maps) matches the CPU
-    runtime's ray-traced x (relative Frobenius error ≤ 2 %)."""
+    page's own x, to 1e-4 of the largest |u| (measured: 2e-16); and the page's x (shadow maps)
+    matches the CPU runtime's ray-traced x to 1e-3 relative Frobenius error (measured: 6e-8;
+    a measurement point that the shadow map and the ray tracer see differently, lit or in
+    shadow, would cost percents)."""
     page, _ = viewer
     r = _set_light(page, LIGHT)
     m = read_manifest(bundle)
@@ -125,7 +108,7 @@ def test_u_is_numpy_transfer_times_x(viewer, bundle):
     scene = load_asset(bundle / "asset.glb")
     want = shade_points(data, [light_from_dict(LIGHT)],
                         RayTracer(scene.positions, scene.faces, scene.radius))
-    assert np.linalg.norm(x - want) <= 0.02 * np.linalg.norm(want)
+    assert np.linalg.norm(x - want) <= 1e-3 * np.linalg.norm(want)
 
 
 @pytest.fixture(scope="module")
@@ -144,16 +127,17 @@ def relit(viewer, bundle, tmp_path_factory):
 
 def test_indirect_texel_matches_relight(relit):
     """The page's indirect lightmap against `prtcore relight`: at a known texel (the
-    brightest covered one) to 2 % and over all covered texels to 2 % relative RMSE (the
-    remaining difference: shadow map against ray-traced shadows at the points)."""
+    brightest covered one) and over all covered texels (relative RMSE), to 1e-3 (measured:
+    1e-7 and 7e-8: the half-float basis is the same data in both; what could differ is x,
+    shadow map against ray-traced shadows at the points)."""
     got, want = relit
     cov = want[:, :, 3] > 0
     np.testing.assert_array_equal(got[:, :, 3] > 0.5, cov)  # coverage.exr, same orientation
     lum = np.where(cov, want[:, :, :3].sum(axis=2), -1)
     y, x = np.unravel_index(np.argmax(lum), lum.shape)
-    assert np.abs(got[y, x, :3] - want[y, x, :3]).max() <= 0.02 * want[y, x, :3].max()
+    assert np.abs(got[y, x, :3] - want[y, x, :3]).max() <= 1e-3 * want[y, x, :3].max()
     err = np.sqrt(((got[cov, :3] - want[cov, :3]) ** 2).mean() / (want[cov, :3] ** 2).mean())
-    assert err <= 0.02
+    assert err <= 1e-3
 
 
 def test_v_orientation(relit):
@@ -178,6 +162,25 @@ def test_camera_pixel_is_direct_plus_indirect(viewer):
     assert indirect.max() > 0 and direct.max() > 0
     np.testing.assert_allclose(full, direct + indirect, rtol=1e-5, atol=1e-7)
     assert 0 < albedo.max() <= 0.99
+
+
+@pytest.mark.parametrize("mode", ["full", "direct", "indirect", "albedo", "element", "points",
+                                  "checker", "uv"])
+def test_every_mode_draws(viewer, mode):
+    """Each mode of the page draws something that is not one flat colour (the canvas as the
+    user sees it), and the basis slider truncates: with n = 1 only the mean is left, u = 0."""
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    page.evaluate("o => prt.set(o)", {"mode": mode, "element": 1, "exposure": 0})
+    img = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("RGB"))
+    assert img.reshape(-1, 3).std(axis=0).max() > 5, mode
+    if mode == "full":
+        page.evaluate("o => prt.set(o)", {"basis": 1})
+        r = _set_light(page, LIGHT)
+        assert not np.any(r["u"]) and r["s"] > 0
+        page.evaluate("o => prt.set(o)", {"basis": page.evaluate("prt.bundle.nBasis")})
+        assert np.any(_set_light(page, LIGHT)["u"])
+    page.evaluate("o => prt.set(o)", {"mode": "full"})
 
 
 def test_out_of_family_badge(viewer):
