@@ -9,8 +9,9 @@ with probability P_s and passes on (a null collision) otherwise, and channel c i
 there are no null collisions and the weight of a scattering event is α_c. Scattering
 follows the Henyey–Greenstein phase function (sampled by inverting its CDF here, written
 out again rather than shared with the operator; the frame about the direction is the
-project's one rule, :func:`prtcore.core.geometry.orthonormal_frame`). A walk ends where it reaches a face: a
-back face of the medium's own material is an exit; any other face ends it with no light.
+project's one rule, :func:`prtcore.core.geometry.orthonormal_frame`). A walk ends where
+it reaches a face: a back face of the medium's own material is an exit; any other face
+ends it with no light.
 """
 
 from __future__ import annotations
