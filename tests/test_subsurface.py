@@ -68,6 +68,19 @@ def test_closed_non_absorbing_medium_returns_all_light_and_channels_share_walks(
                                                     again.channel_matrices, strict=True))
 
 
+def test_a_clear_medium_carries_light_straight_across(tmp_path):
+    # σ_t = 0 (KHR attenuationColor 1): no scattering, every inward walk crosses the
+    # sphere and leaves with weight 1 in every channel
+    scene, texels, tracer = _sphere(tmp_path, albedo=[0.5, 0.5, 0.5])
+    mats = tuple(dataclasses.replace(m, subsurface=dataclasses.replace(
+        m.subsurface, sigma_t=np.zeros(3))) for m in scene.materials)
+    term = subsurface_operator(scene.replace(materials=mats), texels, tracer, 4, 3, 16)
+    assert term.stats["scatter_events"] == 0
+    lost = term.stats["outward_start"] / term.stats["walks"]
+    for m in term.channel_matrices:
+        assert np.asarray(m.sum(axis=1)).mean() == pytest.approx(1.0 - lost, abs=1e-6)
+
+
 def test_operator_selection_and_memory(tmp_path):
     scene, _, _ = _sphere(tmp_path, floor=True)
     assert operators_for(scene) == TRANSLUCENT_OPERATORS
