@@ -200,11 +200,10 @@ def texel_lookup(scene: Scene, image: np.ndarray):
 # product with a fixed light (TPFL)
 
 
-def _hemisphere_visibility(tracer: RayTracer, samples: SurfaceSamples, rows: slice,
-                           strata: int, rng: np.random.Generator
-                           ) -> tuple[np.ndarray, np.ndarray]:
+def _hemisphere_rays(tracer: RayTracer, samples: SurfaceSamples, rows: slice, strata: int,
+                     rng: np.random.Generator):
     """Stratified uniform directions over each sample's geometric hemisphere (m, S, 3) and
-    their visibility (m, S) bool (a ray that hits anything is blocked)."""
+    their closest hits (:class:`prtcore.core.raytrace.Hits`, m·S rays)."""
     gn = samples.geometric_normal[rows]
     m, s = len(gn), strata * strata
     cell = np.arange(s)
@@ -212,8 +211,7 @@ def _hemisphere_visibility(tracer: RayTracer, samples: SurfaceSamples, rows: sli
           + rng.random((m, s, 2))) / strata).reshape(-1, 2)
     d = directions_around(np.repeat(gn, s, axis=0), u[:, 0], 2.0 * math.pi * u[:, 1])
     origin = samples.position[rows] + gn * tracer.offset
-    hits = tracer.intersect(np.repeat(origin, s, axis=0), d)
-    return d.reshape(m, s, 3), ~hits.hit.reshape(m, s)
+    return d.reshape(m, s, 3), tracer.intersect(np.repeat(origin, s, axis=0), d)
 
 
 def visibility_transfer(tracer: RayTracer, samples: SurfaceSamples, bands: int, strata: int,
@@ -226,7 +224,8 @@ def visibility_transfer(tracer: RayTracer, samples: SurfaceSamples, bands: int, 
     for start in range(0, samples.count, POINT_CHUNK):
         rows = slice(start, min(samples.count, start + POINT_CHUNK))
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
-        d, vis = _hemisphere_visibility(tracer, samples, rows, strata, rng)
+        d, hits = _hemisphere_rays(tracer, samples, rows, strata, rng)
+        vis = ~hits.hit.reshape(d.shape[:2])
         y = sh.basis(d.reshape(-1, 3), bands).reshape(d.shape[0], s, -1)
         out[rows] = 2.0 * math.pi / s * np.einsum("ms,msl->ml", vis.astype(np.float64), y)
     return out
@@ -243,9 +242,35 @@ def fixed_light_transfer(tracer: RayTracer, samples: SurfaceSamples, radiance, b
     for start in range(0, samples.count, POINT_CHUNK):
         rows = slice(start, min(samples.count, start + POINT_CHUNK))
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
-        d, vis = _hemisphere_visibility(tracer, samples, rows, strata, rng)
+        d, hits = _hemisphere_rays(tracer, samples, rows, strata, rng)
+        vis = ~hits.hit.reshape(d.shape[:2])
         flat = d.reshape(-1, 3)
         y = sh.basis(flat, bands).reshape(d.shape[0], s, -1)
         lv = radiance(flat).reshape(d.shape[0], s, 3) * vis[:, :, None]
         out[rows] = 2.0 * math.pi / s * np.einsum("msc,msl->mcl", lv, y)
+    return out
+
+
+def fixed_light_bounce_transfer(tracer: RayTracer, samples: SurfaceSamples, outgoing,
+                                bands: int, strata: int, seed: int) -> np.ndarray:
+    """The poster's inter-reflection texture T₁ (section 2.1): SH of the *indirect* incident
+    radiance for the fixed light, ``B(ω) = (1 − V(x, ω)) L_out(q(ω))`` with q the front face
+    the ray hits, ``outgoing`` a callable (triangle (h,), barycentric (h, 3)) → (h, 3) the
+    diffuse radiance q sends out, e.g. the stored T₀ at q dotted with the fixed light's SH.
+    Same rays and streams as :func:`fixed_light_transfer` (add the two for direct + one
+    bounce). Returns (n, 3, L²) float64."""
+    out = np.zeros((samples.count, 3, bands * bands))
+    s = strata * strata
+    for start in range(0, samples.count, POINT_CHUNK):
+        rows = slice(start, min(samples.count, start + POINT_CHUNK))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
+        d, hits = _hemisphere_rays(tracer, samples, rows, strata, rng)
+        m = d.shape[0]
+        front = np.flatnonzero(hits.hit & hits.front)
+        radiance = np.zeros((m * s, 3))
+        if len(front):
+            radiance[front] = outgoing(hits.triangle[front], hits.barycentric[front])
+        y = sh.basis(d.reshape(-1, 3), bands).reshape(m, s, -1)
+        out[rows] = 2.0 * math.pi / s * np.einsum("msc,msl->mcl",
+                                                   radiance.reshape(m, s, 3), y)
     return out
