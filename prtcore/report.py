@@ -60,16 +60,18 @@ def _time(fn, repeat: int) -> float:
 def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
                      holdout_indirect: np.ndarray, atlas_pixels: int,
                      planes_bytes_per_element: float, reference: str,
-                     groups: np.ndarray | None = None) -> dict:
+                     groups: np.ndarray | None = None, shipped: int | None = None) -> dict:
     """The table.
 
     holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3) reference indirect radiance.
     atlas_pixels : W·H (the blend runs over the whole atlas, as in a fragment shader).
     groups : (H,) keyframe of each held-out configuration (per-keyframe transfers only).
+    shipped : the n that ships, given a row too (≤ model.n_basis; the verdict's row)
     """
     ns = [n for n in TABLE_N if n <= model.n_basis]
-    if model.n_basis not in ns:
-        ns.append(model.n_basis)
+    for extra in (model.n_basis, shipped):
+        if extra is not None and extra not in ns:
+            ns.append(extra)
     H = holdout_direct.shape[1]
     rows = []
     rng = np.random.default_rng(0)
@@ -83,35 +85,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             skipped.append({"index": h, "reason": "zero indirect"})
     # a bar on the report stage's timer (the pipeline passes none): each n costs the
     # held-out reconstructions and the run-time measurements
-    # the honest scale: the RMS of the held-out indirect over *all* held-out
-    # configurations, so a light with almost no indirect light does not read as 14 000 %
-    T = holdout_indirect.shape[0]
-    ref_ss = [float(np.sum(holdout_indirect[:, h, :].astype(np.float64) ** 2))
-              for h in range(H)]
-    global_norm = float(np.sqrt(np.mean(ref_ss))) if H else 0.0
     for n in bar(sorted(ns), "error vs run time", total=len(ns)):
-        errs, bounds, errs_global, abs_rmse, negative = [], [], [], [], []
-        pooled = [0.0, 0.0, 0.0]  # Σ‖rec − ref‖², Σ (bound·‖ref‖)², Σ‖ref‖²
-        for h in range(H):
-            x = holdout_direct[:, h, :].astype(np.float64)
-            ref = holdout_indirect[:, h, :].astype(np.float64)
-            if not np.linalg.norm(x) > 0:
-                continue
-            g = None if groups is None else int(groups[h])
-            rec = reconstruct(model, x, n=n, group=g).astype(np.float64)
-            diff = float(np.linalg.norm(rec - ref))
-            if global_norm > 0:
-                errs_global.append(diff / global_norm)
-            abs_rmse.append(diff / np.sqrt(3 * T))
-            negative.append(float(np.mean((rec < 0).any(axis=1))))
-            if not np.linalg.norm(ref) > 0:
-                continue
-            errs.append(relative_rmse(rec, ref))
-            bounds.append(projection_bound(model, ref, x, n=n))
-            ref_norm = float(np.linalg.norm(ref))
-            pooled[0] += diff**2
-            pooled[1] += (bounds[-1] * ref_norm) ** 2
-            pooled[2] += ref_norm**2
         M = model.transfer[..., : n - 1, :]
         M = M if M.ndim == 3 else M[0]
         x32 = rng.random((M.shape[-1],)).astype(np.float32)
@@ -128,21 +102,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
         rows.append({
             "n": n,
-            "heldout_rmse_mean": float(np.mean(errs)) if errs else None,
-            "heldout_rmse_max": float(np.max(errs)) if errs else None,
-            "projection_bound_mean": float(np.mean(bounds)) if bounds else None,
-            "projection_bound_max": float(np.max(bounds)) if bounds else None,
-            # pooled over the held-out lights: √(Σ‖rec − ref‖² / Σ‖ref‖²) and the same for
-            # the projection; a light with almost no indirect light weighs what it holds
-            "heldout_rmse_pooled": float(np.sqrt(pooled[0] / pooled[2])) if pooled[2] else None,
-            "projection_bound_pooled": float(np.sqrt(pooled[1] / pooled[2]))
-            if pooled[2] else None,
-            # per configuration ‖rec − ref‖ / RMS of all held-out indirect lightmaps
-            "heldout_rmse_global_mean": float(np.mean(errs_global)) if errs_global else None,
-            "heldout_rmse_global_max": float(np.max(errs_global)) if errs_global else None,
-            # radiance units (linear RGB, per texel and channel)
-            "heldout_abs_rmse_mean": float(np.mean(abs_rmse)) if abs_rmse else None,
-            "negative_texel_fraction": float(np.mean(negative)) if negative else None,
+            **heldout_metrics(model, holdout_direct, holdout_indirect, n, groups),
             "cpu_coefficients_us": u_s * 1e6,
             "cpu_blend_ms": blend_s * 1e3,
             "textures": files,
@@ -150,6 +110,62 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         })
     return {"reference": reference, "heldout_configurations": H, "heldout_skipped": skipped,
             "rows": rows}
+
+
+def heldout_metrics(model: TransferModel, holdout_direct: np.ndarray,
+                    holdout_indirect: np.ndarray, n: int,
+                    groups: np.ndarray | None = None) -> dict[str, float | None]:
+    """The accuracy columns of the table at n elements (the verdict's inputs).
+
+    holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3); groups as in
+    :func:`error_vs_runtime`. Configurations without direct light at the points are left
+    out; those without indirect light count only in the global and absolute errors.
+    Returns the per-light relative RMSE (mean, max) and projection bound (mean, max), both
+    pooled over the lights (√(Σ‖rec − ref‖² / Σ‖ref‖²), each light weighing the indirect
+    light it holds), the error relative to the RMS of *all* held-out lightmaps (mean, max;
+    a light with almost no indirect light does not read as 14 000 %), the absolute RMSE
+    (radiance units) and the fraction of texels reconstructed negative.
+    """
+    H = holdout_direct.shape[1]
+    T = holdout_indirect.shape[0]
+    ref_ss = [float(np.sum(holdout_indirect[:, h, :].astype(np.float64) ** 2))
+              for h in range(H)]
+    global_norm = float(np.sqrt(np.mean(ref_ss))) if H else 0.0
+    errs, bounds, errs_global, abs_rmse, negative = [], [], [], [], []
+    pooled = [0.0, 0.0, 0.0]  # Σ‖rec − ref‖², Σ (bound·‖ref‖)², Σ‖ref‖²
+    for h in range(H):
+        x = holdout_direct[:, h, :].astype(np.float64)
+        ref = holdout_indirect[:, h, :].astype(np.float64)
+        if not np.linalg.norm(x) > 0:
+            continue
+        g = None if groups is None else int(groups[h])
+        rec = reconstruct(model, x, n=n, group=g).astype(np.float64)
+        diff = float(np.linalg.norm(rec - ref))
+        if global_norm > 0:
+            errs_global.append(diff / global_norm)
+        abs_rmse.append(diff / np.sqrt(3 * T))
+        negative.append(float(np.mean((rec < 0).any(axis=1))))
+        if not np.linalg.norm(ref) > 0:
+            continue
+        errs.append(relative_rmse(rec, ref))
+        bounds.append(projection_bound(model, ref, x, n=n))
+        ref_norm = float(np.linalg.norm(ref))
+        pooled[0] += diff**2
+        pooled[1] += (bounds[-1] * ref_norm) ** 2
+        pooled[2] += ref_norm**2
+    return {
+        "heldout_rmse_mean": float(np.mean(errs)) if errs else None,
+        "heldout_rmse_max": float(np.max(errs)) if errs else None,
+        "projection_bound_mean": float(np.mean(bounds)) if bounds else None,
+        "projection_bound_max": float(np.max(bounds)) if bounds else None,
+        "heldout_rmse_pooled": float(np.sqrt(pooled[0] / pooled[2])) if pooled[2] else None,
+        "projection_bound_pooled": float(np.sqrt(pooled[1] / pooled[2]))
+        if pooled[2] else None,
+        "heldout_rmse_global_mean": float(np.mean(errs_global)) if errs_global else None,
+        "heldout_rmse_global_max": float(np.max(errs_global)) if errs_global else None,
+        "heldout_abs_rmse_mean": float(np.mean(abs_rmse)) if abs_rmse else None,
+        "negative_texel_fraction": float(np.mean(negative)) if negative else None,
+    }
 
 
 def format_skipped(skipped: list[dict]) -> str:
