@@ -55,6 +55,23 @@ def _cmd_bake(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from prtcore.compare import CompareOptions, compare, expected_ordering, format_compare
+    from prtcore.core.spec import load_spec
+
+    spec = load_spec(args.spec) if args.spec else None
+    if args.asset is None and spec is not None:
+        raise PrtError("compare: --spec needs an asset (the built scene has its own spec)")
+    opt = CompareOptions(spp=args.spp, bands=args.bands, strata=args.strata,
+                         lights=args.lights, seed=args.seed)
+    result = compare(args.out, asset=args.asset, spec=spec, options=opt, quiet=args.quiet)
+    print(format_compare(result))
+    for line in expected_ordering(result):
+        print(f"prtcore compare: note: {line}")
+    print(f"compare: {Path(args.out) / 'compare.txt'}, {Path(args.out) / 'compare_strip.png'}")
+    return 0
+
+
 def _cmd_reference(args: argparse.Namespace) -> int:
     from prtcore.reference.lightmap import reference_to_exr
 
@@ -89,12 +106,18 @@ def _warn_time(command: str, manifest: dict, time: float | None) -> None:
 def _posed_runtime(command: str, bundle: Path, time: float | None):
     """(manifest, runtime data, scene, keyframe) of a bundle, posed at the keyframe nearest
     ``time`` for keyframe bundles (with the --time warning)."""
+    from prtcore.intake.hair import hair_scene
     from prtcore.io.bundle import load_runtime, read_manifest
     from prtcore.io.gltf.loader import load_asset
+    from prtcore.io.hair import is_hair_file, load_hair
 
     manifest = read_manifest(bundle)
     data = load_runtime(bundle, manifest)
-    scene = load_asset(bundle / manifest["asset"]["file"])
+    asset = bundle / manifest["asset"]["file"]
+    if is_hair_file(asset):  # a hair bundle: the fibres shadow the measurement points
+        scene = hair_scene(load_hair(asset))
+    else:
+        scene = load_asset(asset)
     key = None
     if manifest.get("keyframes") or time is not None:  # pose at the nearest keyframe
         from prtcore.keyframes.pose import bundle_at_time
@@ -320,6 +343,22 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-indirect", action="store_true", help="with --camera: direct only")
     common(sp)
     sp.set_defaults(func=_cmd_reference)
+
+    sp = sub.add_parser("compare", help="data-driven PRT vs per-vertex SH-PRT vs transfer "
+                                           "textures against the path tracer (table + strip)")
+    sp.add_argument("asset", nargs="?", default=None,
+                    help="asset (default: the project's floor-and-object scene, lit by a "
+                         "directional light)")
+    sp.add_argument("--out", required=True, help="output directory")
+    sp.add_argument("--spec", default=None, help="bake spec for an asset")
+    sp.add_argument("--spp", type=int, default=64, help="reference paths per pixel")
+    sp.add_argument("--bands", type=int, default=5, help="SH bands (5: 25 coefficients)")
+    sp.add_argument("--strata", type=int, default=16,
+                    help="SH-PRT rays per sample = strata²")
+    sp.add_argument("--lights", type=int, default=3, help="held-out lights")
+    sp.add_argument("--seed", type=int, default=0)
+    common(sp)
+    sp.set_defaults(func=_cmd_compare)
 
     _add_plugin_commands(sub)
     return p

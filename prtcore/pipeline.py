@@ -118,14 +118,26 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.emitters.families import sample_configurations
     from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
     from prtcore.io.gltf.export import write_glb
+    from prtcore.io.hair import is_hair_file
     from prtcore.methods.base import BakeInputs, method
     from prtcore.sizing import size_bake
     from prtcore.transport.dataset import (
         check_bake_memory,
         light_configurations,
         open_transport,
+        operators_for,
     )
 
+    if is_hair_file(asset):  # strands instead of a lightmap (docs/hair.md)
+        from prtcore.hairbake import bake_hair
+
+        out, m, result, seconds = bake_hair(
+            asset, spec, out, run_files=_write_run_files, exclude=RUN_FILES, quiet=quiet,
+            force=force, limits=limits, callback=callback, source_name=source_name)
+        _finish_run_files(out, m, result, seconds)
+        if not quiet:
+            print(m.summary(result, seconds, with_verdict=False))
+        return out
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
@@ -133,7 +145,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     scene, texels, points = intake.scene, intake.texels, intake.points
     sizing = intake.plan.sizing
     limit_bytes = (limits or IntakeLimits.from_env()).max_bake_bytes
-    check_bake_memory(asset, texels, spec, limit_bytes, training=sizing.lights_start)
+    check_bake_memory(asset, texels, spec, limit_bytes, operators_for(scene),
+                      training=sizing.lights_start)
 
     with timer.stage("lights"):  # a prefix-stable draw: sizing may take more of the pool
         pool, hold = sample_configurations(

@@ -16,6 +16,7 @@ texels    run — 512×512 atlas, padding 4
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from prtcore.core.errors import AssetError, SpecError
@@ -69,8 +70,20 @@ class Sizing:
 
 #: the smallest P automatic sizing tries; P doubles from here to sizing.max_points
 AUTO_POINTS_START = 128
-#: P and K a keyframe bake uses for "auto" (sizing runs on static bakes only)
-KEYFRAME_POINTS, KEYFRAME_LIGHTS = 256, 128
+#: P and K a bake uses for "auto" where sizing does not run (keyframe and hair bakes)
+FIXED_POINTS, FIXED_LIGHTS = 256, 128
+
+
+def fixed_counts(spec: BakeSpec) -> BakeSpec:
+    """``spec`` with "auto" counts replaced by FIXED_POINTS / FIXED_LIGHTS, for bakes that
+    do not size themselves (hair bakes)."""
+    mp, lt = spec.measurement_points, spec.lights
+    return dataclasses.replace(
+        spec,
+        measurement_points=dataclasses.replace(
+            mp, count=FIXED_POINTS if mp.count == "auto" else mp.count),
+        lights=dataclasses.replace(lt, count=FIXED_LIGHTS if lt.count == "auto"
+                                   else lt.count))
 
 
 @dataclass(frozen=True)
@@ -179,7 +192,7 @@ def decide_keyframes(scene: Scene, spec: BakeSpec) -> StagePlan:
 
 def decide_sizing(spec: BakeSpec, keyframed: bool) -> Sizing:
     """Resolve the spec's P, K and placement ("auto" or given) for a static or keyframe
-    bake (keyframe bakes take fixed KEYFRAME_POINTS / KEYFRAME_LIGHTS for "auto": their
+    bake (keyframe bakes take fixed FIXED_POINTS / FIXED_LIGHTS for "auto": their
     per-pose transport is not grown)."""
     mp, lt, z = spec.measurement_points, spec.lights, spec.sizing
     p_auto, k_auto = mp.count == "auto", lt.count == "auto"
@@ -191,11 +204,11 @@ def decide_sizing(spec: BakeSpec, keyframed: bool) -> Sizing:
         if placement == "qdeim":
             raise SpecError("measurement_points.placement", "'qdeim' is not available for "
                             "keyframe bakes yet (use 'surface')")
-        points = (KEYFRAME_POINTS if p_auto else int(mp.count),)
-        k0 = k1 = KEYFRAME_LIGHTS if k_auto else int(lt.count)
+        points = (FIXED_POINTS if p_auto else int(mp.count),)
+        k0 = k1 = FIXED_LIGHTS if k_auto else int(lt.count)
         if p_auto or k_auto:
-            why.append(f"keyframe bake: auto counts are P = {KEYFRAME_POINTS}, "
-                       f"K = {KEYFRAME_LIGHTS} (no sizing)")
+            why.append(f"keyframe bake: auto counts are P = {FIXED_POINTS}, "
+                       f"K = {FIXED_LIGHTS} (no sizing)")
     else:
         if p_auto:
             top = max(z.max_points, 1)
