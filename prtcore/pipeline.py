@@ -17,6 +17,7 @@ from prtcore.core.spec import BakeSpec, PointsSpec
 from prtcore.intake.plan import Plan, Sizing
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
+from prtcore.io.imageio import EXR_ROW_ORDER
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.dataset import STAGES as TRANSPORT_STAGES
 
@@ -97,10 +98,6 @@ RUN_FILES = ("report.json", "report.png", "report.txt", "report_worst.png", "rep
              "manifest.json")
 
 
-#: the method every bake uses until the spec chooses one (issue 17 adds sh_prt)
-METHOD = "data_driven"
-
-
 def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
          force: bool = False, limits: IntakeLimits | None = None,
          callback: ProgressCallback | None = None, source_name: str | None = None) -> Path:
@@ -153,28 +150,30 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             dataclasses.replace(spec.lights, count=sizing.lights_max), scene.center,
             scene.radius, scene.lights)
         train = pool[:sizing.lights_start]
-    kfs = _keyframe_set(intake, len(train), len(hold), timer)
+    m = method(spec.method.name)
+    kfs, data = None, None
     record = indirect = None
-    if kfs is None:
-        transport = open_transport(scene, texels, points, spec.transport, timer)
-        data = light_configurations(transport, (*train, *hold), len(train), timer)
-        if sizing.automatic:
-            sized = size_bake(spec, sizing, transport, data, pool, len(hold), limit_bytes,
-                              timer)
-            intake = dataclasses.replace(intake, points=sized.points)
-            data, train, indirect = sized.data, sized.train, sized.indirect
-            record = sized.to_dict(sizing)
-            if not quiet:
-                print(f"sizing: {sized.stop}")
-        elif sizing.select:
-            intake, data = _select_points(intake, data, len(train), timer)
-    else:
-        from prtcore.keyframes.pose import bake_keyframe_dataset
+    if m.needs_dataset:
+        kfs = _keyframe_set(intake, len(train), len(hold), timer)
+        if kfs is None:
+            transport = open_transport(scene, texels, points, spec.transport, timer)
+            data = light_configurations(transport, (*train, *hold), len(train), timer)
+            if sizing.automatic:
+                sized = size_bake(spec, sizing, transport, data, pool, len(hold),
+                                  limit_bytes, timer)
+                intake = dataclasses.replace(intake, points=sized.points)
+                data, train, indirect = sized.data, sized.train, sized.indirect
+                record = sized.to_dict(sizing)
+                if not quiet:
+                    print(f"sizing: {sized.stop}")
+            elif sizing.select:
+                intake, data = _select_points(intake, data, len(train), timer)
+        else:
+            from prtcore.keyframes.pose import bake_keyframe_dataset
 
-        data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
+            data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
                         data=data, indirect=indirect, sizing=record)
-    m = method(METHOD)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:
@@ -192,7 +191,10 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             "atlas": {"width": texels.width, "height": texels.height,
                       "padding": spec.atlas.padding, "uv": "TEXCOORD_1",
                       "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
-                      "covered_texels": texels.count, "coverage": "coverage.exr"},
+                      "covered_texels": texels.count, "coverage": "coverage.exr",
+                      # readers that store scanlines bottom-up (three.js EXRLoader) sample
+                      # at (u, 1 - v); docs/bundle.md
+                      "exr_row_order": EXR_ROW_ORDER},
         }
         run = {
             "spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
@@ -209,7 +211,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
     validation = None
-    if spec.validate.reference_spp > 0 and len(hold):
+    if spec.validate.reference_spp > 0 and len(hold) and m.path_traced_validation:
         from prtcore.validate import validate_bundle
 
         with timer.stage("validate"):  # the verdict against the path tracer, noise removed

@@ -183,6 +183,24 @@ BOUNDARIES = ("lambertian",)
 
 
 @dataclass(frozen=True)
+class MethodSpec:
+    #: the method that fits and writes the bundle (prtcore.methods): "data_driven" |
+    #: "sh_prt"
+    name: str = "data_driven"
+
+
+@dataclass(frozen=True)
+class ShPrtSpec:
+    """Classic SH-PRT / transfer textures (method "sh_prt", docs/sh_prt.md)."""
+
+    storage: str = "texture"  # "texture" | "vertex"
+    bands: int = 5
+    strata: int = 16
+    bounce: bool = True
+    seed: int = 5
+
+
+@dataclass(frozen=True)
 class HairSpec:
     """``hair``: how a hair asset (``.hair``, USD BasisCurves) is baked (docs/hair.md)."""
 
@@ -210,6 +228,8 @@ class BakeSpec:
     output: OutputSpec = OutputSpec()
     validate: ValidateSpec = ValidateSpec()
     sizing: SizingSpec = SizingSpec()
+    method: MethodSpec = MethodSpec()
+    sh_prt: ShPrtSpec = ShPrtSpec()
     hair: HairSpec = HairSpec()
     #: material name → :class:`MaterialOverride`
     materials: dict = field(default_factory=dict)
@@ -566,6 +586,26 @@ def _parse(data: Any) -> BakeSpec:
         raise SpecError("sizing.max_lights", f"{sizing.max_lights} is below "
                         f"sizing.lights_start ({sizing.lights_start})")
 
+    mt = _section(MethodSpec, root.get("method", {}), "method")
+    method = MethodSpec(name=_choice(mt.get("name", "data_driven"), "method.name",
+                                     ("data_driven", "sh_prt")))
+    sp = _section(ShPrtSpec, root.get("sh_prt", {}), "sh_prt")
+    sd = ShPrtSpec()
+    bounce = sp.get("bounce", sd.bounce)
+    if not isinstance(bounce, bool):
+        raise SpecError("sh_prt.bounce", f"expected true or false, got {bounce!r}")
+    sh_prt = ShPrtSpec(
+        storage=_choice(sp.get("storage", sd.storage), "sh_prt.storage",
+                        ("texture", "vertex")),
+        bands=_int(sp.get("bands", sd.bands), "sh_prt.bands", lo=1, hi=16),
+        strata=_int(sp.get("strata", sd.strata), "sh_prt.strata", lo=1, hi=128),
+        bounce=bounce,
+        seed=_int(sp.get("seed", sd.seed), "sh_prt.seed", lo=0),
+    )
+    if method.name == "sh_prt" and keyframes.animation is not None:
+        raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
+                        "animation is set)")
+
     hs = _section(HairSpec, root.get("hair", {}), "hair")
     albedo = hs.get("albedo")
     if albedo is not None:
@@ -588,8 +628,8 @@ def _parse(data: Any) -> BakeSpec:
 
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
-                    validate=validate, hair=hair, materials=materials,
-                    sizing=sizing)
+                    validate=validate, method=method, sh_prt=sh_prt, hair=hair,
+                    materials=materials, sizing=sizing)
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

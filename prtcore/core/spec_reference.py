@@ -89,6 +89,16 @@ DOCS: dict[str, str] = {
     "sizing.max_lights": "largest K automatic sizing may grow to, ≥ `lights_start`",
     "sizing.max_seconds": "growing K stops when the next pass would end past this many "
                           "seconds of transport (0: no time limit; the memory limit holds)",
+    "method.name": "`data_driven` (Belcour et al. 2022) · `sh_prt` (classic SH-PRT or "
+                   "transfer textures, section `sh_prt`; docs/sh_prt.md)",
+    "sh_prt.storage": "`texture` (transfer textures: per lightmap texel, RGBA EXRs) · "
+                      "`vertex` (per vertex, Sloan et al. 2002)",
+    "sh_prt.bands": "L, SH bands (L² coefficients per colour channel), 1–16; 5 = the "
+                    "poster's 25 coefficients",
+    "sh_prt.strata": "rays per sample = strata² (stratified cosine directions), 1–128",
+    "sh_prt.bounce": "add one inter-reflection bounce computed from the stored shadowed "
+                     "transfer (T⁰ + T¹)",
+    "sh_prt.seed": "seed of the transfer rays",
     "material.subsurface": "the medium inside the material's closed mesh (below); null: "
                            "as the asset says (KHR_materials_volume, "
                            "KHR_materials_diffuse_transmission, KHR_materials_volume_scatter)",
