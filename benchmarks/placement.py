@@ -45,7 +45,7 @@ def judge(spec, data, K, I, Ih, rows) -> dict:
     f = spec.fit
     model = fit_transfer(D[:, :K], I, basis=f.basis, ridge=f.ridge, channels=f.channels,
                          gamma=f.gamma)
-    m = heldout_metrics(model, D[:, K:], Ih, model.n_basis)
+    m = heldout_metrics(model, D[:, K:], Ih, [model.n_basis])[0]
     e, b = m["heldout_rmse_pooled"], m["projection_bound_pooled"]
     return {"error": e, "bound": b, "ratio": None if e is None or not b else e / b}
 

@@ -270,7 +270,7 @@ def _trial(spec: BakeSpec, data: Dataset, K: int, I: np.ndarray, Ih: np.ndarray,
     f = spec.fit
     model = fit_transfer(Dt, I, basis=f.basis, ridge=f.ridge, channels=f.channels,
                          gamma=f.gamma, holdout=(Dh, Ih) if Ih.shape[1] else None)
-    m = heldout_metrics(model, Dh, Ih, model.n_basis) if Ih.shape[1] else {}
+    m = heldout_metrics(model, Dh, Ih, [model.n_basis])[0] if Ih.shape[1] else {}
     error, bound = m.get("heldout_rmse_pooled"), m.get("projection_bound_pooled")
     ratio = None if error is None or not bound else error / bound
     return Trial(points=len(rows), lights=K, n=model.n_basis, error=error, bound=bound,

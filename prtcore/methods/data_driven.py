@@ -21,8 +21,8 @@ from prtcore.core.formula import RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
-from prtcore.fit.model import TransferModel, relative_rmse
-from prtcore.fit.transfer import fit_transfer, reconstruct
+from prtcore.fit.model import TransferModel
+from prtcore.fit.transfer import fit_transfer, heldout_errors, reconstruct
 from prtcore.io.bundle import (
     basis_planes,
     planes_layout,
@@ -222,17 +222,19 @@ class DataDriven(Method):
         report_atlas.png (UV layout, texel density, utilisation)."""
         texels, data, model = inputs.intake.texels, inputs.data, result.model
         K = len(inputs.train)
-        worst, worst_err = None, -1.0
-        for h in range(len(inputs.hold)):
-            x = data.direct_points[:, K + h].astype(np.float64)
-            ref = data.indirect[:, K + h].astype(np.float64)
-            if not (np.linalg.norm(x) > 0 and np.linalg.norm(ref) > 0):
-                continue
-            g = None if model.group_ids is None else int(inputs.keyframes.holdout[h])
-            rec = reconstruct(model, x, group=g).astype(np.float64)
-            err = relative_rmse(rec, ref)
-            if err > worst_err:
-                worst, worst_err = (h, ref, rec), err
+        worst = None
+        X, R = data.direct_points[:, K:], data.indirect[:, K:]
+        use = np.flatnonzero([np.linalg.norm(X[:, h]) > 0 and np.linalg.norm(R[:, h]) > 0
+                              for h in range(R.shape[1])])
+        if len(use):  # every light's error in one pass (fit/transfer.py), then the worst
+            groups = None if model.group_ids is None else inputs.keyframes.holdout[use]
+            e = heldout_errors(model, X[:, use], R[:, use], [model.n_basis], groups)
+            i = int(np.argmax(e.sse[0] / e.ref_ss))
+            h = int(use[i])
+            g = None if groups is None else int(groups[i])
+            rec = reconstruct(model, X[:, h].astype(np.float64), group=g).astype(np.float64)
+            worst = h, R[:, h].astype(np.float64), rec
+            worst_err = float(np.sqrt(e.sse[0, i] / e.ref_ss[i]))
         if worst is not None:
             h, ref, rec = worst
             plot_worst(texels.to_image(ref, dilate=False)[:, :, :3],
