@@ -33,7 +33,7 @@ from prtcore.io.bundle import (
 from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
-from prtcore.receivers.smoothing import smooth_texels, smoothing_operator
+from prtcore.receivers.smoothing import denoise_lightmaps
 from prtcore.report import (
     TABLE_N,
     error_vs_runtime,
@@ -73,14 +73,18 @@ class DataDriven(Method):
         D, I = data.direct_points[:, :K], data.indirect[:, :K]
         Dh, Ih = data.direct_points[:, K:], data.indirect[:, K:]
         reference = "fast transport of the held-out lights"
-        if spec.fit.denoise > 0:
+        if inputs.indirect is not None:  # prepared by automatic sizing (prtcore/sizing.py)
+            I, Ih = inputs.indirect
+            if spec.fit.denoise > 0:
+                reference += f", denoised (radius {spec.fit.denoise:g} texels)"
+        elif spec.fit.denoise > 0:
             # the gather's per-texel noise stays out of the basis; the held-out lightmaps
             # carry the same noise and are filtered alike, or the table would count that
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
             with timer.stage("denoise"):
-                I = _denoised(texels, I, spec.fit.denoise)
-                Ih = _denoised(texels, Ih, spec.fit.denoise)
+                I = denoise_lightmaps(texels, I, spec.fit.denoise)
+                Ih = denoise_lightmaps(texels, Ih, spec.fit.denoise)
             reference += f", denoised (radius {spec.fit.denoise:g} texels)"
         holdout = (Dh, Ih) if len(inputs.hold) else None
         per_group = kfs is not None and kfs.transfer == "per_keyframe"
@@ -110,7 +114,8 @@ class DataDriven(Method):
                 table = error_vs_runtime(full, Dh, Ih, texels.width * texels.height,
                                          texels.width * texels.height * dtype_bytes,
                                          reference=reference,
-                                         groups=kfs.holdout if per_group else None)
+                                         groups=kfs.holdout if per_group else None,
+                                         shipped=model.n_basis)
             else:
                 table = {"reference": None, "heldout_configurations": 0, "rows": []}
         diag = model.diagnostics.to_dict()
@@ -243,13 +248,3 @@ class DataDriven(Method):
                    inputs.intake.prepare.utilisation,
                    f"{texels.width}×{texels.height} atlas, {texels.count} texels",
                    directory / "report_atlas.png")
-
-
-def _denoised(texels, I, radius: float, block: int = 16) -> np.ndarray:
-    """The training lightmaps I (T, K, 3) through the seam-aware filter of ``radius``
-    texels (receivers/smoothing.py), ``block`` configurations at a time: (T, K, 3) float32."""
-    W = smoothing_operator(texels, radius=radius)
-    out = np.empty(I.shape, dtype=np.float32)
-    for k0 in range(0, I.shape[1], block):
-        out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
-    return out
