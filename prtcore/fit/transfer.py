@@ -60,6 +60,7 @@ Runtime (what :func:`reconstruct` does, and what an engine must do with a bundle
     x' = γ(x)                               (identity without gamma)
     s  = ‖x'‖                               (Frobenius over points and channels)
     u_c = M_c x'_c + s · b_c                 (n−1 coefficients, per channel c)
+    u  += s · r(x'/s)                       (fit.transfer "mlp" only: prtcore.fit.mlp)
     y'_c = s · m_c + Σ_i u_c,i · U_i         (mono: shared U_i; rgb: U_i,c)
     y  = max(y', 0)^g                       (only with gamma; without gamma y = y' unclamped)
 
@@ -80,11 +81,13 @@ closed-form leave-one-out cross-validation of the transfer (basis held fixed).
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 
+from prtcore.core.mlp import transfer_residual, transfer_rows
 from prtcore.core.progress import StageTimer
 from prtcore.core.tolerances import DIRECT_SVD_REL_TOL
 from prtcore.fit.basis import snapshot_basis
@@ -118,6 +121,8 @@ def fit_transfer(
     *,
     intercept: bool = True,
     block_rows: int | None = None,
+    transfer: str = "ridge",
+    transfer_options: Mapping[str, Any] | None = None,
 ) -> TransferModel:
     """Fit mean, basis and transfer (module docstring) and return a float32 model.
 
@@ -135,23 +140,26 @@ def fit_transfer(
     timer : progress bars over texel blocks (step timings go to ``diagnostics.seconds``)
     intercept : fit the transfer offset b (default; False gives the paper's eq. 14 as is)
     block_rows : texel rows per block (default from BLOCK_BYTES)
+    transfer : the transfer regressor ("ridge" | "mlp", :mod:`prtcore.fit.regressor`)
+    transfer_options : the regressor's own options (mlp: :data:`prtcore.fit.mlp.DEFAULTS`)
     """
     return _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
-                intercept, block_rows, np.float32)
+                intercept, block_rows, np.float32, transfer, transfer_options)
 
 
 def fit_transfer64(D: np.ndarray, I: np.ndarray, **kwargs: Any) -> TransferModel:
     """:func:`fit_transfer` keeping every model array in float64 (precision checks)."""
     args = {"basis": 16, "ridge": "auto", "channels": "mono", "gamma": None, "groups": None,
             "per_group": False, "holdout": None, "timer": None, "intercept": True,
-            "block_rows": None}
+            "block_rows": None, "transfer": "ridge", "transfer_options": None}
     unknown = set(kwargs) - set(args)
     if unknown:
         raise TypeError(f"fit_transfer64: unknown arguments {sorted(unknown)}")
     args.update(kwargs)
     return _fit(D, I, args["basis"], args["ridge"], args["channels"], args["gamma"],
                 args["groups"], args["per_group"], args["holdout"], args["timer"],
-                args["intercept"], args["block_rows"], np.float64)
+                args["intercept"], args["block_rows"], np.float64, args["transfer"],
+                args["transfer_options"])
 
 
 # ---------------------------------------------------------------------------------------
@@ -230,6 +238,8 @@ def reconstruct64(model: TransferModel, x: np.ndarray, n: int | None = None,
     s = float(np.linalg.norm(xg))
     u = np.einsum("cip,pc->ci", M[:, :nb].astype(np.float64), xg) \
         + s * b[:, :nb].astype(np.float64)
+    if model.learnt is not None:
+        u += s * transfer_residual(model.learnt, xg)[:, :nb]
     out = np.empty((model.texels, 3))
     rows = default_rows(8 * (nb + 4) * 3, None)
     for sl in blocks(model.texels, rows):
@@ -292,12 +302,13 @@ def _blend(model: TransferModel, sl: slice, s: float, u: np.ndarray, nb: int) ->
 
 
 def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
-         intercept, block_rows, out_dtype, regressor_name: str = "ridge") -> TransferModel:
+         intercept, block_rows, out_dtype, regressor_name: str = "ridge",
+         options: Mapping[str, Any] | None = None) -> TransferModel:
     t0 = time.perf_counter()
     D, gamma, groups = check_arguments(D, I, basis, ridge, channels, gamma, groups, per_group)
     norm = normalise(D, I, gamma, channels, groups, per_group, intercept, block_rows)
     sb = snapshot_basis(I, norm, basis, timer, block_rows, out_dtype)
-    tf = regressor(regressor_name).fit(norm, sb, ridge)
+    tf = regressor(regressor_name).fit(norm, sb, ridge, options or {})
     nb, n_method, curve, used, sel_warnings, sel_seconds = select_basis_count(
         norm, sb, tf, basis, holdout, block_rows)
     seconds = {**sb.seconds, **tf.seconds, **sel_seconds}
@@ -347,6 +358,8 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
         unlit_points=tuple(int(p) for p in norm.unlit),
         warnings=tuple(warnings),
         seconds=seconds,
+        transfer=regressor_name,
+        learnt=tf.learnt_diagnostics,
     )
     M, b = tf.transfer, tf.offset
     transfer = M[:, :, :nb] if per_group else M[0, :, :nb]
@@ -362,4 +375,6 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
         ridge=tf.regularisation,
         group_ids=norm.group_ids,
         diagnostics=diag,
+        learnt=None if tf.learnt is None else tf.learnt.select_outputs(
+            transfer_rows(sb.nb_max, nb)).astype(out_dtype),
     )
