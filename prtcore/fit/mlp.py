@@ -57,7 +57,7 @@ MIN_VALIDATION = 4
 LEARNING_RATE = 1e-3
 WEIGHT_DECAY = 1e-4
 #: the validation error is read every this many steps
-CHECK_EVERY = 25
+CHECK_EVERY = 10
 
 
 def mlp_options(options: Mapping[str, Any] | None) -> dict[str, int]:
@@ -198,6 +198,7 @@ def _train(X: np.ndarray, Y: np.ndarray, widths: tuple[int, ...], steps: int, se
                     h = jnp.where(h >= 0.0, h, LEAKY_SLOPE * h)
             return h
 
+        @jax.jit
         def loss(p, x, y):
             return jnp.mean((apply(p, x) - y) ** 2)
 
@@ -226,7 +227,7 @@ def _train(X: np.ndarray, Y: np.ndarray, widths: tuple[int, ...], steps: int, se
             done += n
             if val is not None:
                 curve.append((done, float(loss(params, xv, yv)) * tau**2))
-            if hasattr(progress, "set_postfix_str"):
+            if not getattr(progress, "disable", True):  # a bar is drawn: loss on it
                 shown = f"val {curve[-1][1]:.3g}" if val is not None else \
                     f"loss {float(loss(params, xs, ys)) * tau**2:.3g}"
                 progress.set_postfix_str(shown, refresh=False)

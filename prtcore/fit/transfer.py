@@ -233,6 +233,19 @@ def reconstruct64(model: TransferModel, x: np.ndarray, n: int | None = None,
                    group: int | None = None) -> np.ndarray:
     """:func:`reconstruct` in float64 (the model's arrays are promoted): (T, 3) float64."""
     nb = _resolve_n(model, n)
+    s, u = coefficients(model, x, n, group)
+    out = np.empty((model.texels, 3))
+    rows = default_rows(8 * (nb + 4) * 3, None)
+    for sl in blocks(model.texels, rows):
+        out[sl] = _blend(model, sl, s, u, nb)
+    return out
+
+
+def coefficients(model: TransferModel, x: np.ndarray, n: int | None = None,
+                 group: int | None = None) -> tuple[float, np.ndarray]:
+    """The runtime's coefficients for direct values x (P, 3): s = ‖γ(x)‖ and u (3, n−1)
+    float64 (``u_c = M_c x'_c + s·b_c``, plus ``s·r(x'/s)`` for a learnt transfer)."""
+    nb = _resolve_n(model, n)
     M, b = _group_transfer(model, group)
     xg = _check_x(model, x)
     s = float(np.linalg.norm(xg))
@@ -240,11 +253,7 @@ def reconstruct64(model: TransferModel, x: np.ndarray, n: int | None = None,
         + s * b[:, :nb].astype(np.float64)
     if model.learnt is not None:
         u += s * transfer_residual(model.learnt, xg)[:, :nb]
-    out = np.empty((model.texels, 3))
-    rows = default_rows(8 * (nb + 4) * 3, None)
-    for sl in blocks(model.texels, rows):
-        out[sl] = _blend(model, sl, s, u, nb)
-    return out
+    return s, u
 
 
 # ---------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from prtcore.core.errors import PrtError
-from prtcore.core.formula import RUNTIME_FORMULA
+from prtcore.core.formula import LEARNT_FORMULA, RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
@@ -190,7 +190,8 @@ class DataDriven(Method):
             "points": pts,
             "keyframes": None if kfs is None else keyframe_files(directory, kfs,
                                                                  inputs.intake.scene),
-            "runtime": {"formula": RUNTIME_FORMULA},
+            "runtime": {"formula": RUNTIME_FORMULA} if model.learnt is None else
+            {"formula": RUNTIME_FORMULA, "learnt": LEARNT_FORMULA},
             "diagnostics": diag,
             "metrics": {"error_vs_runtime": table["rows"],
                         "transport_iterations": data.iterations,
