@@ -119,14 +119,15 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
     from prtcore.io.gltf.export import write_glb
     from prtcore.methods.base import BakeInputs, method
-    from prtcore.transport.dataset import bake_dataset, check_bake_memory
+    from prtcore.transport.dataset import bake_dataset, check_bake_memory, operators_for
 
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
     intake = run_intake(asset, spec, timer=timer, limits=limits)
     scene, texels, points = intake.scene, intake.texels, intake.points
-    check_bake_memory(asset, texels, spec, (limits or IntakeLimits.from_env()).max_bake_bytes)
+    check_bake_memory(asset, texels, spec, (limits or IntakeLimits.from_env()).max_bake_bytes,
+                      operators_for(scene))
 
     with timer.stage("lights"):
         train, hold = sample_configurations(spec.lights, scene.center, scene.radius,

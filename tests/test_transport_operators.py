@@ -67,12 +67,12 @@ def cornell32(tmp_path_factory):
 
 
 def test_registry():
-    assert "surface" in names() and DEFAULT_OPERATORS == ("surface",)
+    assert {"surface", "subsurface"} <= set(names()) and DEFAULT_OPERATORS == ("surface",)
     op = operator_for("surface")
     assert isinstance(op, SurfaceGather) and isinstance(op, TransportOperator)
     assert STAGES[0] == op.stage == "gather operator"
     with pytest.raises(KeyError, match=r"known: .*surface"):
-        operator_for("subsurface")
+        operator_for("no such operator")
     with pytest.raises(ValueError, match="registered twice"):
         register(SurfaceGather)
 

@@ -32,6 +32,8 @@ class IntakeLimits:
     max_animations: int = 1_000
     max_accessor_elements: int = 32_000_000
     max_atlas_resolution: int = 4096
+    max_strands: int = 2_000_000  # hair strands in one .hair / USD file
+    max_hair_points: int = 32_000_000  # hair polyline points (after tessellating cubics)
     #: estimated peak memory of the bake (prtcore.transport.dataset.estimate_bake_bytes), checked
     #: once the texel space is built, before transport allocates
     max_bake_bytes: int = 16 * 1024 * MiB

@@ -28,6 +28,30 @@ class Texture:
 
 
 @dataclass(frozen=True)
+class Subsurface:
+    """A homogeneous scattering medium filling the closed mesh of a translucent material
+    (docs/subsurface.md), behind a Lambertian-transmitting boundary.
+
+    sigma_t : (3,) float64 extinction coefficient σ_t = σ_s + σ_a per channel (per world
+        unit, the inverse mean free path)
+    albedo : (3,) float64 single-scattering albedo α = σ_s / σ_t per channel, in [0, 1]
+    anisotropy : Henyey–Greenstein g of the phase function, in (−1, 1)
+    transmission : t, the boundary's diffuse transmission factor in [0, 1]
+        (KHR_materials_diffuse_transmission): it reflects ``(1 − t) · base colour`` and
+        transmits ``t · transmission_color``; the transport's boundary is symmetric, with
+        the mean of the two as its albedo on both sides
+        (:func:`prtcore.core.materials.albedo_at`, docs/subsurface.md)
+    transmission_color : (3,) float64 linear (diffuseTransmissionColorFactor)
+    """
+
+    sigma_t: np.ndarray
+    albedo: np.ndarray
+    anisotropy: float = 0.0
+    transmission: float = 0.5
+    transmission_color: np.ndarray = field(default_factory=lambda: np.ones(3))
+
+
+@dataclass(frozen=True)
 class Material:
     """Lambertian transport material taken from glTF pbrMetallicRoughness.
 
@@ -37,6 +61,7 @@ class Material:
         homogeneous TEXCOORD_0 (identity when absent)
     texcoord : which TEXCOORD_n the base-colour texture reads (0 unless the asset says)
     emissive_factor : (3,) float64 (recorded; transport ignores emission, see README)
+    subsurface : the medium inside, when the material is translucent (None: opaque)
     """
 
     name: str
@@ -46,6 +71,7 @@ class Material:
     texcoord: int = 0
     emissive_factor: np.ndarray = field(default_factory=lambda: np.zeros(3))
     double_sided: bool = False
+    subsurface: Subsurface | None = None
 
 
 @dataclass(frozen=True)

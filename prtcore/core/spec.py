@@ -88,6 +88,10 @@ class TransportSpec:
     #: gather hits closer than this many texel footprints get the direct light of the hit
     #: point, not of its texel, in the first bounce (0: off)
     near_field: float = 1.0
+    #: random walks per translucent texel through the medium (the subsurface operator)
+    subsurface_walks: int = 32
+    #: scattering events after which a walk is dropped (its light counts as absorbed)
+    subsurface_max_scatter: int = 4096
 
 
 @dataclass(frozen=True)
@@ -135,6 +139,36 @@ class ValidateSpec:
 
 
 @dataclass(frozen=True)
+class SubsurfaceSpec:
+    """The medium of a translucent material (docs/subsurface.md)."""
+
+    #: multiple-scattering albedo (the colour of a thick slab under diffuse light), linear
+    #: RGB; inverted to the single-scattering albedo (Chiang et al. 2016)
+    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    #: mean free path 1/σ_t per channel, world units
+    mean_free_path: tuple[float, float, float] = (0.05, 0.05, 0.05)
+    #: Henyey–Greenstein g
+    anisotropy: float = 0.0
+
+
+@dataclass(frozen=True)
+class MaterialOverride:
+    """``materials.<name>``: what the spec says about one material of the asset."""
+
+    #: the medium inside (null: the material stays as the asset says)
+    subsurface: SubsurfaceSpec | None = None
+    #: the boundary model of a translucent material: "lambertian" (light enters and leaves
+    #: with a cosine distribution; KHR_materials_diffuse_transmission)
+    boundary: str = "lambertian"
+    #: t, the boundary's diffuse transmission factor
+    transmission: float = 0.5
+
+
+#: boundary models of translucent materials
+BOUNDARIES = ("lambertian",)
+
+
+@dataclass(frozen=True)
 class BakeSpec:
     atlas: AtlasSpec = AtlasSpec()
     prepare: PrepareSpec = PrepareSpec()
@@ -145,6 +179,8 @@ class BakeSpec:
     keyframes: KeyframesSpec = KeyframesSpec()
     output: OutputSpec = OutputSpec()
     validate: ValidateSpec = ValidateSpec()
+    #: material name → :class:`MaterialOverride`
+    materials: dict = field(default_factory=dict)
 
 
 # ---------------------------------------------------------------------------------------
@@ -314,6 +350,41 @@ def _family(v: Any, key: str) -> LightFamily:
     return LightFamily(**kw)
 
 
+def _rgb(v: Any, key: str, lo: float, hi: float | None = None, lo_open: bool = False
+         ) -> tuple[float, float, float]:
+    """One number for all channels, or [r, g, b]."""
+    if isinstance(v, list | tuple):
+        if len(v) != 3:
+            raise SpecError(key, f"expected a number or [r, g, b], got {v!r}")
+        return tuple(_num(x, f"{key}[{i}]", lo=lo, hi=hi, lo_open=lo_open)
+                     for i, x in enumerate(v))
+    x = _num(v, key, lo=lo, hi=hi, lo_open=lo_open)
+    return (x, x, x)
+
+
+_MATERIAL_KEYS = tuple(f.name for f in dataclasses.fields(MaterialOverride))
+_SUBSURFACE_KEYS = tuple(f.name for f in dataclasses.fields(SubsurfaceSpec))
+
+
+def _material(v: Any, key: str) -> MaterialOverride:
+    d = _obj(v, key, _MATERIAL_KEYS)
+    base, sub = MaterialOverride(), None
+    if d.get("subsurface") is not None:
+        ss = _obj(d["subsurface"], f"{key}.subsurface", _SUBSURFACE_KEYS)
+        sd = SubsurfaceSpec()
+        sub = SubsurfaceSpec(
+            albedo=_rgb(ss.get("albedo", sd.albedo), f"{key}.subsurface.albedo", 0.0, 1.0),
+            mean_free_path=_rgb(ss.get("mean_free_path", sd.mean_free_path),
+                                f"{key}.subsurface.mean_free_path", 0.0, lo_open=True),
+            anisotropy=_num(ss.get("anisotropy", sd.anisotropy),
+                            f"{key}.subsurface.anisotropy", lo=-0.99, hi=0.99))
+    return MaterialOverride(
+        subsurface=sub,
+        boundary=_choice(d.get("boundary", base.boundary), f"{key}.boundary", BOUNDARIES),
+        transmission=_num(d.get("transmission", base.transmission), f"{key}.transmission",
+                          lo=0.0, hi=1.0))
+
+
 def _section(cls: type, v: Any, key: str) -> dict:
     return _obj(v, key, tuple(f.name for f in dataclasses.fields(cls)))
 
@@ -387,6 +458,11 @@ def _parse(data: Any) -> BakeSpec:
         direct_samples=_int(t.get("direct_samples", 4), "transport.direct_samples", lo=1,
                             hi=64),
         near_field=_num(t.get("near_field", 1.0), "transport.near_field", lo=0.0, hi=16.0),
+        subsurface_walks=_int(t.get("subsurface_walks", TransportSpec.subsurface_walks),
+                              "transport.subsurface_walks", lo=1, hi=4096),
+        subsurface_max_scatter=_int(t.get("subsurface_max_scatter",
+                                          TransportSpec.subsurface_max_scatter),
+                                    "transport.subsurface_max_scatter", lo=1, hi=1 << 20),
     )
 
     f = _section(FitSpec, root.get("fit", {}), "fit")
@@ -447,9 +523,15 @@ def _parse(data: Any) -> BakeSpec:
                               "validate.reference_lights", lo=1, hi=1 << 16),
     )
 
+    mats = root.get("materials", {})
+    if not isinstance(mats, dict):
+        raise SpecError("materials", f"expected an object of material names, got "
+                        f"{_type_name(mats)}")
+    materials = {str(name): _material(mv, f"materials.{name}") for name, mv in mats.items()}
+
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
-                    validate=validate)
+                    validate=validate, materials=materials)
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

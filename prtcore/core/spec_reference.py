@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
-from prtcore.core.spec import BakeSpec, LightFamily
+from prtcore.core.spec import BakeSpec, LightFamily, MaterialOverride, SubsurfaceSpec
 
 #: "section.key" → what it means, its unit or choices, its range
 DOCS: dict[str, str] = {
@@ -46,6 +46,10 @@ DOCS: dict[str, str] = {
     "transport.near_field": "gather hits closer than this many texel footprints take the "
                             "direct light of the hit point in the first bounce (0: off), "
                             "0–16",
+    "transport.subsurface_walks": "random walks per translucent texel through its medium "
+                                  "(docs/subsurface.md), 1–4096",
+    "transport.subsurface_max_scatter": "scattering events after which a walk is dropped "
+                                        "(its light counts as absorbed), 1–1048576",
     "fit.basis": "n, basis elements including the mean (1–4096), or `auto`",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
@@ -75,6 +79,18 @@ DOCS: dict[str, str] = {
                               "path-trace `reference_lights` of them at this many samples "
                               "per texel and judge their noise-corrected error",
     "validate.reference_lights": "held-out lights path-traced when `reference_spp` > 0",
+    "material.subsurface": "the medium inside the material's closed mesh (below); null: "
+                           "as the asset says (KHR_materials_volume, "
+                           "KHR_materials_diffuse_transmission, KHR_materials_volume_scatter)",
+    "material.boundary": "`lambertian`: light enters and leaves with a cosine distribution; "
+                         "the boundary reflects and transmits the same albedo "
+                         "½((1 − t)·base colour + t·base colour) on both sides",
+    "material.transmission": "t, the boundary's diffuse transmission factor, 0–1",
+    "subsurface.albedo": "multiple-scattering albedo (the colour of a thick slab under "
+                         "diffuse light), a number or [r, g, b] in [0, 1]; the "
+                         "single-scattering albedo is Chiang et al. 2016's inversion",
+    "subsurface.mean_free_path": "1/σ_t, world units, a number or [r, g, b], > 0",
+    "subsurface.anisotropy": "Henyey–Greenstein g, −0.99–0.99",
     "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual)",
     "family.weight": "relative probability of this family",
     "family.position": "`{\"shell\": [a, b]}` (radii in units of the asset's bounding "
@@ -105,10 +121,17 @@ def _default(v) -> str:
 def keys() -> list[str]:
     """Every documented key: "section.key" of BakeSpec, "family.key" of a light family."""
     out = []
-    for sec in dataclasses.fields(BakeSpec):
+    for sec in _sections():
         out += [f"{sec.name}.{f.name}" for f in dataclasses.fields(sec.default)]
     out += [f"family.{f.name}" for f in dataclasses.fields(LightFamily)]
+    out += [f"material.{f.name}" for f in dataclasses.fields(MaterialOverride)]
+    out += [f"subsurface.{f.name}" for f in dataclasses.fields(SubsurfaceSpec)]
     return out
+
+
+def _sections() -> list:
+    """The sections of BakeSpec with fixed keys (``materials`` is keyed by name)."""
+    return [s for s in dataclasses.fields(BakeSpec) if s.name != "materials"]
 
 
 def reference() -> str:
@@ -117,7 +140,7 @@ def reference() -> str:
     lines = ["# The bake spec", "",
              "JSON; every key optional; unknown keys are refused with their path. "
              "Generated from `prtcore/core/spec.py` by `prtcore/core/spec_reference.py`.", ""]
-    for sec in dataclasses.fields(BakeSpec):
+    for sec in _sections():
         lines += [f"## `{sec.name}`", "", "| key | default | meaning |", "|---|---|---|"]
         for f in dataclasses.fields(sec.default):
             d = _default(getattr(getattr(spec, sec.name), f.name))
@@ -128,6 +151,18 @@ def reference() -> str:
     for f in dataclasses.fields(LightFamily):
         lines.append(f"| `{f.name}` | {_default(getattr(fam, f.name))} | "
                      f"{DOCS['family.' + f.name]} |")
+    lines += ["", "## `materials`", "",
+              "An object keyed by material name (a name the asset does not have is "
+              "refused); each value overrides that material (docs/subsurface.md):", "",
+              "| key | default | meaning |", "|---|---|---|"]
+    for cls, prefix in ((MaterialOverride, "material"), (SubsurfaceSpec, "subsurface")):
+        if prefix == "subsurface":
+            lines += ["", "### `materials.<name>.subsurface`", "",
+                      "| key | default | meaning |", "|---|---|---|"]
+        obj = cls()
+        for f in dataclasses.fields(cls):
+            lines.append(f"| `{f.name}` | {_default(getattr(obj, f.name))} | "
+                         f"{DOCS[prefix + '.' + f.name]} |")
     return "\n".join(lines) + "\n"
 
 

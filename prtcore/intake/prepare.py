@@ -11,6 +11,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from prtcore.core.materials import apply_material_spec
 from prtcore.core.scene import Scene
 from prtcore.intake.mesh import MeshHealth, inspect_mesh, remesh_scene, repair_scene
 from prtcore.intake.uv import UVCheck, check_uv1, generate_uv1
@@ -62,6 +63,8 @@ def prepare_scene(scene: Scene, spec: BakeSpec, timer: StageTimer | None = None,
     plan : the result of ``plan_asset(scene, spec)`` for this very scene and spec (computed
     here when not given): its decisions are executed, its mesh health and TEXCOORD_1 check
     reused. Prepare never decides.
+    The spec's ``materials`` section is applied first
+    (:func:`prtcore.core.materials.apply_material_spec`).
     Raises :class:`AssetError` naming TEXCOORD_1 when ``prepare.uv`` is "keep" and the UVs
     are missing or invalid.
     """
@@ -69,6 +72,7 @@ def prepare_scene(scene: Scene, spec: BakeSpec, timer: StageTimer | None = None,
     from prtcore.intake.plan import plan_asset
 
     timer = timer if timer is not None else StageTimer(quiet=True)
+    scene = apply_material_spec(scene, spec.materials)
     if plan is None:
         plan = plan_asset(scene, spec)
     seconds: dict[str, float] = {}

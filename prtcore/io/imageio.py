@@ -49,13 +49,29 @@ def write_exr(path: str | Path, image: np.ndarray, dtype: str = "float",
         out.close()
 
 
-def read_image(path: str | Path) -> np.ndarray:
-    """Read any image OpenImageIO knows as (h, w, c) float32 (row 0 = top)."""
+def _open(path: str | Path):
+    """An OpenImageIO input for ``path`` (the caller closes it); errors name the file."""
     if not os.path.exists(path):
         raise PrtError(f"{path}: no such file")
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise PrtError(f"{path}: cannot read image: {oiio.geterror()}")
+    return inp
+
+
+def image_size(path: str | Path) -> tuple[int, int, int]:
+    """(height, width, channels) of an image file, from its header (no pixels read)."""
+    inp = _open(path)
+    try:
+        spec = inp.spec()
+        return spec.height, spec.width, spec.nchannels
+    finally:
+        inp.close()
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read any image OpenImageIO knows as (h, w, c) float32 (row 0 = top)."""
+    inp = _open(path)
     try:
         data = inp.read_image(format=oiio.FLOAT)
     finally:

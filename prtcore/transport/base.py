@@ -12,9 +12,11 @@ runs over a list of operators, adds their matrices into one operator A
 anything is allocated (:func:`prtcore.transport.dataset.check_bake_memory`).
 
 Members today: ``"surface"``, the surface inter-reflection gather
-(:mod:`prtcore.transport.surface`). Each member is a module of this package that defines a
-subclass and registers it with :func:`register`; ``prtcore.transport`` imports the members
-(one line each).
+(:mod:`prtcore.transport.surface`), and ``"subsurface"``, the random walks through the
+media of translucent materials (:mod:`prtcore.transport.subsurface`, docs/subsurface.md;
+the scene's materials choose it, :func:`prtcore.transport.dataset.operators_for`). Each
+member is a module of this package that defines a subclass and registers it with
+:func:`register`; ``prtcore.transport`` imports the members (one line each).
 
 Where the next one plugs in: the **subsurface random walk** is
 ``prtcore/transport/subsurface.py`` — a ``SubsurfaceWalk(TransportOperator)`` with
@@ -52,6 +54,10 @@ class TransportTerm(Protocol):
         (the solver applies the clamped albedo ρ)
     stats : what tracing it counted (rays, misses, …), reported under the operator's
         ``stats_key``
+    channel_matrices : optional, three (T, T) float32 CSR added to ``matrix`` for the R, G
+        and B channels — an operator whose light differs per channel (the subsurface
+        walks, whose ``matrix`` is then empty); the solver sums them over the terms
+        (:func:`prtcore.transport.dataset.channel_matrices`)
     """
 
     @property

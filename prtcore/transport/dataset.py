@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from prtcore.core.errors import LimitExceeded
-from prtcore.core.materials import clamp_albedo
+from prtcore.core.materials import clamp_albedo, has_translucency
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
@@ -36,10 +36,18 @@ from prtcore.transport.solve import SOLVE_BLOCK_BYTES, solve_indirect
 
 #: The operators a bake runs, in order (registry names, :mod:`prtcore.transport.base`).
 DEFAULT_OPERATORS = ("surface",)
+#: ... when the scene has a translucent material (docs/subsurface.md)
+TRANSLUCENT_OPERATORS = ("surface", "subsurface")
 #: the timed stages of :func:`bake_dataset` after its operators', in the order they run
 LIGHT_STAGES = ("direct points", "direct texels", "near field", "indirect solve")
-#: the timed stages of :func:`bake_dataset`, in the order they run
-STAGES = (*(operator_for(n).stage for n in DEFAULT_OPERATORS), *LIGHT_STAGES)
+#: the timed stages of :func:`bake_dataset`, in the order they run (every operator's)
+STAGES = (*(operator_for(n).stage for n in TRANSLUCENT_OPERATORS), *LIGHT_STAGES)
+
+
+def operators_for(scene: Scene) -> tuple[str, ...]:
+    """The operators a bake of ``scene`` runs: the surface gather, and the subsurface
+    walks when a material is translucent."""
+    return TRANSLUCENT_OPERATORS if has_translucency(scene) else DEFAULT_OPERATORS
 #: Memory model of a bake (bytes; :func:`estimate_bake_bytes`), measured as peak RSS on the
 #: Cornell box at 512² and 1024² with 4–16 gather rays and 30–96 configurations
 #: (tests/stability) and rounded up, so that it overestimates by 10–30 %: per covered
@@ -113,6 +121,19 @@ def operator_matrix(traced: Sequence[Traced]) -> sp.csr_matrix:
     total = sp.csr_matrix(total)
     total.sum_duplicates()
     return total
+
+
+def channel_matrices(traced: Sequence[Traced]) -> tuple | None:
+    """The per-channel parts of the operator (three (T, T) float32 CSR, summed over the
+    terms that have ``channel_matrices``), or None when no term has one."""
+    parts = [t.term.channel_matrices for t in traced
+             if getattr(t.term, "channel_matrices", None) is not None]
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return tuple(parts[0])
+    return tuple(sp.csr_matrix(sum(p[c].astype(np.float32) for p in parts))
+                 for c in range(3))
 
 
 def _add_first_bounce(a: tuple[np.ndarray, np.ndarray] | None,
@@ -202,7 +223,8 @@ def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
     rays2 = tracer.rays_traced
     indirect, bounces, resid, solve_stats = solve_indirect(
         operator_matrix(traced), texels.albedo, direct, spec.max_bounces, spec.tolerance,
-        timer, threads=tracer.threads, first_bounce=first)
+        timer, threads=tracer.threads, first_bounce=first,
+        channel_matrices=channel_matrices(traced))
     stats = {"rays": {"direct_texels": rays1 - rays0, "near_field": rays2 - rays1},
              "solve": solve_stats, "direct_samples": int(positions.shape[1])}
     return TexelLighting(direct=direct, indirect=indirect, iterations=bounces,
@@ -213,7 +235,7 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
                  lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                  spec: TransportSpec | None = None, timer: StageTimer | None = None,
                  tracer: RayTracer | None = None,
-                 operators: Sequence[str] = DEFAULT_OPERATORS) -> Dataset:
+                 operators: Sequence[str] | None = None) -> Dataset:
     """The transport stage: the operators (gather), direct light, all bounces.
 
     Training and held-out configurations are computed in one pass: ``Dataset.lights`` is
@@ -221,11 +243,14 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
     ``stats["train"]`` is ``len(lights_train)`` (the caller splits at it).
     Sub-stages are timed on ``timer`` as :data:`STAGES` ("gather operator",
     "direct points", "direct texels", "near field", "indirect solve"). operators :
-    registry names (:mod:`prtcore.transport.base`), traced in order.
+    registry names (:mod:`prtcore.transport.base`), traced in order; None:
+    :func:`operators_for` the scene (the subsurface walks join when a material is
+    translucent).
     """
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     tracer = tracer or RayTracer(scene.positions, scene.faces, scene.radius)
+    operators = operators_for(scene) if operators is None else tuple(operators)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     rays0 = tracer.rays_traced
     before = dict(timer.seconds)

@@ -223,7 +223,7 @@ def _texel_lookup(texels: TexelSpace) -> np.ndarray:
     return lut
 
 
-class _HitMapper:
+class HitMapper:
     """Surface hit (triangle, barycentric) → texel index (see :func:`gather_operator`)."""
 
     def __init__(self, scene: Scene, texels: TexelSpace, tracer: RayTracer):
@@ -348,7 +348,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     up = np.einsum("tij,tj->ti", np.stack([tan, bit, shade], axis=1), geo)  # (T, 3)
     flat = bool((np.abs(up[:, :2]).max(initial=0.0) < 1e-12) and (up[:, 2].min(
         initial=1.0) > 0))
-    mapper = _HitMapper(scene, texels, tracer)
+    mapper = HitMapper(scene, texels, tracer)
     # near-field reach of each texel: near_field × its footprint, in world units
     reach = near_field * 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
     near_parts: list[tuple[np.ndarray, ...]] = []

@@ -72,6 +72,25 @@ class SparseProduct:
         return out
 
 
+class ChannelProduct:
+    """``A_c @ x`` with ``A_c = shared + extra[c]``: a :class:`SparseProduct` of the shared
+    matrix on all columns plus, per colour channel c, its own matrix on that channel's
+    columns (x's columns are (configuration, channel) pairs, channel fastest). The
+    subsurface walks' operator differs per channel (docs/subsurface.md)."""
+
+    def __init__(self, shared: sp.csr_matrix, extra, threads: int = 2):
+        self.shared = SparseProduct(shared, threads)
+        self.extra = [SparseProduct(m if m.dtype == np.float32 else m.astype(np.float32),
+                                    threads) for m in extra]
+        self.shape = shared.shape
+
+    def __call__(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        out = self.shared(x, out)
+        for c, prod in enumerate(self.extra):
+            out[:, c::3] += prod(np.ascontiguousarray(x[:, c::3]))
+        return out
+
+
 def _col_norms(x: np.ndarray) -> np.ndarray:
     """‖x[:, j]‖ over rows for x (T, ...) float32 → x.shape[1:] float64 (float32 sums over
     row blocks of NORM_BLOCK, accumulated in float64)."""
@@ -142,7 +161,8 @@ def spectrum_interval(product: SparseProduct, rho: np.ndarray, steps: int = ARNO
 def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray,
                    max_bounces: int, tolerance: float, timer: StageTimer | None = None,
                    method: str = "chebyshev", threads: int = 2,
-                   first_bounce: tuple[np.ndarray, np.ndarray] | None = None
+                   first_bounce: tuple[np.ndarray, np.ndarray] | None = None,
+                   channel_matrices: tuple | None = None
                    ) -> tuple[np.ndarray, int, float, dict]:
     """All bounces of indirect light for every configuration and channel at once.
 
@@ -174,6 +194,9 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     first_bounce : (rows, values (r, K, 3)) added to ``G L_d`` at those rows — the near
     field's correction (:func:`prtcore.transport.direct.near_field_correction`).
 
+    channel_matrices : three (T, T) CSR added to G for the R, G and B channels
+    (:class:`ChannelProduct`; the subsurface walks), or None.
+
     Returns the indirect outgoing radiance ρ/π·E_ind (T, K, 3) float32, the number of
     products (bounces), the residual (the largest last relative change; 1.0 after a single
     bounce) and stats.
@@ -184,10 +207,11 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     ctx = timer.stage("indirect solve") if timer is not None else nullcontext()
     with ctx:
         return _solve(matrix, albedo, direct, int(max_bounces), float(tolerance), method,
-                      threads, first_bounce)
+                      threads, first_bounce, channel_matrices)
 
 
-def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extra=None):
+def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extra=None,
+           channel_matrices=None):
     t, k = direct.shape[:2]
     rho, _ = clamp_albedo(np.asarray(albedo, dtype=np.float64))
     rho32 = rho.astype(np.float32)
@@ -196,7 +220,8 @@ def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extr
     stats: dict = {"method": method, "converged": True, "blocks": []}
     if max_bounces < 1 or t == 0 or k == 0:
         return out, 0, 0.0, stats
-    product = SparseProduct(g, threads)
+    product = SparseProduct(g, threads) if channel_matrices is None else \
+        ChannelProduct(g, channel_matrices, threads)
     t0 = time.perf_counter()
     lo = hi = None
     if method == "chebyshev" and max_bounces > 1:

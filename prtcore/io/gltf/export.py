@@ -14,8 +14,8 @@ import numpy as np
 import pygltflib as gl
 from PIL import Image
 
-from prtcore.core.materials import linear_to_srgb
-from prtcore.core.scene import Scene
+from prtcore.core.materials import linear_to_srgb, multiple_scattering_albedo
+from prtcore.core.scene import Scene, Subsurface
 
 _FLOAT, _UINT = 5126, 5125
 _ARRAY, _ELEMENT_ARRAY = 34962, 34963
@@ -98,10 +98,14 @@ def scene_to_glb(scene: Scene) -> bytes:
         doc.materials.append(gl.Material(
             name=mat.name or f"material_{m}", pbrMetallicRoughness=pbr,
             emissiveFactor=[float(c) for c in mat.emissive_factor],
-            doubleSided=bool(mat.double_sided)))
+            doubleSided=bool(mat.double_sided),
+            extensions=_subsurface_extensions(mat.subsurface)))
         prims.append(gl.Primitive(attributes=attrs, material=len(doc.materials) - 1,
                                   indices=blob.accessor(faces.ravel(), "SCALAR",
                                                         _ELEMENT_ARRAY), mode=4))
+    used = sorted({k for mat in doc.materials for k in (mat.extensions or {})})
+    if used:
+        doc.extensionsUsed = used
     doc.meshes.append(gl.Mesh(primitives=prims, name="baked"))
     doc.nodes.append(gl.Node(mesh=0, name="baked"))
     doc.scenes.append(gl.Scene(nodes=[0]))
@@ -109,6 +113,28 @@ def scene_to_glb(scene: Scene) -> bytes:
     doc.buffers.append(gl.Buffer(byteLength=len(blob.data)))
     doc.set_binary_blob(bytes(blob.data))
     return b"".join(doc.save_to_bytes())
+
+
+def _subsurface_extensions(medium: Subsurface | None) -> dict:
+    """A translucent material's medium as the glTF extensions the loader reads back
+    (:func:`prtcore.io.gltf.materials.parse_subsurface`): attenuation over d = the
+    shortest mean free path, so every colour lies in [1/e, 1]."""
+    if medium is None:
+        return {}
+    sigma = np.asarray(medium.sigma_t, np.float64)
+    top = float(sigma.max())
+    d = 1.0 / top if top > 0 else 1.0
+    return {
+        "KHR_materials_volume": {"thicknessFactor": 1.0, "attenuationDistance": d,
+                                 "attenuationColor": [float(c) for c in np.exp(-sigma * d)]},
+        "KHR_materials_volume_scatter": {
+            "multiscatterColorFactor": [float(a) for a in
+                                        multiple_scattering_albedo(medium.albedo)],
+            "scatterAnisotropy": float(medium.anisotropy)},
+        "KHR_materials_diffuse_transmission": {
+            "diffuseTransmissionFactor": float(medium.transmission),
+            "diffuseTransmissionColorFactor": [float(c) for c in medium.transmission_color]},
+    }
 
 
 def write_glb(scene: Scene, path: str | Path) -> None:

@@ -1,4 +1,5 @@
-"""Materials (the Lambertian base colour), textures, samplers and images."""
+"""Materials (the Lambertian base colour and, for translucent materials, the medium
+inside: docs/subsurface.md), textures, samplers and images."""
 
 from __future__ import annotations
 
@@ -8,9 +9,10 @@ import warnings
 import numpy as np
 
 from prtcore.core.errors import PrtError
-from prtcore.core.materials import srgb_to_linear
+from prtcore.core.materials import srgb_to_linear, subsurface_medium
 from prtcore.core.scene import (
     Material,
+    Subsurface,
     Texture,
 )
 from prtcore.io.gltf.accessors import buffer_data, buffer_view
@@ -138,8 +140,70 @@ def parse_materials(ctx: Ctx, doc: dict, buffers: list
             base_color_factor=factor, texture=texture, uv_transform=uv_transform,
             texcoord=texcoord, emissive_factor=emissive,
             double_sided=get_bool(ctx, mj, "doubleSided", where, default=False),
+            subsurface=parse_subsurface(ctx, mj, where),
         ))
     return materials, textures
+
+
+VOLUME = "KHR_materials_volume"
+DIFFUSE_TRANSMISSION = "KHR_materials_diffuse_transmission"
+VOLUME_SCATTER = "KHR_materials_volume_scatter"
+
+
+def parse_subsurface(ctx: Ctx, mj: dict, where: str) -> Subsurface | None:
+    """The medium of a translucent material (docs/subsurface.md), or None.
+
+    Translucent = ``KHR_materials_volume`` with ``thicknessFactor`` > 0 (a closed mesh
+    filled with a medium). Its ``attenuationColor`` c over ``attenuationDistance`` d gives
+    ``−ln(c)/d``: with ``KHR_materials_volume_scatter`` (draft) the extinction σ_t, whose
+    ``multiscatterColorFactor`` is the multiple-scattering albedo (inverted,
+    :func:`~prtcore.core.materials.single_scattering_albedo`) and ``scatterAnisotropy`` the
+    Henyey–Greenstein g; without it the absorption σ_a of a medium that does not scatter.
+    ``KHR_materials_diffuse_transmission`` gives the boundary's t and transmission colour
+    (factors; its textures are not read: a warning). Scatter or transmission without a
+    volume (thin-walled) is not modelled: the material stays opaque, with a warning.
+    """
+    vol = get_extension(ctx, mj, VOLUME, where)
+    dt = get_extension(ctx, mj, DIFFUSE_TRANSMISSION, where)
+    vs = get_extension(ctx, mj, VOLUME_SCATTER, where)
+    thick = 0.0 if vol is None else get_num(ctx, vol, "thicknessFactor",
+                                            f"{where}.extensions.{VOLUME}", default=0.0)
+    if thick <= 0.0:
+        if dt is not None or vs is not None:
+            ctx.warn(where, "diffuse transmission or scattering without a volume "
+                     f"({VOLUME} thicknessFactor > 0) is thin-walled, which is not "
+                     "modelled: the material is opaque")
+        return None
+    vw = f"{where}.extensions.{VOLUME}"
+    dist = get_num(ctx, vol, "attenuationDistance", vw, default=float("inf"))
+    if dist <= 0.0:
+        raise ctx.fail(f"{vw}.attenuationDistance", f"must be > 0, got {dist}")
+    color = get_nums(ctx, vol, "attenuationColor", vw, 3, [1.0, 1.0, 1.0])
+    if (color <= 0.0).any() or (color > 1.0).any():
+        raise ctx.fail(f"{vw}.attenuationColor", "components must be in (0, 1]")
+    coeff = -np.log(color) / dist  # per world unit (0 where c = 1 or d = ∞)
+    with np.errstate(divide="ignore"):
+        mfp = np.where(coeff > 0, 1.0 / np.where(coeff > 0, coeff, 1.0), np.inf)
+    multiple, g = np.zeros(3), 0.0
+    if vs is not None:
+        sw = f"{where}.extensions.{VOLUME_SCATTER}"
+        multiple = get_nums(ctx, vs, "multiscatterColorFactor", sw, 3, [0.0, 0.0, 0.0])
+        if (multiple < 0).any() or (multiple > 1).any():
+            raise ctx.fail(f"{sw}.multiscatterColorFactor", "components must be in [0, 1]")
+        g = get_num(ctx, vs, "scatterAnisotropy", sw, default=0.0)
+        if not -1.0 < g < 1.0:
+            raise ctx.fail(f"{sw}.scatterAnisotropy", f"must be in (−1, 1), got {g}")
+    t, tc = 0.0, np.ones(3)
+    if dt is not None:
+        dw = f"{where}.extensions.{DIFFUSE_TRANSMISSION}"
+        t = get_num(ctx, dt, "diffuseTransmissionFactor", dw, default=0.0)
+        if not 0.0 <= t <= 1.0:
+            raise ctx.fail(f"{dw}.diffuseTransmissionFactor", f"must be in [0, 1], got {t}")
+        tc = get_nums(ctx, dt, "diffuseTransmissionColorFactor", dw, 3, [1.0, 1.0, 1.0])
+        for k in ("diffuseTransmissionTexture", "diffuseTransmissionColorTexture"):
+            if k in dt:
+                ctx.warn(dw, f"{k} is not read; its factor is used")
+    return subsurface_medium(multiple, mfp, g, t, tc)
 
 
 def _texture_info(ctx: Ctx, doc: dict, info: dict, where: str, buffers: list,

@@ -1,0 +1,197 @@
+"""Classic PRT transfer in spherical harmonics (Sloan, Kautz & Snyder 2002), diffuse.
+
+For a diffuse point x with albedo ρ and shading normal n, lit by distant radiance
+``L(ω) = Σ_i l_i Y_i(ω)``, the outgoing radiance is ``Σ_i T_i l_i`` (per RGB channel) with
+
+* unshadowed: ``T_i = ρ/π ∫ Y_i(ω) max(0, n·ω) dω`` — in closed form, the clamped cosine
+  turned to n (:func:`prtcore.core.sh.zonal_to_direction`);
+* shadowed: ``T⁰_i = ρ/π ∫ Y_i(ω) V(x, ω) max(0, n·ω) dω`` — estimated with S stratified
+  cosine-distributed rays per point: ``T⁰_i ≈ ρ/S Σ_k Y_i(ω_k) V(x, ω_k)``;
+* inter-reflected, one bounce (the poster's T₁ from T₀): ``T¹_i(x) = ρ/π ∫ T⁰_i(y(ω))
+  (1 − V(x, ω)) max(0, n·ω) dω``, y(ω) the surface point the ray hits (its front face), with
+  T⁰ at y read from where the transfer is stored: interpolated from the vertices
+  (per-vertex PRT) or looked up in the dilated transfer texture at y's lightmap UV (transfer
+  textures). The same rays serve both terms. Total ``T = T⁰ + T¹``.
+
+Conventions as the path tracer's (:mod:`prtcore.reference.pathtracer`): a direction below
+the point's geometric plane contributes nothing; so does a ray hitting a back face (it has
+entered geometry). Albedos are clamped for transport. Every random choice comes from
+``seed``; points are processed in fixed-size chunks with their own streams, so the result
+does not depend on the chunking of the caller.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from prtcore.core import sh
+from prtcore.core.geometry import directions_around, shading_normals
+from prtcore.core.materials import albedo_at, clamp_albedo
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Scene
+
+#: Points whose rays are traced together (fixed: results do not depend on the caller).
+POINT_CHUNK = 1024
+#: Transfer kinds, from the cheapest.
+KINDS = ("unshadowed", "shadowed", "interreflected")
+
+
+@dataclass(frozen=True)
+class SurfaceSamples:
+    """Where transfer is computed.
+
+    position, normal (shading, unit), geometric_normal (unit) : (n, 3) float64;
+    albedo : (n, 3) float64 raw linear albedo (clamped for transport here).
+    """
+
+    position: np.ndarray
+    normal: np.ndarray
+    geometric_normal: np.ndarray
+    albedo: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.position)
+
+
+@dataclass(frozen=True)
+class ShTransfer:
+    """Transfer vectors: ``coeffs`` (n, 3, L²) float64 — outgoing radiance of point p in
+    channel c is ``coeffs[p, c] @ light[:, c]`` for light SH coefficients (L², 3).
+
+    kind : one of :data:`KINDS`; bands : L; samples : rays per point (0 for unshadowed).
+    """
+
+    coeffs: np.ndarray
+    kind: str
+    bands: int
+    samples: int
+
+    def radiance(self, light: np.ndarray) -> np.ndarray:
+        """(n, 3) float64 outgoing radiance under light SH coefficients ``light`` (L², 3)."""
+        return np.einsum("pcl,lc->pc", self.coeffs, np.asarray(light, np.float64))
+
+
+def vertex_samples(scene: Scene) -> SurfaceSamples:
+    """The scene's vertices as transfer samples (per-vertex PRT): each vertex takes the
+    shading normal, geometric normal and albedo of one face that uses it (a fixed choice),
+    at that corner. Vertices no face uses get a zero albedo."""
+    v = len(scene.positions)
+    face = np.full(v, -1, dtype=np.int64)
+    corner = np.zeros(v, dtype=np.int64)
+    for k in (2, 1, 0):  # a fixed choice among the faces that use a vertex
+        idx = scene.faces[::-1, k]
+        face[idx] = np.arange(len(scene.faces))[::-1]
+        corner[idx] = k
+    used = face >= 0
+    tri = face[used]
+    bary = np.zeros((len(tri), 3))
+    bary[np.arange(len(tri)), corner[used]] = 1.0
+    albedo = np.zeros((v, 3))
+    albedo[used] = albedo_at(scene, tri, bary)
+    gn = np.zeros((v, 3))
+    gn[:, 1] = 1.0
+    v0 = scene.positions[scene.faces[tri]]
+    g = np.cross(v0[:, 1] - v0[:, 0], v0[:, 2] - v0[:, 0])
+    g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
+    gn[used] = g
+    normal = np.array(scene.normals, dtype=np.float64)
+    normal[used] = shading_normals(scene, tri, bary, g)
+    return SurfaceSamples(np.asarray(scene.positions, np.float64), normal, gn, albedo)
+
+
+def unshadowed_transfer(samples: SurfaceSamples, bands: int) -> ShTransfer:
+    """Closed-form unshadowed diffuse transfer (no rays)."""
+    rho, _ = clamp_albedo(np.asarray(samples.albedo, np.float64))
+    zonal = sh.clamped_cosine_zonal(bands)
+    k = sh.basis(samples.normal, bands) * (
+        np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * zonal)[sh.band_of(bands)]
+    return ShTransfer(rho[:, :, None] / math.pi * k[:, None, :], "unshadowed", bands, 0)
+
+
+def _stratified_cosine(normals: np.ndarray, strata: int, rng: np.random.Generator
+                       ) -> np.ndarray:
+    """(m, strata², 3) cosine-distributed directions about ``normals`` (m, 3): one jittered
+    sample per cell of a strata × strata grid on the unit square (Malley's method)."""
+    m = len(normals)
+    s = strata * strata
+    cell = np.arange(s)
+    u = (np.stack([cell // strata, cell % strata], axis=1)[None, :, :]
+         + rng.random((m, s, 2))) / strata
+    axes = np.repeat(normals, s, axis=0)
+    u = u.reshape(-1, 2)
+    d = directions_around(axes, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)),
+                          2.0 * math.pi * u[:, 1])
+    return d.reshape(m, s, 3)
+
+
+def shadowed_transfer(scene: Scene, tracer: RayTracer, samples: SurfaceSamples, bands: int,
+                      strata: int, seed: int, *, bounce_lookup=None) -> ShTransfer:
+    """Shadowed transfer T⁰ from ``strata²`` stratified cosine rays per point; with
+    ``bounce_lookup`` also the one-bounce term T¹ (kind "interreflected").
+
+    bounce_lookup : callable (triangle (h,) int64, barycentric (h, 3) float64) → (h, 3, L²)
+    float64, the stored T⁰ at hit points (see :func:`vertex_lookup`, :func:`texel_lookup`).
+    Cost: n · strata² rays; memory O(POINT_CHUNK · strata² · L²).
+    """
+    n = samples.count
+    s = strata * strata
+    rho, _ = clamp_albedo(np.asarray(samples.albedo, np.float64))
+    out = np.zeros((n, 3, bands * bands))
+    for start in range(0, n, POINT_CHUNK):
+        rows = slice(start, min(n, start + POINT_CHUNK))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
+        nrm, gn = samples.normal[rows], samples.geometric_normal[rows]
+        m = len(nrm)
+        d = _stratified_cosine(nrm, strata, rng)
+        above = np.einsum("msj,mj->ms", d, gn) > 0
+        origin = samples.position[rows] + gn * tracer.offset
+        owner = np.repeat(np.arange(m), s)
+        flat = d.reshape(-1, 3)
+        y = sh.basis(flat, bands).reshape(m, s, -1)
+        hits = tracer.intersect(origin[owner], flat)
+        hit = hits.hit.reshape(m, s)
+        free = above & ~hit
+        t0 = np.einsum("ms,msl->ml", free.astype(np.float64), y) / s
+        block = rho[rows][:, :, None] * t0[:, None, :]
+        if bounce_lookup is not None:
+            front = (above & hit & hits.front.reshape(m, s)).ravel()
+            sel = np.flatnonzero(front)
+            if len(sel):
+                t_hit = bounce_lookup(hits.triangle[sel], hits.barycentric[sel])
+                acc = np.zeros((m, 3, bands * bands))
+                np.add.at(acc, owner[sel], t_hit)
+                block += rho[rows][:, :, None] * acc / s
+        out[rows] = block
+    kind = "interreflected" if bounce_lookup is not None else "shadowed"
+    return ShTransfer(out, kind, bands, s)
+
+
+def vertex_lookup(scene: Scene, vertex_transfer: ShTransfer):
+    """Bounce lookup for per-vertex storage: T⁰ interpolated barycentrically from the
+    vertices of the hit triangle (as the vertex-shader runtime interpolates colours)."""
+    coeffs = vertex_transfer.coeffs
+
+    def lookup(triangle: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        return np.einsum("hk,hkcl->hcl", barycentric, coeffs[scene.faces[triangle]])
+    return lookup
+
+
+def texel_lookup(scene: Scene, image: np.ndarray):
+    """Bounce lookup for transfer textures: nearest texel of the dilated transfer image
+    ``image`` (H, W, 3, L²) at the hit point's lightmap UV (TEXCOORD_1 · (W, H), rows from
+    the top), as the fragment-shader runtime reads it."""
+    if scene.uv1 is None:
+        raise ValueError("transfer textures need lightmap UVs (TEXCOORD_1)")
+    uv1 = np.asarray(scene.uv1, np.float64)
+    h, w = image.shape[:2]
+
+    def lookup(triangle: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+        uv = np.einsum("hk,hkj->hj", barycentric, uv1[scene.faces[triangle]])
+        x = np.clip((uv[:, 0] * w).astype(np.int64), 0, w - 1)
+        yy = np.clip((uv[:, 1] * h).astype(np.int64), 0, h - 1)
+        return image[yy, x]
+    return lookup
