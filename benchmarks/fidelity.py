@@ -298,8 +298,9 @@ def format_row(r: dict) -> str:
             f"{r['seconds']:>6.2f}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def scene_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options that choose the scenes, their lights and their transport (shared with
+    benchmarks/transfer_regressors.py)."""
 
     def ints(s: str) -> list[int]:
         return [int(x) for x in s.split(",")]
@@ -313,19 +314,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--holdout", type=int, default=32)
     ap.add_argument("--pillar-clearance", type=float, default=0.05,
                     help="open room: how far (m) the lights stay from the pillar")
-    ap.add_argument("--candidates", type=int, default=2048,
-                    help="N dense blue-noise candidates the selection chooses from")
     ap.add_argument("--supersample", type=int, default=4)
     ap.add_argument("--gather-rays", type=int, default=64)
-    ap.add_argument("--placements", default="blue,random,qdeim,qdeim-all,goal")
     ap.add_argument("--threads", type=int, default=int(os.environ.get("PRT_THREADS", 2)))
-    ap.add_argument("--out", type=Path, default=RESULTS / "fidelity.json")
-    args = ap.parse_args(argv)
-    args.placements = args.placements.split(",")
+
+
+def scene_names(ap: argparse.ArgumentParser, args) -> list[str]:
+    """The --scenes list, unknown names refused."""
     names = args.scenes.split(",")
     unknown = set(names) - set(SCENES)
     if unknown:
         ap.error(f"unknown scenes {sorted(unknown)}; known: {list(SCENES)}")
+    return names
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    scene_arguments(ap)
+    ap.add_argument("--candidates", type=int, default=2048,
+                    help="N dense blue-noise candidates the selection chooses from")
+    ap.add_argument("--placements", default="blue,random,qdeim,qdeim-all,goal")
+    ap.add_argument("--out", type=Path, default=RESULTS / "fidelity.json")
+    args = ap.parse_args(argv)
+    args.placements = args.placements.split(",")
+    names = scene_names(ap, args)
 
     def log(msg: str) -> None:
         print(msg, flush=True)

@@ -35,7 +35,14 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from fidelity import N_BASIS, RESULTS, SCENES, evaluate, load_scene  # noqa: E402
+from fidelity import (  # noqa: E402
+    N_BASIS,
+    RESULTS,
+    evaluate,
+    load_scene,
+    scene_arguments,
+    scene_names,
+)
 
 #: mlp wins a row when its pooled held-out error is below ridge's by more than this
 WIN_MARGIN = 0.01
@@ -60,32 +67,15 @@ def format_row(r: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-
-    def ints(s: str) -> list[int]:
-        return [int(x) for x in s.split(",")]
-
-    ap.add_argument("--scenes", default=",".join(SCENES))
-    ap.add_argument("--resolution", type=int, default=128)
-    ap.add_argument("--points", type=ints, default=[64, 256])
-    ap.add_argument("--lights", type=int, default=128, help="K for every scene")
-    ap.add_argument("--room-lights", type=ints, default=[128, 512],
-                    help="the K compared on the open room")
-    ap.add_argument("--holdout", type=int, default=32)
-    ap.add_argument("--pillar-clearance", type=float, default=0.05)
-    ap.add_argument("--supersample", type=int, default=4)
-    ap.add_argument("--gather-rays", type=int, default=64)
+    scene_arguments(ap)
     ap.add_argument("--mlp-width", type=int, default=64)
     ap.add_argument("--mlp-layers", type=int, default=2)
     ap.add_argument("--mlp-steps", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=int(os.environ.get("PRT_THREADS", 2)))
     ap.add_argument("--out", type=Path, default=RESULTS / "transfer_regressors.json")
     args = ap.parse_args(argv)
     args.candidates = max(args.points)  # load_scene's candidate set: unused here
-    names = args.scenes.split(",")
-    unknown = set(names) - set(SCENES)
-    if unknown:
-        ap.error(f"unknown scenes {sorted(unknown)}; known: {list(SCENES)}")
+    names = scene_names(ap, args)
     options = {"width": args.mlp_width, "layers": args.mlp_layers, "steps": args.mlp_steps,
                "seed": args.seed}
 
