@@ -47,6 +47,16 @@ geometry (a floor texel under a block: most probe rays from it hit back faces) a
 out of the texel's mean, which is then the mean over the texel's visible part
 (``buried_probes``).
 
+Translucent materials (docs/subsurface.md): the boundary sends ρ_b/π · E to both sides,
+E the irradiance from outside plus inside. So at a translucent vertex the path goes on
+outside (cosine about the shading normal) or inside (cosine about its opposite) with
+probability ½ each, its throughput doubled; inside, a volumetric random walk of the
+reference's own (:func:`prtcore.reference.medium.medium_walk`: delta tracking with
+per-channel weights, Henyey–Greenstein scattering) carries it to the boundary, where the
+exit is the next vertex (next-event estimation there as at any vertex; its MIS weight is
+1, since the light strategy only reaches vertices seen from outside). For the light
+strategy at a translucent vertex the path density is halved (:func:`_connect`).
+
 The paths do not depend on the lights, so :func:`reference_lightmaps` traces them once
 for any number of light configurations; light sampling and next-event estimation run per
 distinct light, and a configuration sums its lights (linear, as transport is).
@@ -64,13 +74,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from prtcore.core.geometry import directions_around, shading_normals
-from prtcore.core.materials import albedo_at, clamp_albedo
+from prtcore.core.materials import albedo_at, clamp_albedo, translucent_faces
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
 from prtcore.emitters.base import emitter_for
 from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.receivers.texels import TexelRegions, TexelSpace, sample_texel_regions, texel_regions
+from prtcore.reference.medium import medium_walk
 
 #: Paths traced together in one wavefront (fixed, so that results do not depend on how
 #: many light configurations share the paths).
@@ -191,13 +202,15 @@ def _balance(p_this: np.ndarray, p_other: np.ndarray) -> np.ndarray:
 
 
 def _connect(scene: Scene, tracer: RayTracer, sampler: LightSampler, rng: np.random.Generator,
-             px: np.ndarray, nx: np.ndarray, gx: np.ndarray
+             px: np.ndarray, nx: np.ndarray, gx: np.ndarray, half: np.ndarray | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
     """The light strategy at path vertices x (positions px, shading normals nx, geometric
     normals gx; (n, 3) each): a ray from the light finds a surface point y, which is
     connected to x. Returns the rows of x that got light and their (r, 3) MIS-weighted
     contributions ``ρ_y/π · E(y) · p_path/(p_path + p_light)`` (to be multiplied by the
-    path throughput into y)."""
+    path throughput into y). half : (n,) bool, the translucent vertices, whose path
+    strategy goes outside with probability ½ (p_path halved, the contribution doubled:
+    ``f / (p_path/2 + p_light)``)."""
     origin, w = sampler.sample(rng, len(px))
     hits = tracer.intersect(origin, w)
     rows = np.flatnonzero(hits.hit)
@@ -222,7 +235,11 @@ def _connect(scene: Scene, tracer: RayTracer, sampler: LightSampler, rng: np.ran
     p_path = cos_x[sel] / math.pi * cos_y[sel] / r2[sel]
     p_light = sampler.density(y[sel], gy[sel])
     rho, _ = clamp_albedo(albedo_at(scene, tri[sel], bary[sel]))
-    return rows[sel], rho * (e[sel] / math.pi) * _balance(p_path, p_light)[:, None]
+    if half is None or not half.any():
+        return rows[sel], rho * (e[sel] / math.pi) * _balance(p_path, p_light)[:, None]
+    side = np.where(half[rows[sel]], 0.5, 1.0)
+    return rows[sel], rho * (e[sel] / math.pi) * (
+        _balance(p_path * side, p_light) / side)[:, None]
 
 
 # ---------------------------------------------------------------------------------------
@@ -255,16 +272,28 @@ def _trace_paths(scene: Scene, tracer: RayTracer, samplers: Sequence[LightSample
     # compact state of the live paths at vertex x: index into the wavefront, position,
     # normals, and the throughput Π ρ_i into the next vertex
     idx = np.flatnonzero(counts)
-    px, nx, gx = px[idx], nx[idx], gx[idx]
+    px, nx, gx, tx = px[idx], nx[idx], gx[idx], tri0[idx]
     beta = np.ones((len(idx), 3))
+    translucent = translucent_faces(scene)
+    media = translucent.any()
     for depth in range(1, max_depth + 1):
         if len(idx) == 0:
             break
+        half = translucent[tx] if media else None
         if light_rngs is not None:
             for u, (sampler, lrng) in enumerate(zip(samplers, light_rngs, strict=True)):
-                rows, contrib = _connect(scene, tracer, sampler, lrng, px, nx, gx)
+                rows, contrib = _connect(scene, tracer, sampler, lrng, px, nx, gx, half)
                 value[u, idx[rows]] += beta[rows] * contrib
         d = cosine_directions(nx, rng.random((len(idx), 2)))
+        if media:  # a translucent vertex goes inside with probability ½ (weight 2)
+            inside = half & (rng.random(len(idx)) < 0.5)
+            d[inside] = cosine_directions(-nx[inside], rng.random((int(inside.sum()), 2)))
+            beta = beta * np.where(half, 2.0, 1.0)[:, None]
+            walk = _through_media(scene, tracer, rng, idx[inside], beta[inside],
+                                  px[inside], gx[inside], d[inside], tx[inside])
+            out = ~inside
+            idx, beta, d, px, nx, gx, half = (idx[out], beta[out], d[out], px[out],
+                                              nx[out], gx[out], half[out])
         cos_x = np.einsum("ij,ij->i", d, nx)
         up = np.einsum("ij,ij->i", d, gx) > 0  # below the geometric plane: ends
         idx, beta, d, px, gx, cos_x = idx[up], beta[up], d[up], px[up], gx[up], cos_x[up]
@@ -272,6 +301,19 @@ def _trace_paths(scene: Scene, tracer: RayTracer, samplers: Sequence[LightSample
         keep = hits.hit & hits.front  # back face: inside geometry, no light; miss: nothing
         idx, beta, d, cos_x = idx[keep], beta[keep], d[keep], cos_x[keep]
         tri, bary, dist = hits.triangle[keep], hits.barycentric[keep], hits.t[keep]
+        p_path = None
+        if light_rngs is not None:
+            p_path = cos_x / math.pi * -np.einsum("ij,ij->i", tracer.face_normals[tri], d) \
+                / np.maximum(dist * dist, np.finfo(np.float64).tiny)
+            if media:  # the path went outside with probability ½ at translucent vertices
+                p_path = p_path * np.where(half[up][keep], 0.5, 1.0)
+        if media:  # the walks' exits join as vertices no light strategy reaches
+            idx = np.concatenate([idx, walk[0]])
+            beta = np.concatenate([beta, walk[1]])
+            tri = np.concatenate([tri, walk[2]])
+            bary = np.concatenate([bary, walk[3]])
+            if p_path is not None:
+                p_path = np.concatenate([p_path, np.full(len(walk[0]), np.inf)])
         if len(idx) == 0:
             break
         fn = tracer.face_normals[tri]
@@ -279,13 +321,11 @@ def _trace_paths(scene: Scene, tracer: RayTracer, samplers: Sequence[LightSample
         ns = shading_normals(scene, tri, bary, fn)
         rho, _ = clamp_albedo(albedo_at(scene, tri, bary))
         weight = beta * rho * (1.0 / math.pi)
-        if light_rngs is not None:
-            p_path = cos_x / math.pi * -np.einsum("ij,ij->i", fn, d) / np.maximum(
-                dist * dist, np.finfo(np.float64).tiny)
         for u, sampler in enumerate(samplers):
             e = irradiance(sampler.light, p, ns, tracer)
             if light_rngs is not None:
-                lit = np.flatnonzero(e.max(axis=1) > 0)
+                # exits of walks (p_path = ∞) are reached by no light strategy: weight 1
+                lit = np.flatnonzero((e.max(axis=1) > 0) & np.isfinite(p_path))
                 e[lit] *= _balance(p_path[lit], sampler.density(p[lit], fn[lit]))[:, None]
             value[u, idx] += weight * e
         if depth == max_depth:
@@ -294,10 +334,35 @@ def _trace_paths(scene: Scene, tracer: RayTracer, samplers: Sequence[LightSample
         if depth >= rr_depth:
             q = np.minimum(1.0, beta.max(axis=1))
             live = rng.random(len(idx)) < q
-            idx, p, ns, fn = idx[live], p[live], ns[live], fn[live]
+            idx, p, ns, fn, tri = idx[live], p[live], ns[live], fn[live], tri[live]
             beta = beta[live] / q[live, None]
-        px, nx, gx = p, ns, fn
+        px, nx, gx, tx = p, ns, fn, tri
     return value, counts
+
+
+def _through_media(scene: Scene, tracer: RayTracer, rng: np.random.Generator,
+                   idx: np.ndarray, beta: np.ndarray, px: np.ndarray, gx: np.ndarray,
+                   d: np.ndarray, tri: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Paths entering translucent vertices (positions px, geometric normals gx, inward
+    directions d, triangles tri; (n, …)) walk through their material's medium
+    (:func:`prtcore.reference.medium.medium_walk`). Returns the exits' path index, the
+    throughput into the exit (beta × the walk's weight) (m, 3), triangle and barycentric.
+    Directions not below the face's plane end the path, like the outside's."""
+    down = np.einsum("ij,ij->i", d, gx) < 0
+    parts = []
+    mat = scene.face_material[tri]
+    for mi in np.unique(mat[down]):
+        sel = np.flatnonzero(down & (mat == mi))
+        medium = scene.materials[int(mi)].subsurface
+        k, t_exit, b_exit, _, w = medium_walk(
+            tracer, medium, scene.face_material == mi, px[sel] - gx[sel] * tracer.offset,
+            d[sel], rng)
+        parts.append((idx[sel[k]], beta[sel[k]] * w, t_exit, b_exit))
+    if not parts:
+        return (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64),
+                np.zeros((0, 3)))
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
 def reference_lightmaps(scene: Scene, texels: TexelSpace,

@@ -21,6 +21,7 @@ import numpy as np
 import trimesh
 
 from prtcore.core.hair import Hair
+from prtcore.core.scene import Light
 from prtcore.scenes.parts import material_scene, write_glb
 
 HAIR_COLOR = (0.8, 0.6, 0.4)
@@ -114,3 +115,20 @@ def head_mesh(radius: float = 0.1, subdivisions: int = 3) -> trimesh.Scene:
 def write_head(path: str | Path, radius: float = 0.1, subdivisions: int = 3) -> Path:
     """Write :func:`head_mesh` as a ``.glb``."""
     return write_glb(head_mesh(radius, subdivisions), path)
+
+
+def tangle(strands: int = 1000, seed: int = 0) -> Hair:
+    """A small dense hairball (radius 3 cm, 6 cm strands of 12 segments, 0.3 mm thick):
+    most rays leaving a fibre hit another, so multiple scattering matters — the accuracy
+    checks of the fibre transport (tests/test_reference_fibres.py,
+    benchmarks/hair_accuracy.py) use it with :func:`tangle_lights`."""
+    return hairball(strands=strands, segments=12, radius=0.03, length=0.06, seed=seed,
+                    diameter=3e-4)
+
+
+def tangle_lights() -> list[Light]:
+    """A sun from straight above and a point light to the side of :func:`tangle`."""
+    return [Light(type="directional", color=np.ones(3), intensity=3.0,
+                  direction=np.array([0.0, -1.0, 0.0])),
+            Light(type="point", color=np.ones(3), intensity=0.05,
+                  position=np.array([0.08, 0.05, 0.0]))]

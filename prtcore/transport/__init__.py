@@ -20,4 +20,4 @@ Radiometry (docs/bundle.md): every stored value is outgoing radiance ``L = ρ/π
 the indirect counts light that bounced at least once (all bounces).
 """
 
-from prtcore.transport import subsurface, surface  # noqa: F401  (registration)
+from prtcore.transport import fibre, subsurface, surface  # noqa: F401  (registration)

@@ -1,0 +1,151 @@
+"""Fibres as triangles for the ray tracer (Embree through embreex traces triangles only).
+
+Two representations, measured by ``benchmarks/hair_geometry.py`` (docs/hair.md):
+
+* **tubes** (the default, :func:`fibre_tubes`): each polyline segment is a prism of ``sides``
+  quads (2 · sides triangles) around the fibre's axis, rings oriented by a parallel-transported
+  frame so the prism does not twist. The polygon's circumradius is chosen so that its
+  *mean projected width* equals the fibre's diameter (``R = r · π / (k · sin(π / k))``, the
+  Cauchy formula: mean width = perimeter / π), so shadow rays from every direction see on
+  average as much fibre as a cylinder blocks.
+* **ribbons** (:func:`fibre_ribbons`): one quad per segment, flat along the transported
+  frame: half the triangles of a 3-sided tube, but a ray travelling in the ribbon's plane
+  passes through it — camera-facing ribbons need a camera, which a bake has not.
+
+Ray origins leaving a fibre start on the tube's circumscribed cylinder
+(:func:`outside_offset`): from there a ray with a positive radial component never
+re-enters its own convex prism.
+
+A tube's triangles are ordered by segment: triangle ``f`` belongs to segment
+``f // (2 · sides)`` (:attr:`prtcore.core.hair.Hair.segment_start`), its first ``sides``
+triangles have two vertices on the segment's start ring. :func:`segment_hits` maps a hit's
+barycentrics to (segment, parameter along it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from prtcore.core.geometry import orthonormal_frame
+from prtcore.core.hair import Hair
+
+DEFAULT_SIDES = 3
+
+
+def circumradius_scale(sides: int) -> float:
+    """Circumradius / fibre radius of a ``sides``-gon whose mean width is the diameter."""
+    return math.pi / (sides * math.sin(math.pi / sides))
+
+
+def tangents(hair: Hair) -> np.ndarray:
+    """(p, 3) float64 unit tangents at every point (central differences inside a strand,
+    one-sided at its ends)."""
+    p = hair.points
+    nxt = np.arange(1, len(p) + 1)
+    prv = np.arange(-1, len(p) - 1)
+    first, last = hair.offsets[:-1], hair.offsets[1:] - 1
+    nxt[last] = last
+    prv[first] = first
+    t = p[np.minimum(nxt, len(p) - 1)] - p[np.maximum(prv, 0)]
+    n = np.linalg.norm(t, axis=1, keepdims=True)
+    return np.divide(t, n, out=np.tile([0.0, 1.0, 0.0], (len(p), 1)), where=n > 0)
+
+
+def transported_frames(hair: Hair) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(tangent, u, v), each (p, 3) float64 unit, u and v ⟂ tangent, parallel-transported
+    from each strand's root (the root's frame from :func:`orthonormal_frame`)."""
+    t = tangents(hair)
+    u = np.empty_like(t)
+    first = hair.offsets[:-1]
+    counts = np.diff(hair.offsets)
+    u[first] = orthonormal_frame(t[first])[0]
+    for k in range(1, int(counts.max(initial=1))):
+        alive = first[counts > k]
+        idx = alive + k
+        prev = u[idx - 1]
+        w = prev - np.einsum("ij,ij->i", prev, t[idx])[:, None] * t[idx]
+        n = np.linalg.norm(w, axis=1, keepdims=True)
+        fallback = orthonormal_frame(t[idx])[0]
+        u[idx] = np.where(n > 1e-9, w / np.maximum(n, 1e-300), fallback)
+    v = np.cross(t, u)
+    return t, u, v
+
+
+@dataclass(frozen=True)
+class FibreMesh:
+    """Triangles standing for the fibres.
+
+    positions : (v, 3) float64; faces : (f, 3) int64;
+    kind : "tubes" | "ribbons"; sides : quads per segment (1 for ribbons);
+    ring : (p,) int64 first vertex of each point's ring (``sides`` vertices, 2 for ribbons)
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray
+    kind: str
+    sides: int
+
+    @property
+    def triangles_per_segment(self) -> int:
+        return 2 * self.sides
+
+
+def fibre_tubes(hair: Hair, sides: int = DEFAULT_SIDES) -> FibreMesh:
+    """Prisms of ``sides`` (≥ 3) faces around every segment (see the module docstring)."""
+    if sides < 3:
+        raise ValueError(f"fibre tubes need at least 3 sides, got {sides}")
+    _, u, v = transported_frames(hair)
+    radius = hair.thickness / 2 * circumradius_scale(sides)
+    ang = 2 * np.pi * np.arange(sides) / sides
+    ring = (np.cos(ang)[None, :, None] * u[:, None, :] + np.sin(ang)[None, :, None]
+            * v[:, None, :])
+    positions = (hair.points[:, None, :] + radius[:, None, None] * ring).reshape(-1, 3)
+    s0 = hair.segment_start[:, None] * sides  # (g, 1) first vertex of the start ring
+    a = s0 + np.arange(sides)[None, :]
+    b = s0 + (np.arange(sides)[None, :] + 1) % sides
+    a1, b1 = a + sides, b + sides  # the end ring
+    # first the `sides` triangles with two start-ring vertices, then the others
+    lower = np.stack([a, b, b1], axis=2)
+    upper = np.stack([a, b1, a1], axis=2)
+    faces = np.concatenate([lower, upper], axis=1).reshape(-1, 3)
+    return FibreMesh(positions=positions, faces=faces.astype(np.int64), kind="tubes",
+                     sides=sides)
+
+
+def fibre_ribbons(hair: Hair) -> FibreMesh:
+    """One quad per segment, width = the diameter, across the transported frame's u."""
+    _, u, _ = transported_frames(hair)
+    half = (hair.thickness / 2)[:, None] * u
+    positions = np.stack([hair.points - half, hair.points + half], axis=1).reshape(-1, 3)
+    s0 = hair.segment_start * 2
+    faces = np.stack([np.stack([s0, s0 + 1, s0 + 3], axis=1),
+                      np.stack([s0, s0 + 3, s0 + 2], axis=1)], axis=1).reshape(-1, 3)
+    return FibreMesh(positions=positions, faces=faces.astype(np.int64), kind="ribbons",
+                     sides=1)
+
+
+def segment_hits(mesh: FibreMesh, triangle: np.ndarray, barycentric: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Hits on ``mesh``'s own triangle indices → (segment (n,) int64, parameter along the
+    segment (n,) float64 in [0, 1]: the barycentric weight of the end ring's vertices)."""
+    per = mesh.triangles_per_segment
+    seg = triangle // per
+    local = triangle % per
+    if mesh.kind == "tubes":
+        # lower triangles (a, b, b1): vertex 2 on the end ring; upper (a, b1, a1): 1 and 2
+        lower = local < mesh.sides
+        t = np.where(lower, barycentric[:, 2], barycentric[:, 1] + barycentric[:, 2])
+    else:
+        # (s0, s0+1, s0+3) then (s0, s0+3, s0+2): end-ring vertices are 3 and 2
+        first = local == 0
+        t = np.where(first, barycentric[:, 2], barycentric[:, 1] + barycentric[:, 2])
+    return seg.astype(np.int64), np.clip(t, 0.0, 1.0)
+
+
+def outside_offset(hair: Hair, sides: int = DEFAULT_SIDES) -> np.ndarray:
+    """(p,) float64: the radius at each point from which rays leave the fibre — the tube's
+    circumradius plus a relative margin of 1e-3."""
+    return hair.thickness / 2 * circumradius_scale(sides) * (1 + 1e-3)

@@ -1,0 +1,147 @@
+"""Independent Monte Carlo reference for light in hair with the diffuse fibre model.
+
+The ground truth the fibre transport (:mod:`prtcore.transport.fibre`) is checked against.
+It shares the hair, the strand texels (their arc intervals), the fibre tubes, the ray
+tracer and the light evaluation (:func:`prtcore.emitters.punctual.irradiance`), but not the
+fast path's shortcuts: no texel → texel operator, no radially constant outgoing radiance
+at the hit fibre, no iteration to a fixed point.
+
+Estimator (as :mod:`prtcore.reference.pathtracer` for surfaces): a texel's value is the
+azimuth- and arc-averaged outgoing radiance ``L̄ = ρ/π · Ē``. A path starts at a point
+uniform over the texel's fibre surface (arc uniform in the interval, azimuth uniform)
+with the cylinder's radial normal n0, leaves along a cosine-distributed direction about
+n0 and at every fibre hit x_j takes the *cylinder's* radial normal there (the hit point
+projected off the fibre's axis), adds next-event estimation ``β · ρ_j/π · E_d(x_j, n_j)``
+and continues cosine-distributed about n_j with ``β ← β ρ_j``:
+
+    L̄_ind(texel) = ρ0 · E[ Σ_{j≥1} (Π_{i=1}^{j-1} ρ_i) · ρ_j/π · E_d(x_j, n_j) ].
+
+Rays leave fibres from the tube's circumscribed cylinder (:mod:`prtcore.core.fibres`).
+After ``rr_depth`` bounces a path survives with probability ``q = min(1, max_c β_c)``
+and is divided by q. A miss ends the path; so does a hit on the mesh of a hair + mesh
+bake (the fast path does not carry light off the mesh yet either).
+
+Every estimate comes as two independent halves (a, b) so that the reference's own noise
+can be removed from an error: ``noise² ≈ mean((a − b)²) / 4`` per texel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
+from prtcore.core.geometry import directions_around
+from prtcore.core.materials import clamp_albedo
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+from prtcore.emitters.punctual import irradiance
+from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
+
+#: paths traced together per wavefront
+PATH_BATCH = 1 << 16
+
+
+def _direct(lights: Sequence[Light], tracer: RayTracer, points: np.ndarray,
+            normals: np.ndarray) -> np.ndarray:
+    """(n, K, 3) float64 shadowed irradiance of each light."""
+    return np.stack([irradiance(li, points, normals, tracer) for li in lights], axis=1)
+
+
+def fibre_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
+                    mesh_faces: int, lights: Sequence[Light], texels: np.ndarray,
+                    paths: int, seed: int, max_depth: int = 64, rr_depth: int = 3,
+                    radially_averaged: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Indirect ``L̄_ind`` of ``texels`` (n,) for every light, as two independent halves
+    of ``paths`` // 2 paths each: (a, b), each (n, K, 3) float64.
+
+    radially_averaged : shade each hit with a normal of uniformly random azimuth about the
+        hit fibre instead of its own radial normal — the fast path's radially constant
+        outgoing radiance, in expectation; the difference between the two references is
+        the error of that approximation alone (a diagnostic, not the reference)."""
+    texels = np.asarray(texels, dtype=np.int64)
+    hair = space.hair
+    rho_tex, _ = clamp_albedo(space.albedo)
+    rho_pt, _ = clamp_albedo(hair.color)
+    off = outside_offset(hair, mesh.sides)
+    half = paths // 2
+    k = len(lights)
+    halves = []
+    for h in range(2):
+        rng = np.random.default_rng([seed, h])
+        acc = np.zeros((len(texels), k, 3))
+        owner_all = np.repeat(np.arange(len(texels)), half)
+        for a in range(0, len(owner_all), PATH_BATCH):
+            owner = owner_all[a:a + PATH_BATCH]
+            tex = texels[owner]
+            n = len(owner)
+            # start: a point uniform over the texel's fibre surface
+            strand = space.strand[tex]
+            arc = space.arc[tex, 0] + rng.random(n) * (space.arc[tex, 1] - space.arc[tex, 0])
+            axis, tangent, u = axis_frame(hair, strand, arc)
+            phi = 2 * np.pi * rng.random(n)
+            normal = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * np.cross(tangent, u)
+            radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
+            origin = axis + radius[:, None] * normal
+            beta = rho_tex[tex].copy()
+            alive = np.arange(n)
+            for depth in range(1, max_depth + 1):
+                if not len(alive):
+                    break
+                d = directions_around(normal[alive], np.sqrt(rng.random(len(alive))),
+                                      2 * np.pi * rng.random(len(alive)))
+                hits = tracer.intersect(origin[alive], d)
+                fib = hits.triangle >= mesh_faces
+                alive, d = alive[fib], d[fib]
+                if not len(alive):
+                    break
+                seg, t = segment_hits(mesh, hits.triangle[fib] - mesh_faces,
+                                      hits.barycentric[fib])
+                p0 = hair.segment_start[seg]
+                a0, b0 = hair.points[p0], hair.points[p0 + 1]
+                hit_axis = a0 + t[:, None] * (b0 - a0)
+                hit_point = origin[alive] + hits.t[fib][:, None] * d
+                ax = b0 - a0
+                ax /= np.linalg.norm(ax, axis=1, keepdims=True)
+                radial = hit_point - hit_axis
+                radial -= np.einsum("ij,ij->i", radial, ax)[:, None] * ax
+                rl = np.linalg.norm(radial, axis=1, keepdims=True)
+                n_hit = np.where(rl > 0, radial / np.maximum(rl, 1e-300), -d)
+                if radially_averaged:
+                    w = n_hit
+                    v = np.cross(ax, w)
+                    psi = 2 * np.pi * rng.random(len(w))
+                    n_hit = np.cos(psi)[:, None] * w + np.sin(psi)[:, None] * v
+                rho = (1 - t)[:, None] * rho_pt[p0] + t[:, None] * rho_pt[p0 + 1]
+                r_out = (1 - t) * off[p0] + t * off[p0 + 1]
+                o_hit = hit_axis + r_out[:, None] * n_hit
+                e = _direct(lights, tracer, o_hit, n_hit)  # (m, K, 3)
+                contrib = (beta[alive] * rho / np.pi)[:, None, :] * e
+                np.add.at(acc, owner[alive], contrib)
+                beta[alive] *= rho
+                origin[alive] = o_hit
+                normal[alive] = n_hit
+                if depth >= rr_depth:
+                    q = np.minimum(1.0, beta[alive].max(axis=1))
+                    keep = rng.random(len(alive)) < q
+                    beta[alive[keep]] /= q[keep, None]
+                    alive = alive[keep]
+        halves.append(acc / half)
+    return halves[0], halves[1]
+
+
+def noise_corrected_error(fast: np.ndarray, a: np.ndarray, b: np.ndarray
+                          ) -> dict[str, float]:
+    """Error of ``fast`` against the reference (a + b) / 2 with the reference's noise
+    removed: ``rrmse = sqrt(max(0, mean((fast − ref)²) − mean((a − b)²)/4)) / rms(ref)``,
+    ``bias = mean(fast − ref) / mean(ref)``; also the raw rRMSE and the reference's own
+    relative noise."""
+    ref = (a + b) / 2
+    raw = float(np.mean((fast - ref) ** 2))
+    noise = float(np.mean((a - b) ** 2) / 4)
+    rms = float(np.sqrt(np.mean(ref ** 2)))
+    return {"rrmse": float(np.sqrt(max(0.0, raw - noise))) / rms,
+            "raw_rrmse": float(np.sqrt(raw)) / rms,
+            "reference_noise": float(np.sqrt(noise)) / rms,
+            "bias": float(np.mean(fast - ref) / np.mean(ref))}

@@ -1,0 +1,227 @@
+"""Light in hair with the diffuse fibre model (paper 6.3): direct light with self-shadowing
+and fibre-to-fibre multiple scattering as a sparse operator over strand texels
+(registered as ``"fibre"``).
+
+**The diffuse fibre.** A fibre is a cylinder whose surface is Lambertian with albedo ρ:
+at a surface point with (radial) normal n the outgoing radiance is ``ρ/π · E(n)``. A strand
+texel stores it averaged over the fibre's azimuth and over the texel's arc interval
+(:mod:`prtcore.receivers.strands`): ``L̄ = ρ/π · Ē``. For one unshadowed fibre under a
+directional light of illuminance E⊥ at angle θ to the fibre, the azimuthal mean of
+``max(0, n·ω)`` is ``sin θ / π``, so ``L̄ = ρ E⊥ sin θ / π²`` (the closed form the tests
+check).
+
+**Geometry.** The fibres are traced as triangulated tubes (:mod:`prtcore.core.fibres`,
+benchmarked against ribbons in ``benchmarks/hair_geometry.py``); rays leave a fibre from
+its tube's circumscribed cylinder, so they never hit their own segment.
+:func:`hair_tracer` builds the one tracer of a hair bake: the scene's triangles (a head,
+when hair and mesh are baked together) first, then the fibre tubes.
+
+**Direct light** (:func:`fibre_direct`): per texel, J points on the fibre surface,
+stratified in azimuth and jittered in arc length, each with its radial normal; the mean of
+their shadowed irradiance is Ē (the same light evaluation as surfaces,
+:func:`prtcore.emitters.punctual.irradiance` through
+:func:`prtcore.transport.direct.direct_radiance`).
+
+**Multiple scattering** (:class:`FibreGather`): from each texel, M cosine-distributed
+rays about the radial normal at M surface points (azimuths stratified); a ray that hits
+fibre texel j adds 1/M to ``G[i, j]``: the incident radiance it brings is the hit fibre's
+outgoing radiance, which the receiver stores radially constant (the paper's
+approximation). ``E_ind = G · (ρ ∘ (E_d + E_ind))`` is then solved by
+:func:`prtcore.transport.solve.solve_indirect` exactly as for surfaces.
+
+**The first bounce keeps the direct light's azimuthal variation.** Radially constant
+storage overestimates light bounced into shadow: a fibre under another sees that one's
+dark underside, not its mean. Measured against the project's path tracer
+(:mod:`prtcore.reference.fibres`, which shades every hit with its own normal) on a dense
+hairball under a sun and a point light, the indirect came out 12 % too bright. So
+:func:`fibre_direct` also keeps the first ``HARMONICS`` azimuthal harmonics of the
+direct light, the gather records the azimuth ψ of every hit on the hit fibre, and
+:func:`harmonic_first_bounce` adds ``Σ_h G_h L_h`` to the first bounce (the solver's
+``first_bounce``): the bias fell to about 4 % (``benchmarks/hair_accuracy.py``). Later
+bounces stay radially constant.
+
+Not yet: rays that hit the mesh of a hair + mesh bake bring no light (the mesh occludes
+and shadows the hair, but light bounced off the mesh does not reach the hair yet).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from contextlib import nullcontext
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from prtcore.core.fibres import DEFAULT_SIDES, FibreMesh, fibre_tubes, segment_hits
+from prtcore.core.geometry import directions_around
+from prtcore.core.progress import StageTimer, bar
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.core.spec import TransportSpec
+from prtcore.receivers.strands import StrandSpace, azimuth_frame
+from prtcore.transport.base import TransportOperator, register
+from prtcore.transport.direct import direct_radiance
+
+#: rays per intersect call of the fibre gather
+FIBRE_BATCH = 1 << 18
+#: Memory of the fibre gather (bytes): per texel and gather ray (the (row, column) pairs
+#: before they are summed into CSR, and the CSR), and per ray in flight.
+MEM_PER_TEXEL_RAY = 24
+MEM_PER_RAY_IN_FLIGHT = 200
+
+
+def hair_tracer(space: StrandSpace, scene: Scene | None = None, sides: int = DEFAULT_SIDES,
+                threads: int | None = None) -> tuple[RayTracer, FibreMesh]:
+    """The tracer of a hair bake and its fibre tubes: ``scene``'s triangles (if any) with
+    indices [0, F), then the tubes' with indices F + their own. The scale (ray offsets,
+    "infinite" distance) is the radius of everything's bounds."""
+    mesh = fibre_tubes(space.hair, sides)
+    if scene is not None and scene.triangle_count:
+        positions = np.concatenate([scene.positions, mesh.positions])
+        faces = np.concatenate([scene.faces, mesh.faces + len(scene.positions)])
+    else:
+        positions, faces = mesh.positions, mesh.faces
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    scale = float(np.linalg.norm(hi - lo) / 2)
+    return RayTracer(positions, faces, scale=scale, threads=threads), mesh
+
+
+#: azimuthal harmonics of the direct light carried through the first bounce
+HARMONICS = 1
+
+
+@dataclass(frozen=True)
+class FibreDirect:
+    """Direct light of the strand texels: the azimuthal mean ``mean`` (T, K, 3) float32,
+    L̄_d = ρ/π · Ē_d (what the texel stores), and its azimuthal harmonics ``harmonics``
+    (2H, T, K, 3) float32, rows (cos φ, sin φ, cos 2φ, sin 2φ, …):
+    ``L_d(φ) ≈ mean + Σ_h (c_h cos hφ + s_h sin hφ)`` in the fibre's frame
+    (:func:`prtcore.receivers.strands.azimuth_frame`)."""
+
+    mean: np.ndarray
+    harmonics: np.ndarray
+
+
+def fibre_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
+                 samples: int, seed: int, harmonics: int = HARMONICS,
+                 block: int = 1 << 14) -> FibreDirect:
+    """Direct outgoing radiance of every strand texel for every light from ``samples`` (J)
+    surface points per texel (:meth:`~prtcore.receivers.strands.StrandSpace.surface_samples`,
+    azimuths stratified), each shadowed by everything in ``tracer`` (other fibres, the
+    mesh): the mean and ``harmonics`` (H) harmonics ``(2/J) Σ L_j (cos hφ_j, sin hφ_j)``
+    (J > 2H keeps them unaliased by the stratified azimuths)."""
+    origin, normal, _, phi = space.surface_samples(samples, seed)
+    t, j, k = space.count, samples, len(lights)
+    mean = np.empty((t, k, 3), dtype=np.float32)
+    harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
+    blocks = range(0, t, block)
+    for a in bar(blocks, "direct fibres", total=len(blocks)):
+        b = min(a + block, t)
+        rad = direct_radiance(None, tracer, lights, origin[a:b].reshape(-1, 3),
+                              normal[a:b].reshape(-1, 3),
+                              np.repeat(space.albedo[a:b], j, axis=0)
+                              ).reshape(b - a, j, k, 3)
+        mean[a:b] = rad.mean(axis=1)
+        for h in range(harmonics):
+            for i, f in enumerate((np.cos, np.sin)):
+                harm[2 * h + i, a:b] = 2 * np.einsum("tjkc,tj->tkc", rad,
+                                                     f((h + 1) * phi[a:b])) / j
+    return FibreDirect(mean, harm)
+
+
+@dataclass(frozen=True)
+class FibreTerm:
+    """The fibre gather. ``matrix`` (T, T) float32 CSR, rows receive: 1/M per ray from
+    texel i that hits texel j; ``harmonics``: 2H more such matrices, the same rays
+    weighted by (cos ψ, sin ψ, cos 2ψ, sin 2ψ, …) / M, ψ the azimuth of the hit point on
+    fibre j (for the first bounce of the direct light's harmonics,
+    :func:`harmonic_first_bounce`); ``stats``: rays, fibre hits, mesh hits, misses."""
+
+    matrix: sp.csr_matrix
+    harmonics: tuple[sp.csr_matrix, ...]
+    stats: dict = field(default_factory=dict)
+
+
+def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
+                 rays: int, seed: int, harmonics: int = HARMONICS) -> FibreTerm:
+    """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
+    ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``."""
+    t = space.count
+    hair = space.hair
+    origin, normal, _, _ = space.surface_samples(rays, seed)
+    origin, normal = origin.reshape(-1, 3), normal.reshape(-1, 3)
+    rng = np.random.default_rng([seed, 1])
+    rows_all, cols_all, cs_all = [], [], []
+    n_fibre = n_mesh = 0
+    total = t * rays
+    starts = range(0, total, FIBRE_BATCH)
+    for a in bar(starts, "fibre gather", total=len(starts)):
+        b = min(a + FIBRE_BATCH, total)
+        u = rng.random(b - a)
+        d = directions_around(normal[a:b], np.sqrt(u), 2 * np.pi * rng.random(b - a))
+        hits = tracer.intersect(origin[a:b], d)
+        fib = hits.triangle >= mesh_faces
+        n_fibre += int(fib.sum())
+        n_mesh += int((hits.hit & ~fib).sum())
+        seg, along = segment_hits(mesh, hits.triangle[fib] - mesh_faces,
+                                  hits.barycentric[fib])
+        p0 = hair.segment_start[seg]
+        arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
+        strand = hair.strand_of_segment[seg]
+        point = origin[a:b][fib] + hits.t[fib][:, None] * d[fib]
+        _, _, cs = azimuth_frame(hair, strand, arc, point)
+        rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
+        cols_all.append(space.texel_of(strand, arc).astype(np.int32))
+        cs_all.append(cs.astype(np.float32))
+    rows = np.concatenate(rows_all) if rows_all else np.zeros(0, np.int32)
+    cols = np.concatenate(cols_all) if cols_all else np.zeros(0, np.int32)
+    cs = np.concatenate(cs_all) if cs_all else np.zeros((0, 2), np.float32)
+
+    def csr(w: np.ndarray) -> sp.csr_matrix:
+        m = sp.csr_matrix((w / np.float32(rays), (rows, cols)), shape=(t, t))
+        m.sum_duplicates()
+        m.sort_indices()
+        return m
+
+    psi = np.arctan2(cs[:, 1], cs[:, 0])
+    harm = tuple(csr(f((h + 1) * psi).astype(np.float32)) for h in range(harmonics)
+                 for f in (np.cos, np.sin))
+    return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
+                     stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
+                            "misses": total - n_fibre - n_mesh})
+
+
+def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """The first bounce's correction for the azimuthal variation of the direct light on
+    the fibres hit: ``Σ_h G_h · L_h`` over the harmonics both carry, (T, K, 3) float32 for
+    every row, in the units of ``G · L_d`` (:func:`prtcore.transport.solve.solve_indirect`'s
+    ``first_bounce``). Later bounces stay radially constant."""
+    t, k = direct.mean.shape[:2]
+    val = np.zeros((t, k * 3), dtype=np.float32)
+    for g, l_h in zip(term.harmonics, direct.harmonics, strict=False):
+        val += g @ l_h.reshape(t, -1)
+    return np.arange(t, dtype=np.int64), val.reshape(t, k, 3)
+
+
+@register
+class FibreGather(TransportOperator):
+    """Multiple scattering among diffuse fibres (see the module docstring). ``receiver``
+    is a :class:`~prtcore.receivers.strands.StrandSpace`; ``tracer`` is the one
+    :func:`hair_tracer` built for it and ``scene`` (None for hair alone)."""
+
+    name = "fibre"
+    stage = "fibre gather"
+    stats_key = "fibre"
+
+    def build(self, scene: Scene | None, receiver: StrandSpace, tracer: RayTracer,
+              spec: TransportSpec, timer: StageTimer | None = None) -> FibreTerm:
+        mesh = fibre_tubes(receiver.hair, DEFAULT_SIDES)
+        offset = scene.triangle_count if scene is not None else 0
+        with timer.stage(self.stage) if timer is not None else nullcontext():
+            return fibre_gather(receiver, tracer, mesh, offset, spec.gather_rays, spec.seed)
+
+    def estimate_bytes(self, receivers, configurations, spec):
+        return int(receivers) * MEM_PER_TEXEL_RAY * int(spec.gather_rays) \
+            + FIBRE_BATCH * MEM_PER_RAY_IN_FLIGHT

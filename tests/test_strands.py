@@ -1,0 +1,123 @@
+"""The strand receiver (prtcore/receivers/strands.py) and the fibre triangles
+(prtcore/core/fibres.py) it is traced against."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prtcore.core.fibres import (
+    circumradius_scale,
+    fibre_ribbons,
+    fibre_tubes,
+    transported_frames,
+)
+from prtcore.core.hair import make_hair
+from prtcore.core.raytrace import RayTracer
+from prtcore.receivers.base import Receiver
+from prtcore.receivers.strands import build_strand_space, strands_per_row, texel_of_hit
+from prtcore.scenes.hair import hairball
+
+
+def test_paper_layout_100k_strands_fill_1000_squared():
+    assert strands_per_row(100_000, 10) == 100
+    s = build_strand_space(hairball(strands=1000, segments=8), 10)
+    assert (s.width, s.height) == (100, 100) and s.count == 10_000
+    assert isinstance(s, Receiver)
+    # every texel is used once
+    assert len(np.unique(s.xy[:, 1] * s.width + s.xy[:, 0])) == s.count
+
+
+def test_sampling_rule_never_mixes_strands():
+    h = hairball(strands=37, segments=5, seed=1)
+    s = build_strand_space(h, 7)  # 37 strands, r = 3: a partly empty last row
+    n, r = s.texels_per_strand, s.strands_per_row
+    owner = np.full((s.height, s.width), -1)
+    owner[s.xy[:, 1], s.xy[:, 0]] = s.strand
+    rng = np.random.default_rng(0)
+    strand = rng.integers(0, h.strand_count, 5000)
+    a = np.concatenate([rng.random(4996), [0, 1, 0.5 / n, 1 - 0.5 / n]])
+    px = (strand % r) * n + np.clip(a * n, 0.5, n - 0.5)
+    py = strand // r + 0.5
+    x0 = np.floor(px - 0.5).astype(int)
+    y0 = np.floor(py - 0.5).astype(int)
+    fx = px - 0.5 - x0
+    fy = py - 0.5 - y0
+    assert np.all(fy == 0)  # rows are never mixed
+    for dx, w in ((0, 1 - fx), (1, fx)):
+        tap = owner[y0, np.minimum(x0 + dx, s.width - 1)]
+        assert np.all((tap == strand) | (w == 0))
+    assert s.layout()["sample"].startswith("strand s at arc fraction a")
+
+
+def test_texels_cover_equal_arc_intervals_on_the_polyline():
+    h = make_hair([np.array([[0, 0, 0], [0, 1, 0], [0, 1, 3]], float)], 0.02,
+                  color=(0.2, 0.4, 0.6))
+    s = build_strand_space(h, 4)
+    np.testing.assert_allclose(s.arc[:, 1] - s.arc[:, 0], 1.0)
+    np.testing.assert_allclose(s.position, [[0, 0.5, 0], [0, 1, 0.5], [0, 1, 1.5],
+                                            [0, 1, 2.5]], atol=1e-12)
+    np.testing.assert_allclose(s.tangent[2], [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(s.radius, 0.01)
+    np.testing.assert_allclose(s.albedo, np.tile([0.2, 0.4, 0.6], (4, 1)))
+    np.testing.assert_array_equal(s.texel_of(np.zeros(3, int), np.array([0.0, 2.5, 4.0])),
+                                  [0, 2, 3])
+    img = s.to_image(np.arange(4.0))
+    np.testing.assert_array_equal(img[0, :, 0], [0, 1, 2, 3])
+    np.testing.assert_array_equal(img[0, :, 1], 1)
+
+
+def test_surface_samples_lie_on_the_circumscribed_cylinder():
+    h = make_hair([np.array([[0, 0, 0], [0, 0, 1.0]])], 0.02)
+    s = build_strand_space(h, 2)
+    origin, normal, axis, phi = s.surface_samples(8, seed=3)
+    np.testing.assert_allclose(np.abs(normal[..., 2]), 0, atol=1e-12)  # ⟂ the fibre
+    np.testing.assert_allclose(np.linalg.norm(origin - axis, axis=2),
+                               0.01 * circumradius_scale(3) * 1.001)
+    # azimuths stratified: one per 45° sector, so the mean normal of 8 samples vanishes
+    step = np.sort(np.mod(phi - phi[:, :1], 2 * np.pi), axis=1)
+    np.testing.assert_allclose(step, np.tile(np.arange(8) * np.pi / 4, (2, 1)), atol=1e-12)
+    np.testing.assert_allclose(normal.mean(axis=1), 0, atol=1e-12)
+    assert (axis[0, :, 2] <= 0.5).all() and (axis[1, :, 2] >= 0.5).all()
+
+
+@pytest.mark.parametrize("sides", [3, 4, 6])
+def test_tube_blocks_on_average_as_much_as_the_cylinder(sides):
+    """Rays across a straight fibre from many azimuths: the fraction blocked over a slab of
+    width w is the mean projected width / w = 2r / w (Cauchy), whatever the sides."""
+    r, w = 0.01, 0.1
+    h = make_hair([np.array([[0, 0, -1], [0, 0, 0], [0, 0, 1.0]])], 2 * r)
+    mesh = fibre_tubes(h, sides)
+    tracer = RayTracer(mesh.positions, mesh.faces, scale=1.0)
+    rng = np.random.default_rng(1)
+    m = 200_000
+    phi = rng.random(m) * 2 * np.pi
+    d = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], axis=1)
+    across = np.stack([-np.sin(phi), np.cos(phi), np.zeros(m)], axis=1)
+    o = -0.5 * d + (rng.random(m) - 0.5)[:, None] * w * across
+    o[:, 2] = rng.uniform(-0.9, 0.9, m)
+    blocked = tracer.occluded(o, d, 1.0).mean()
+    assert blocked == pytest.approx(2 * r / w, rel=0.02)
+
+
+@pytest.mark.parametrize("kind", ["tubes", "ribbons"])
+def test_hits_map_to_the_texel_of_their_arc_length(kind):
+    h = make_hair([np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2.0]]),
+                   np.array([[1, 0, 0], [1, 0, 2.0]])], 0.02)
+    s = build_strand_space(h, 4)
+    mesh = fibre_tubes(h) if kind == "tubes" else fibre_ribbons(h)
+    tracer = RayTracer(mesh.positions, mesh.faces, scale=2.0)
+    z = 0.025 + 0.05 * np.arange(40)  # away from the texel boundaries
+    axis = np.concatenate([np.stack([np.full_like(z, x), np.zeros_like(z), z], axis=1)
+                           for x in (0.0, 1.0)])
+    # across the fibre: any direction ⟂ the axis for tubes; the ribbon's normal v for ribbons
+    _, _, v = transported_frames(h)
+    d = np.repeat(v[[0, 3]], len(z), axis=0) if kind == "ribbons" else \
+        np.tile([0.0, 1.0, 0.0], (len(axis), 1))
+    o = axis - d
+    hits = tracer.intersect(o, d)
+    assert hits.hit.all()
+    texel = texel_of_hit(s, mesh, hits.triangle, hits.barycentric)
+    strand = np.repeat([0, 1], len(z))
+    expect = strand * 4 + np.minimum(np.floor(np.tile(z, 2) / 0.5), 3).astype(int)
+    np.testing.assert_array_equal(texel, expect)
