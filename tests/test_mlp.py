@@ -150,9 +150,13 @@ def test_training_is_deterministic(nonlinear):
     assert other.learnt.weights[0].tobytes() != mlp.learnt.weights[0].tobytes()
 
 
-def test_zero_steps_is_the_ridge_and_homogeneous(nonlinear):
+def test_zero_steps_ship_the_ridge_alone_and_mlp_is_homogeneous(nonlinear):
+    """When validation keeps 0 steps no network ships (the model is the ridge's, with a
+    warning); a shipped one keeps u(a·x) = a·u(x)."""
     D, I, Dh, _, ridge, mlp, _ = nonlinear
     zero = fit_transfer(D, I, basis=5, transfer="mlp", transfer_options={"steps": 0})
+    assert zero.learnt is None and not zero.diagnostics.learnt["shipped"]
+    assert any("ridge ships alone" in w for w in zero.diagnostics.warnings)
     x = Dh[:, 0]
     np.testing.assert_array_equal(reconstruct64(zero, x), reconstruct64(ridge, x))
     y = reconstruct64(mlp, x)
@@ -204,7 +208,9 @@ def test_spec_keys_and_refusals():
 def test_bundle_round_trip_and_cpu_runtime(tmp_path):
     """A bake with fit.transfer "mlp": the manifest describes the layers, load_runtime
     reads the network the fit shipped, and the CPU runtime's coefficients are the fit's."""
+    # 7 training lights: too few for a validation split, so the network trains its steps
     spec = tiny_spec(fit={"basis": 6, "transfer": "mlp", "mlp_steps": 40, "mlp_width": 16})
+    spec["lights"].update(count=7)
     out = pipeline.bake(ROOT_CORNELL, parse_spec(spec), tmp_path / "b", quiet=True)
     m = read_manifest(out)
     layers = m["transfer"]["learnt"]["layers"]

@@ -17,11 +17,13 @@ set and leaves the network nothing that generalises.
 **Training** (JAX + optax, float64, full batch, CPU; deterministic: same data + options →
 the same weights bit for bit on one machine). A seeded fifth of the configurations (at
 least :data:`MIN_VALIDATION`) is held back; AdamW runs up to ``steps`` steps on the rest
-and the step count with the lowest validation error is kept (0 — the ridge alone — when
-nothing helps). Then the network is trained again from the same initial weights on all
-configurations for that many steps. Inputs are centred and scaled, targets scaled, and
-both are folded into the first and last layer, so the shipped network reads x'/s and
-writes coefficients directly. The last layer starts at zero: step 0 is exactly the ridge.
+and the step count with the lowest validation error is kept. Then the network is trained
+again from the same initial weights on all configurations for that many steps. When the
+count is 0 (no step helped: the LOO residuals are not predictable from x'/s with this
+data) no network ships; the model is the ridge's, with a warning. Inputs are centred and
+scaled, targets scaled, and both are folded into the first and last layer, so the shipped
+network reads x'/s and writes coefficients directly. The last layer starts at zero: step
+0 is exactly the ridge.
 
 Options (``fit.mlp_*`` in the spec, :data:`DEFAULTS`): ``width`` neurons per hidden layer,
 ``layers`` hidden layers, ``steps`` AdamW steps at most, ``seed``.
@@ -113,11 +115,15 @@ class MlpRegressor(TransferRegressor):
         Y = loo_targets(norm, basis, ridge.regularisation).reshape(norm.Kk, -1)
         net, diag = train_residual(X, Y, opts)
         seconds = {**ridge.seconds, "learnt": time.perf_counter() - t0}
+        warnings = () if net is not None else (
+            "fit.transfer 'mlp': no step of the learnt residual lowered the validation "
+            "error of the ridge; the ridge ships alone",)
         return TransferFit(transfer=ridge.transfer, offset=ridge.offset,
                            regularisation=ridge.regularisation, method=ridge.method,
                            grid=ridge.grid, cv=ridge.cv,
                            direct_singular_values=ridge.direct_singular_values,
-                           seconds=seconds, learnt=net, learnt_diagnostics=diag)
+                           seconds=seconds, learnt=net, learnt_diagnostics=diag,
+                           warnings=warnings)
 
 
 def split(k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -131,11 +137,13 @@ def split(k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def train_residual(X: np.ndarray, Y: np.ndarray, opts: Mapping[str, int]
-                   ) -> tuple[Mlp, dict[str, Any]]:
+                   ) -> tuple[Mlp | None, dict[str, Any]]:
     """Fit the residual network r with r(X[k]) ≈ Y[k] (module docstring).
 
     X : (K, d_in) float64 unit direct vectors; Y : (K, d_out) float64 targets.
-    Returns the network (float64, standardisation folded in) and its training figures.
+    Returns the network (float64, standardisation folded in), or None when the validation
+    chose 0 steps (the network would be zero: the ridge ships alone), and its training
+    figures.
     """
     fit_idx, val_idx = split(len(X), opts["seed"])
     widths = (opts["width"],) * opts["layers"]
@@ -149,10 +157,12 @@ def train_residual(X: np.ndarray, Y: np.ndarray, opts: Mapping[str, int]
         val_ridge, val_best = float(curve[0, 1]), float(curve[best, 1])
     else:
         curve, best_step, val_ridge, val_best = None, steps, None, None
-    net, _ = _train(X, Y, widths, best_step, opts["seed"], None, "mlp transfer")
+    net = None if best_step == 0 else _train(X, Y, widths, best_step, opts["seed"], None,
+                                             "mlp transfer")[0]
     y_ss = float(np.sum(Y**2))
-    fitted = forward(net, X)
+    fitted = np.zeros_like(Y) if net is None else forward(net, X)
     diag = {
+        "shipped": net is not None,
         "regressor": "mlp", "widths": list(widths), "activation": "leaky_relu",
         "slope": LEAKY_SLOPE, "seed": opts["seed"], "steps_max": steps, "steps": best_step,
         "configurations": len(X), "validation_configurations": len(val_idx),

@@ -36,6 +36,7 @@ class TransferFit:
     seconds : timings
     learnt : the learnt residual network (outputs 3·nb_max, rows ``[c][i]``) or None
     learnt_diagnostics : what training measured (JSON data), None for ridge
+    warnings : what the regressor noticed, for the fit's warnings
     """
 
     transfer: np.ndarray
@@ -48,6 +49,7 @@ class TransferFit:
     seconds: dict[str, float]
     learnt: Mlp | None = None
     learnt_diagnostics: dict[str, Any] | None = None
+    warnings: tuple[str, ...] = ()
 
 
 class TransferRegressor:

@@ -321,7 +321,7 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
     nb, n_method, curve, used, sel_warnings, sel_seconds = select_basis_count(
         norm, sb, tf, basis, holdout, block_rows)
     seconds = {**sb.seconds, **tf.seconds, **sel_seconds}
-    warnings = [*norm.warnings, *sb.warnings, *sel_warnings]
+    warnings = [*norm.warnings, *sb.warnings, *tf.warnings, *sel_warnings]
 
     cond: list[float | None] = []
     eff: list[int] = []
