@@ -55,6 +55,23 @@ def _cmd_bake(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from prtcore.compare import CompareOptions, compare, expected_ordering, format_compare
+    from prtcore.core.spec import load_spec
+
+    spec = load_spec(args.spec) if args.spec else None
+    if args.asset is None and spec is not None:
+        raise PrtError("compare: --spec needs an asset (the built scene has its own spec)")
+    opt = CompareOptions(spp=args.spp, bands=args.bands, strata=args.strata,
+                         lights=args.lights, seed=args.seed)
+    result = compare(args.out, asset=args.asset, spec=spec, options=opt, quiet=args.quiet)
+    print(format_compare(result))
+    for line in expected_ordering(result):
+        print(f"prtcore compare: note: {line}")
+    print(f"compare: {Path(args.out) / 'compare.txt'}, {Path(args.out) / 'compare_strip.png'}")
+    return 0
+
+
 def _cmd_reference(args: argparse.Namespace) -> int:
     from prtcore.reference.lightmap import reference_to_exr
 
@@ -89,12 +106,18 @@ def _warn_time(command: str, manifest: dict, time: float | None) -> None:
 def _posed_runtime(command: str, bundle: Path, time: float | None):
     """(manifest, runtime data, scene, keyframe) of a bundle, posed at the keyframe nearest
     ``time`` for keyframe bundles (with the --time warning)."""
+    from prtcore.intake.hair import hair_scene
     from prtcore.io.bundle import load_runtime, read_manifest
     from prtcore.io.gltf.loader import load_asset
+    from prtcore.io.hair import is_hair_file, load_hair
 
     manifest = read_manifest(bundle)
     data = load_runtime(bundle, manifest)
-    scene = load_asset(bundle / manifest["asset"]["file"])
+    asset = bundle / manifest["asset"]["file"]
+    if is_hair_file(asset):  # a hair bundle: the fibres shadow the measurement points
+        scene = hair_scene(load_hair(asset))
+    else:
+        scene = load_asset(asset)
     key = None
     if manifest.get("keyframes") or time is not None:  # pose at the nearest keyframe
         from prtcore.keyframes.pose import bundle_at_time
@@ -121,13 +144,36 @@ def _warn_family(command: str, data, lights, tracer) -> None:
               "bake's held-out figures", file=sys.stderr)
 
 
+def _relight_sh_prt(args: argparse.Namespace, bundle: Path) -> int:
+    """relight of an sh_prt bundle: distant lighting (an environment map and/or
+    directional lights, docs/sh_prt.md) → the lightmap of outgoing radiance."""
+    from prtcore.emitters.environment import load_distant_lighting
+    from prtcore.io.bundle import read_manifest
+    from prtcore.io.imageio import write_exr
+    from prtcore.methods.sh_prt import relight_bundle
+
+    for flag, value in (("--time", args.time), ("--basis", args.basis)):
+        if value is not None:
+            raise PrtError(f"{flag}: an sh_prt bundle has no keyframes or basis")
+    manifest = read_manifest(bundle)
+    image = relight_bundle(bundle, manifest, load_distant_lighting(args.light))
+    write_exr(args.out, image, dtype="float")
+    sec = manifest["sh_prt"]
+    print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, sh_prt {sec['storage']}, "
+          f"{sec['bands']} bands)")
+    return 0
+
+
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
+    from prtcore.io.bundle import read_manifest
     from prtcore.io.imageio import write_exr
     from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
+    if read_manifest(bundle).get("method") == "sh_prt":
+        return _relight_sh_prt(args, bundle)
     manifest, data, scene, key = _posed_runtime("relight", bundle, args.time)
     lights = load_light_file(args.light)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
@@ -162,6 +208,22 @@ def _cmd_render(args: argparse.Namespace) -> int:
     times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
     print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, {mode}) on "
           f"{label}; first frame, wall clock per pass: {times}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from prtcore.viewer.server import ViewerServer
+
+    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet)
+    print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)
+    if not args.no_browser:
+        import webbrowser
+
+        webbrowser.open(server.url)
+    try:
+        server.serve_forever()
+    finally:
+        server.close()
     return 0
 
 
@@ -306,6 +368,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="side of each shadow-map view")
     sp.set_defaults(func=_cmd_render)
 
+    sp = sub.add_parser("view", help="the web viewer of a bundle on 127.0.0.1 (WebGL2)")
+    sp.add_argument("bundle", help="bundle directory")
+    sp.add_argument("--port", type=int, default=8019, help="port (0: any free port)")
+    sp.add_argument("--no-browser", action="store_true",
+                    help="print the URL only; do not open a browser")
+    common(sp)
+    sp.set_defaults(func=_cmd_view)
+
     sp = sub.add_parser("reference", help="indirect lightmap by the independent path tracer")
     sp.add_argument("source", help="asset file or bundle directory")
     sp.add_argument("--light", required=True, help="light file (docs/lights.md)")
@@ -320,6 +390,22 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-indirect", action="store_true", help="with --camera: direct only")
     common(sp)
     sp.set_defaults(func=_cmd_reference)
+
+    sp = sub.add_parser("compare", help="data-driven PRT vs per-vertex SH-PRT vs transfer "
+                                           "textures against the path tracer (table + strip)")
+    sp.add_argument("asset", nargs="?", default=None,
+                    help="asset (default: the project's floor-and-object scene, lit by a "
+                         "directional light)")
+    sp.add_argument("--out", required=True, help="output directory")
+    sp.add_argument("--spec", default=None, help="bake spec for an asset")
+    sp.add_argument("--spp", type=int, default=64, help="reference paths per pixel")
+    sp.add_argument("--bands", type=int, default=5, help="SH bands (5: 25 coefficients)")
+    sp.add_argument("--strata", type=int, default=16,
+                    help="SH-PRT rays per sample = strata²")
+    sp.add_argument("--lights", type=int, default=3, help="held-out lights")
+    sp.add_argument("--seed", type=int, default=0)
+    common(sp)
+    sp.set_defaults(func=_cmd_compare)
 
     _add_plugin_commands(sub)
     return p

@@ -18,6 +18,7 @@ from prtcore.core.spec import BakeSpec, PointsSpec
 from prtcore.intake.plan import Plan
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
+from prtcore.io.imageio import EXR_ROW_ORDER
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.dataset import STAGES as TRANSPORT_STAGES
 
@@ -97,10 +98,6 @@ RUN_FILES = ("report.json", "report.png", "report.txt", "report_worst.png", "rep
              "manifest.json")
 
 
-#: the method every bake uses until the spec chooses one (issue 17 adds sh_prt)
-METHOD = "data_driven"
-
-
 def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
          force: bool = False, limits: IntakeLimits | None = None,
          callback: ProgressCallback | None = None, source_name: str | None = None) -> Path:
@@ -118,9 +115,20 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.emitters.families import sample_configurations
     from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
     from prtcore.io.gltf.export import write_glb
+    from prtcore.io.hair import is_hair_file
     from prtcore.methods.base import BakeInputs, method
     from prtcore.transport.dataset import bake_dataset, check_bake_memory, operators_for
 
+    if is_hair_file(asset):  # strands instead of a lightmap (docs/hair.md)
+        from prtcore.hairbake import bake_hair
+
+        out, m, result, seconds = bake_hair(
+            asset, spec, out, run_files=_write_run_files, exclude=RUN_FILES, quiet=quiet,
+            force=force, limits=limits, callback=callback, source_name=source_name)
+        _finish_run_files(out, m, result, seconds)
+        if not quiet:
+            print(m.summary(result, seconds, with_verdict=False))
+        return out
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
@@ -132,21 +140,23 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     with timer.stage("lights"):
         train, hold = sample_configurations(spec.lights, scene.center, scene.radius,
                                             scene.lights)
-    kfs = _keyframe_set(intake, len(train), len(hold), timer)
-    if kfs is not None and spec.measurement_points.placement == "qdeim":
-        raise SpecError("measurement_points.placement", "'qdeim' is not available for "
-                        "keyframe bakes yet (use 'surface')")
-    if kfs is None:
-        data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
-    else:
-        from prtcore.keyframes.pose import bake_keyframe_dataset
+    m = method(spec.method.name)
+    kfs, data = None, None
+    if m.needs_dataset:
+        kfs = _keyframe_set(intake, len(train), len(hold), timer)
+        if kfs is not None and spec.measurement_points.placement == "qdeim":
+            raise SpecError("measurement_points.placement", "'qdeim' is not available for "
+                            "keyframe bakes yet (use 'surface')")
+        if kfs is None:
+            data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
+        else:
+            from prtcore.keyframes.pose import bake_keyframe_dataset
 
-        data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
-    if spec.measurement_points.placement == "qdeim":
-        intake, data = _select_points(intake, data, len(train), timer)
+            data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
+        if spec.measurement_points.placement == "qdeim":
+            intake, data = _select_points(intake, data, len(train), timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
                         data=data)
-    m = method(METHOD)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:
@@ -164,7 +174,10 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             "atlas": {"width": texels.width, "height": texels.height,
                       "padding": spec.atlas.padding, "uv": "TEXCOORD_1",
                       "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
-                      "covered_texels": texels.count, "coverage": "coverage.exr"},
+                      "covered_texels": texels.count, "coverage": "coverage.exr",
+                      # readers that store scanlines bottom-up (three.js EXRLoader) sample
+                      # at (u, 1 - v); docs/bundle.md
+                      "exr_row_order": EXR_ROW_ORDER},
         }
         run = {
             "spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
@@ -179,7 +192,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
     validation = None
-    if spec.validate.reference_spp > 0 and len(hold):
+    if spec.validate.reference_spp > 0 and len(hold) and m.path_traced_validation:
         from prtcore.validate import validate_bundle
 
         with timer.stage("validate"):  # the verdict against the path tracer, noise removed

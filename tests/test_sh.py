@@ -192,3 +192,17 @@ def test_bands_are_checked():
     with pytest.raises(ValueError, match="square"):
         sh.evaluate(np.zeros(10), np.zeros((1, 3)))
     assert sh.n_coeffs(5) == 25
+
+
+def test_phong_zonal_against_scipy_and_the_clamped_cosine():
+    np.testing.assert_allclose(sh.phong_zonal(1, 6), sh.clamped_cosine_zonal(6) / np.pi,
+                               atol=1e-14)
+    for n in (8.0, 20.0, 5.5):
+        z = sh.phong_zonal(n, 6)
+        assert z[0] == pytest.approx(0.5 / np.sqrt(np.pi))  # the lobe integrates to 1
+        for l in range(6):
+            ref, _ = integrate.quad(
+                lambda t, l=l, n=n: (n + 1) / (2 * np.pi) * max(0.0, np.cos(t)) ** n
+                * sh.basis(_sphere(t, 0.0)[None], 6)[0, l * (l + 1)] * np.sin(t) * 2 * np.pi,
+                0.0, np.pi / 2, epsabs=1e-13)
+            assert z[l] == pytest.approx(ref, abs=1e-11), (n, l)

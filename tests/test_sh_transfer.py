@@ -17,8 +17,9 @@ from prtcore.core import sh
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.spec import parse_spec
 from prtcore.emitters.environment import Environment, sky_environment
+from prtcore.methods import sh_prt
 from prtcore.pipeline import run_intake
-from prtcore.reference.environment import reference_environment
+from prtcore.reference.environment import reference_environment, reference_phong
 from prtcore.reference.pathtracer import default_tracer
 from prtcore.scenes import floor_object
 from prtcore.transport import sh_transfer as st
@@ -113,6 +114,37 @@ def test_one_bounce_texture_matches_two_bounce_path_tracing(setup):
     # what is left: T⁰'s own error, the nearest-texel lookup of T⁰ at the hit points on a
     # 32² atlas, the band-limited map's clipping (≈ 3 % of the mean at the time of writing)
     assert err1 < 0.035 * float(ref.mean.mean())
+
+
+def test_glossy_tp_and_tpfl_match_path_traced_phong_at_the_same_band_limit(setup):
+    """Phong (n = 8, ρ_s = 0.5) seen from a camera, direct light of the sky.
+
+    The reference integrates ``L·V·lobe`` by Monte Carlo with the map's pixels, the lobe
+    truncated to the same bands as the renderers. TPFL stores the projection of ``L·V`` and
+    so equals that integral up to its own sampling; TP multiplies the truncated ``L`` and
+    ``V`` by the triple product, which loses the product's higher bands — its error is
+    explained by that truncation (TP − TPFL, measured separately)."""
+    _, tx, tracer, samples, env = setup
+    exponent, spec = 8.0, np.full((tx.count, 3), 0.5)
+    view = np.array([2.3, 2.0, 3.1]) - tx.position
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    r = sh_prt.reflect(view, tx.normal)
+    vis = st.visibility_transfer(tracer, samples, BANDS, 24, seed=1)
+    fixed = st.fixed_light_transfer(tracer, samples, env.radiance, BANDS, 24, seed=1)
+    tp = sh_prt.glossy_tp(vis, env.sh_coefficients(BANDS), r, exponent, spec)
+    tpfl = sh_prt.glossy_tpfl(fixed, r, exponent, spec)
+    ref = reference_phong(tracer, env, tx.position, tx.geometric_normal, r, spec, exponent,
+                          4096, seed=2, lobe_bands=BANDS)
+    mean = float(ref.mean.mean())
+    err_fl, noise = _corrected_rms(tpfl, ref)
+    err_tp, _ = _corrected_rms(tp, ref)
+    trunc = float(np.sqrt(((tp - tpfl) ** 2).mean()))
+    print(f"\nglossy Phong n=8, bands {BANDS}: TPFL corrected rms {err_fl:.4f}, TP "
+          f"{err_tp:.4f} (noise {noise:.4f}); triple-product truncation |TP − TPFL| "
+          f"{trunc:.4f}; mean {mean:.3f}")
+    assert err_fl < 0.02 * mean
+    assert err_tp <= trunc + err_fl + 0.01 * mean
+    assert err_tp < 0.12 * mean
 
 
 def test_vertex_samples_and_lookup(setup):

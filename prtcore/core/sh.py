@@ -305,21 +305,49 @@ def clamped_cosine_zonal(bands: int) -> np.ndarray:
     return a * np.sqrt((2 * np.arange(bands) + 1) / (4.0 * np.pi))
 
 
+def phong_zonal(exponent: float, bands: int) -> np.ndarray:
+    """(L,) float64 zonal coefficients of the normalised Phong lobe about the polar axis,
+    ``(n+1)/(2π) · max(0, cos θ)^n`` (integral 1 over the sphere), n = ``exponent`` ≥ 0.
+
+    Integrated by Gauss–Legendre in cos θ over [0, 1] with enough nodes to be exact for
+    integer n (the integrand is a polynomial there); accurate to rounding for fractional n
+    ≥ 1 with the same nodes doubled.
+    """
+    bands = _check_bands(bands)
+    if not exponent >= 0:
+        raise ValueError(f"Phong exponent must be ≥ 0, got {exponent!r}")
+    nodes = math.ceil(exponent) // 2 + bands + 8
+    if exponent != int(exponent):
+        nodes *= 2
+    z, w = np.polynomial.legendre.leggauss(nodes)
+    z, w = 0.5 * (z + 1.0), 0.5 * w  # onto [0, 1]
+    lobe = (exponent + 1.0) / (2.0 * np.pi) * z ** exponent
+    polar = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
+    y0 = basis(polar, bands)[:, [l * (l + 1) for l in range(bands)]]
+    return 2.0 * np.pi * (w * lobe) @ y0
+
+
+def zonal_kernel(zonal: np.ndarray) -> np.ndarray:
+    """(L²,) float64 Funk–Hecke scale of each coefficient for a kernel with zonal
+    coefficients ``zonal`` (L,): ``√(4π/(2l+1)) z_l`` at every m of band l. Convolving a
+    function with the kernel multiplies its coefficients by this; the kernel turned to a
+    direction a is ``zonal_kernel(z) * basis(a)``."""
+    z = np.asarray(zonal, dtype=np.float64)
+    bands = z.shape[0]
+    return (np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z)[band_of(bands)]
+
+
 def convolve_zonal(coeffs: np.ndarray, zonal: np.ndarray) -> np.ndarray:
     """Convolution of a function (coeffs (L², ...)) with a kernel symmetric about the polar
     axis (its zonal coefficients (L,)): ``c'_lm = √(4π/(2l+1)) z_l c_lm`` (Funk–Hecke).
     With :func:`clamped_cosine_zonal` this turns radiance into irradiance."""
     coeffs = np.asarray(coeffs, dtype=np.float64)
-    bands = _bands_of(coeffs.shape[0])
-    z = np.asarray(zonal, dtype=np.float64)[:bands]
-    scale = np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z
-    return coeffs * scale[band_of(bands)].reshape(-1, *([1] * (coeffs.ndim - 1)))
+    scale = zonal_kernel(np.asarray(zonal)[:_bands_of(coeffs.shape[0])])
+    return coeffs * scale.reshape(-1, *([1] * (coeffs.ndim - 1)))
 
 
 def zonal_to_direction(zonal: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Coefficients (L²,) of a kernel with zonal coefficients ``zonal`` (L,) turned so its
     symmetry axis is the unit ``axis`` (3,): ``c_lm = √(4π/(2l+1)) z_l Y_lm(axis)``."""
-    z = np.asarray(zonal, dtype=np.float64)
-    bands = z.shape[0]
-    y = basis(np.asarray(axis, dtype=np.float64)[None, :], bands)[0]
-    return y * (np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * z)[band_of(bands)]
+    k = zonal_kernel(zonal)
+    return basis(np.asarray(axis, dtype=np.float64)[None, :], _bands_of(len(k)))[0] * k

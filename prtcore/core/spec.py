@@ -169,6 +169,40 @@ BOUNDARIES = ("lambertian",)
 
 
 @dataclass(frozen=True)
+class MethodSpec:
+    #: the method that fits and writes the bundle (prtcore.methods): "data_driven" |
+    #: "sh_prt"
+    name: str = "data_driven"
+
+
+@dataclass(frozen=True)
+class ShPrtSpec:
+    """Classic SH-PRT / transfer textures (method "sh_prt", docs/sh_prt.md)."""
+
+    storage: str = "texture"  # "texture" | "vertex"
+    bands: int = 5
+    strata: int = 16
+    bounce: bool = True
+    seed: int = 5
+
+
+@dataclass(frozen=True)
+class HairSpec:
+    """``hair``: how a hair asset (``.hair``, USD BasisCurves) is baked (docs/hair.md)."""
+
+    #: texels along each strand in the strand texture (paper: 10)
+    texels_per_strand: int = 10
+    #: fibre colour for every strand, linear RGB; null: the file's colours
+    albedo: tuple[float, float, float] | None = None
+    #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
+    fibre: str = "diffuse"
+
+
+#: fibre models a hair bake can use
+FIBRE_MODELS = ("diffuse",)
+
+
+@dataclass(frozen=True)
 class BakeSpec:
     atlas: AtlasSpec = AtlasSpec()
     prepare: PrepareSpec = PrepareSpec()
@@ -179,6 +213,9 @@ class BakeSpec:
     keyframes: KeyframesSpec = KeyframesSpec()
     output: OutputSpec = OutputSpec()
     validate: ValidateSpec = ValidateSpec()
+    method: MethodSpec = MethodSpec()
+    sh_prt: ShPrtSpec = ShPrtSpec()
+    hair: HairSpec = HairSpec()
     #: material name → :class:`MaterialOverride`
     materials: dict = field(default_factory=dict)
 
@@ -523,6 +560,40 @@ def _parse(data: Any) -> BakeSpec:
                               "validate.reference_lights", lo=1, hi=1 << 16),
     )
 
+    mt = _section(MethodSpec, root.get("method", {}), "method")
+    method = MethodSpec(name=_choice(mt.get("name", "data_driven"), "method.name",
+                                     ("data_driven", "sh_prt")))
+    sp = _section(ShPrtSpec, root.get("sh_prt", {}), "sh_prt")
+    sd = ShPrtSpec()
+    bounce = sp.get("bounce", sd.bounce)
+    if not isinstance(bounce, bool):
+        raise SpecError("sh_prt.bounce", f"expected true or false, got {bounce!r}")
+    sh_prt = ShPrtSpec(
+        storage=_choice(sp.get("storage", sd.storage), "sh_prt.storage",
+                        ("texture", "vertex")),
+        bands=_int(sp.get("bands", sd.bands), "sh_prt.bands", lo=1, hi=16),
+        strata=_int(sp.get("strata", sd.strata), "sh_prt.strata", lo=1, hi=128),
+        bounce=bounce,
+        seed=_int(sp.get("seed", sd.seed), "sh_prt.seed", lo=0),
+    )
+    if method.name == "sh_prt" and keyframes.animation is not None:
+        raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
+                        "animation is set)")
+
+    hs = _section(HairSpec, root.get("hair", {}), "hair")
+    albedo = hs.get("albedo")
+    if albedo is not None:
+        if not isinstance(albedo, list) or len(albedo) != 3:
+            raise SpecError("hair.albedo", "expected null or [r, g, b]")
+        albedo = tuple(_num(x, f"hair.albedo[{i}]", lo=0.0, hi=1.0)
+                       for i, x in enumerate(albedo))
+    hair = HairSpec(
+        texels_per_strand=_int(hs.get("texels_per_strand", 10), "hair.texels_per_strand",
+                               lo=1, hi=4096),
+        albedo=albedo,
+        fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
+    )
+
     mats = root.get("materials", {})
     if not isinstance(mats, dict):
         raise SpecError("materials", f"expected an object of material names, got "
@@ -531,7 +602,8 @@ def _parse(data: Any) -> BakeSpec:
 
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
-                    validate=validate, materials=materials)
+                    validate=validate, method=method, sh_prt=sh_prt, hair=hair,
+                    materials=materials)
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

@@ -50,6 +50,11 @@ DOCS: dict[str, str] = {
                                   "(docs/subsurface.md), 1–4096",
     "transport.subsurface_max_scatter": "scattering events after which a walk is dropped "
                                         "(its light counts as absorbed), 1–1048576",
+    "hair.texels_per_strand": "texels along each strand of a hair asset's strand texture "
+                              "(docs/hair.md), 1–4096",
+    "hair.albedo": "null (the hair file's colours), or [r, g, b] in [0, 1]: one fibre "
+                   "colour for every strand",
+    "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged)",
     "fit.basis": "n, basis elements including the mean (1–4096), or `auto`",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
@@ -79,6 +84,16 @@ DOCS: dict[str, str] = {
                               "path-trace `reference_lights` of them at this many samples "
                               "per texel and judge their noise-corrected error",
     "validate.reference_lights": "held-out lights path-traced when `reference_spp` > 0",
+    "method.name": "`data_driven` (Belcour et al. 2022) · `sh_prt` (classic SH-PRT or "
+                   "transfer textures, section `sh_prt`; docs/sh_prt.md)",
+    "sh_prt.storage": "`texture` (transfer textures: per lightmap texel, RGBA EXRs) · "
+                      "`vertex` (per vertex, Sloan et al. 2002)",
+    "sh_prt.bands": "L, SH bands (L² coefficients per colour channel), 1–16; 5 = the "
+                    "poster's 25 coefficients",
+    "sh_prt.strata": "rays per sample = strata² (stratified cosine directions), 1–128",
+    "sh_prt.bounce": "add one inter-reflection bounce computed from the stored shadowed "
+                     "transfer (T⁰ + T¹)",
+    "sh_prt.seed": "seed of the transfer rays",
     "material.subsurface": "the medium inside the material's closed mesh (below); null: "
                            "as the asset says (KHR_materials_volume, "
                            "KHR_materials_diffuse_transmission, KHR_materials_volume_scatter)",

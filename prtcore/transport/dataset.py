@@ -231,6 +231,19 @@ def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
                          residual=resid, stats=stats)
 
 
+def direct_at_points(scene: Scene | None, tracer: RayTracer, lights: Sequence[Light],
+                     points: MeasurementPoints, timer: StageTimer) -> np.ndarray:
+    """Direct outgoing radiance at the measurement points (P, K, 3) float32, each the mean
+    of its supersample cluster (timed as "direct points")."""
+    with timer.stage("direct points"):
+        cl = direct_radiance(scene, tracer, lights, points.cluster_position,
+                             points.cluster_normal, points.cluster_albedo, timer,
+                             "direct points")
+        k = len(lights)
+        direct_p = points.average_clusters(cl.reshape(len(cl), 3 * k).astype(np.float64))
+        return direct_p.reshape(points.count, k, 3).astype(np.float32)
+
+
 def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
                  lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                  spec: TransportSpec | None = None, timer: StageTimer | None = None,
@@ -257,14 +270,7 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
 
     traced = trace_operators(scene, texels, tracer, spec, timer, operators)
     rays1 = tracer.rays_traced
-    with timer.stage("direct points"):
-        cl = direct_radiance(scene, tracer, lights, points.cluster_position,
-                             points.cluster_normal, points.cluster_albedo, timer,
-                             "direct points")
-        k = len(lights)
-        direct_p = points.average_clusters(cl.reshape(len(cl), 3 * k).astype(np.float64))
-        direct_p = direct_p.reshape(points.count, k, 3).astype(np.float32)
-        del cl
+    direct_p = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
     lit = light_texels(scene, texels, tracer, traced, lights, spec, timer)
     _, clamped = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))

@@ -106,9 +106,7 @@ def vertex_samples(scene: Scene) -> SurfaceSamples:
 def unshadowed_transfer(samples: SurfaceSamples, bands: int) -> ShTransfer:
     """Closed-form unshadowed diffuse transfer (no rays)."""
     rho, _ = clamp_albedo(np.asarray(samples.albedo, np.float64))
-    zonal = sh.clamped_cosine_zonal(bands)
-    k = sh.basis(samples.normal, bands) * (
-        np.sqrt(4.0 * np.pi / (2 * np.arange(bands) + 1)) * zonal)[sh.band_of(bands)]
+    k = sh.basis(samples.normal, bands) * sh.zonal_kernel(sh.clamped_cosine_zonal(bands))
     return ShTransfer(rho[:, :, None] / math.pi * k[:, None, :], "unshadowed", bands, 0)
 
 
@@ -195,3 +193,59 @@ def texel_lookup(scene: Scene, image: np.ndarray):
         yy = np.clip((uv[:, 1] * h).astype(np.int64), 0, h - 1)
         return image[yy, x]
     return lookup
+
+
+# ---------------------------------------------------------------------------------------
+# Glossy: the poster's transfer textures for the triple product (TP) and the triple
+# product with a fixed light (TPFL)
+
+
+def _hemisphere_visibility(tracer: RayTracer, samples: SurfaceSamples, rows: slice,
+                           strata: int, rng: np.random.Generator
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified uniform directions over each sample's geometric hemisphere (m, S, 3) and
+    their visibility (m, S) bool (a ray that hits anything is blocked)."""
+    gn = samples.geometric_normal[rows]
+    m, s = len(gn), strata * strata
+    cell = np.arange(s)
+    u = ((np.stack([cell // strata, cell % strata], axis=1)[None, :, :]
+          + rng.random((m, s, 2))) / strata).reshape(-1, 2)
+    d = directions_around(np.repeat(gn, s, axis=0), u[:, 0], 2.0 * math.pi * u[:, 1])
+    origin = samples.position[rows] + gn * tracer.offset
+    hits = tracer.intersect(np.repeat(origin, s, axis=0), d)
+    return d.reshape(m, s, 3), ~hits.hit.reshape(m, s)
+
+
+def visibility_transfer(tracer: RayTracer, samples: SurfaceSamples, bands: int, strata: int,
+                        seed: int) -> np.ndarray:
+    """The poster's T₀ for the triple product: SH of the visibility V(x, ω) over the whole
+    sphere (0 below the geometric plane), ``V_i = ∫ Y_i V dω`` estimated with strata²
+    stratified uniform directions over the hemisphere: (n, L²) float64."""
+    out = np.zeros((samples.count, bands * bands))
+    s = strata * strata
+    for start in range(0, samples.count, POINT_CHUNK):
+        rows = slice(start, min(samples.count, start + POINT_CHUNK))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
+        d, vis = _hemisphere_visibility(tracer, samples, rows, strata, rng)
+        y = sh.basis(d.reshape(-1, 3), bands).reshape(d.shape[0], s, -1)
+        out[rows] = 2.0 * math.pi / s * np.einsum("ms,msl->ml", vis.astype(np.float64), y)
+    return out
+
+
+def fixed_light_transfer(tracer: RayTracer, samples: SurfaceSamples, radiance, bands: int,
+                         strata: int, seed: int) -> np.ndarray:
+    """TPFL's stored vector: SH of the shadowed incident radiance ``L(ω) V(x, ω)`` for one
+    fixed distant light, ``radiance`` a callable (k, 3) directions → (k, 3) RGB (e.g.
+    :meth:`prtcore.emitters.environment.Environment.radiance`). Same rays and streams as
+    :func:`visibility_transfer`. Returns (n, 3, L²) float64."""
+    out = np.zeros((samples.count, 3, bands * bands))
+    s = strata * strata
+    for start in range(0, samples.count, POINT_CHUNK):
+        rows = slice(start, min(samples.count, start + POINT_CHUNK))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
+        d, vis = _hemisphere_visibility(tracer, samples, rows, strata, rng)
+        flat = d.reshape(-1, 3)
+        y = sh.basis(flat, bands).reshape(d.shape[0], s, -1)
+        lv = radiance(flat).reshape(d.shape[0], s, 3) * vis[:, :, None]
+        out[rows] = 2.0 * math.pi / s * np.einsum("msc,msl->mcl", lv, y)
+    return out

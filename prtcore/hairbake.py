@@ -1,0 +1,179 @@
+"""The bake of a hair asset (``.hair``, USD BasisCurves; paper 6.3): hair → strand texels
+→ measurement points on the hull of the hair → lights → the fibre dataset → the
+data-driven fit → a bundle whose basis images are strand textures (docs/hair.md).
+
+:func:`prtcore.pipeline.bake` hands hair assets here. The method and its files are the
+surface bake's (:mod:`prtcore.methods.data_driven`); what differs is the receiver
+(:class:`~prtcore.receivers.strands.StrandSpace`: its layout and sampling rule go to the
+manifest's ``strands`` section, its image size to ``atlas``), the transport
+(:func:`prtcore.transport.hair.bake_hair_dataset`) and the asset (``asset.hair``, the hair
+as baked, written by :func:`prtcore.io.hair.write_hair`).
+
+Not yet: a mesh baked together with the hair, keyframes, the path-traced validation
+(``validate.reference_spp``), ``measurement_points.placement`` other than the hull, and
+``fit.denoise`` (the seam-aware filter is for surfaces; strand texels are fitted as
+traced).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prtcore.core.errors import SpecError
+from prtcore.core.hair import Hair
+from prtcore.core.limits import IntakeLimits
+from prtcore.core.progress import ProgressCallback, StageTimer
+from prtcore.core.spec import BakeSpec, spec_hash, spec_to_dict
+from prtcore.emitters.families import sample_configurations
+from prtcore.intake.hair import hair_scene
+from prtcore.intake.points import MeasurementPoints, place_measurement_points
+from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
+from prtcore.io.hair import load_hair, write_hair
+from prtcore.methods.base import BakeInputs, Method, method
+from prtcore.receivers.strands import StrandSpace, build_strand_space
+from prtcore.transport.dataset import Dataset, estimate_bake_bytes
+from prtcore.transport.fibre import hair_tracer
+from prtcore.transport.hair import bake_hair_dataset
+
+METHOD = "data_driven"
+#: writes a run's report files: (directory, method, result, report, seconds, t_start)
+RunFiles = Callable[[Path, Method, Any, dict, dict, float], None]
+
+
+@dataclass(frozen=True)
+class HairPrepare:
+    """What the surface bake's prepare report holds, for a hair asset (nothing repaired,
+    the strand texture is fully used but for the last row's tail)."""
+
+    utilisation: float
+    warnings: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class HairIntake:
+    """The intake of a hair bake, in the shape the method reads (``texels`` is the strand
+    space)."""
+
+    source: str
+    spec: BakeSpec
+    hair: Hair
+    texels: StrandSpace
+    points: MeasurementPoints
+    prepare: HairPrepare
+    scene: object = None
+    seconds: dict = field(default_factory=dict)
+
+
+def hair_spec(spec: BakeSpec) -> BakeSpec:
+    """The spec as a hair bake runs it: points on the hull, no surface denoising; keys a
+    hair bake cannot honour yet are refused by name."""
+    if spec.keyframes.animation is not None:
+        raise SpecError("keyframes.animation", "hair bakes are static (no keyframes yet)")
+    if spec.validate.reference_spp > 0:
+        raise SpecError("validate.reference_spp", "the path-traced validation of hair "
+                        "bakes is not available yet (benchmarks/hair_accuracy.py checks "
+                        "the fibre transport against prtcore.reference.fibres)")
+    if spec.measurement_points.placement == "qdeim":
+        raise SpecError("measurement_points.placement", "hair bakes place their points "
+                        "on the hull of the hair ('surface' and 'hull' both mean that)")
+    return dataclasses.replace(
+        spec, measurement_points=dataclasses.replace(spec.measurement_points,
+                                                     placement="hull"),
+        fit=dataclasses.replace(spec.fit, denoise=0.0))
+
+
+def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
+                    limits: IntakeLimits) -> HairIntake:
+    """load → colour from the spec → strand texels → hull measurement points."""
+    with timer.stage("load"):
+        hair = load_hair(asset, limits)
+        if spec.hair.albedo is not None:
+            hair = dataclasses.replace(hair, color=np.tile(np.asarray(spec.hair.albedo),
+                                                           (hair.point_count, 1)))
+    with timer.stage("texels"):
+        space = build_strand_space(hair, spec.hair.texels_per_strand)
+    points = place_measurement_points(hair_scene(hair), spec.measurement_points, timer)
+    return HairIntake(source=str(asset), spec=spec, hair=hair, texels=space, points=points,
+                      prepare=HairPrepare(utilisation=space.count / (space.width *
+                                                                     space.height)),
+                      seconds=dict(timer.seconds))
+
+
+def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
+                      limit_bytes: int) -> int:
+    """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
+    with the fibre operator, plus the first bounce's harmonics: two more (T, K, 3)
+    float32) against ``limit_bytes``; returns the estimate."""
+    from prtcore.core.errors import LimitExceeded
+
+    k = spec.lights.count + spec.lights.holdout
+    est = estimate_bake_bytes(space.count, k, spec.transport, ("fibre",)) \
+        + 2 * space.count * k * 12
+    if est > limit_bytes:
+        raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
+                            f"{k} lights needs about {est / 2**30:.1f} GiB",
+                            limit=f"max_bake_bytes={limit_bytes}")
+    return est
+
+
+def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFiles,
+              exclude: tuple[str, ...] = (), quiet: bool = False, force: bool = False,
+              limits: IntakeLimits | None = None, callback: ProgressCallback | None = None,
+              source_name: str | None = None) -> tuple[Path, Method, Any, dict]:
+    """hair asset + spec → bundle ``out``. ``run_files(directory, method, result, report,
+    seconds, t_start)`` writes the run's report files (the pipeline's), ``exclude`` names
+    them (left out of the checksums). Returns (out, the method, its result, the stage
+    seconds) for the caller's summary."""
+    check_output(out, force, inputs=(asset,))
+    t_start = time.perf_counter()
+    spec = hair_spec(spec)
+    timer = StageTimer(quiet=quiet, callback=callback)
+    limits = limits or IntakeLimits.from_env()
+    intake = run_hair_intake(asset, spec, timer, limits)
+    space, hair = intake.texels, intake.hair
+    check_hair_memory(asset, space, spec, limits.max_bake_bytes)
+    with timer.stage("lights"):
+        b = hair.bounds()
+        center, radius = b.mean(axis=0), float(np.linalg.norm(b[1] - b[0]) / 2)
+        train, hold = sample_configurations(spec.lights, center, radius, ())
+    tracer, _ = hair_tracer(space)
+    data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
+                                      spec.transport, timer)
+    inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=None,
+                        data=data)
+    m = method(METHOD)
+    result = m.fit(inputs, timer)
+
+    def write(tmp: Path) -> dict:
+        write_hair(tmp / "asset.hair", hair)
+        sections, report = m.write(tmp, inputs, result)
+        common = {
+            "asset": {"source": source_name or Path(str(asset)).name,
+                      "sha256": sha256_file(Path(asset)), "file": "asset.hair",
+                      "strands": hair.strand_count, "points": hair.point_count},
+            "units": {"length": "m", "up": "+Y", "handedness": "right",
+                      "radiance": "linear RGB outgoing radiance (albedo/pi * E), averaged "
+                                  "over the fibre's azimuth and the texel's arc interval"},
+            "atlas": {"width": space.width, "height": space.height, "padding": 0,
+                      "uv": "strands", "coverage": "coverage.exr",
+                      "covered_texels": space.count},
+            "strands": space.layout(),
+            "fibre": {"model": spec.hair.fibre, "geometry": "triangulated tubes, 3 sides, "
+                      "mean projected width = diameter"},
+        }
+        run_files(tmp, m, result, report, dict(timer.seconds), t_start)
+        run = {"spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
+               "timings": dict(timer.seconds)}
+        return manifest_base(method=m.name, **common, **sections, **run,
+                             run_files=list(exclude))
+
+    with timer.stage("export"):
+        out = write_bundle(out, write, force=force, exclude=exclude, inputs=(asset,))
+    return out, m, result, dict(timer.seconds)

@@ -1,0 +1,56 @@
+"""The transport stage of a hair bake: the lighting database over strand texels.
+
+As :func:`prtcore.transport.dataset.bake_dataset` for surfaces, with the fibre operators
+of :mod:`prtcore.transport.fibre`: direct light at the measurement points (on the hull of
+the hair) and at the strand texels (with its azimuthal harmonics), the fibre gather, the
+first bounce with the harmonics, and all bounces for every configuration at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.core.spec import TransportSpec
+from prtcore.intake.points import MeasurementPoints
+from prtcore.receivers.strands import StrandSpace
+from prtcore.transport.base import operator_for
+from prtcore.transport.dataset import Dataset, direct_at_points
+from prtcore.transport.fibre import fibre_direct, harmonic_first_bounce
+from prtcore.transport.solve import solve_indirect
+
+#: the timed stages of :func:`bake_hair_dataset`, in the order they run
+STAGES = ("fibre gather", "direct points", "direct fibres", "indirect solve")
+
+
+def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTracer,
+                      lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
+                      spec: TransportSpec | None = None, timer: StageTimer | None = None,
+                      scene: Scene | None = None) -> Dataset:
+    """The lighting database of a hair bake (``Dataset``: direct at the points, direct and
+    indirect at the strand texels, training lights first). ``tracer`` is
+    :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene`` (the mesh of a
+    hair + mesh bake, or None). ``spec.direct_samples`` points per texel (at least 4, so
+    that the first harmonic is resolved)."""
+    spec = spec or TransportSpec()
+    timer = timer or StageTimer(quiet=True)
+    lights = (*tuple(lights_train), *tuple(lights_holdout))
+    rays0 = tracer.rays_traced
+    term = operator_for("fibre").build(scene, space, tracer, spec, timer)
+    rays1 = tracer.rays_traced
+    direct_points = direct_at_points(scene, tracer, lights, points, timer)
+    rays2 = tracer.rays_traced
+    with timer.stage("direct fibres"):
+        direct = fibre_direct(space, tracer, lights, max(4, spec.direct_samples),
+                              spec.seed + 1)
+    rays3 = tracer.rays_traced
+    indirect, bounces, resid, solve_stats = solve_indirect(
+        term.matrix, space.albedo, direct.mean, spec.max_bounces, spec.tolerance, timer,
+        threads=tracer.threads, first_bounce=harmonic_first_bounce(term, direct))
+    stats = {"train": len(lights_train), "fibre": term.stats,
+             "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
+                      "direct_fibres": rays3 - rays2}, "solve": solve_stats}
+    return Dataset(lights=lights, direct_points=direct_points, direct_texels=direct.mean,
+                   indirect=indirect, iterations=bounces, residual=resid, stats=stats)
