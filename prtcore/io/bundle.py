@@ -126,8 +126,8 @@ def read_learnt(path: Path, section: dict) -> Mlp:
         raise BundleError(f"{path}: transfer.learnt activation "
                           f"{section.get('activation')!r}: this prtcore reads 'leaky_relu'")
     try:
-        return Mlp(tuple(_load_raw(path, layer["weight"]) for layer in section["layers"]),
-                   tuple(_load_raw(path, layer["bias"]) for layer in section["layers"]),
+        return Mlp(tuple(load_raw(path, layer["weight"]) for layer in section["layers"]),
+                   tuple(load_raw(path, layer["bias"]) for layer in section["layers"]),
                    float(section["slope"]), section.get("output", "linear"))
     except ValueError as e:
         raise BundleError(f"{path}: transfer.learnt: {e}") from None
