@@ -190,9 +190,30 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_sh_prt(args: argparse.Namespace) -> int:
+    """render of an sh_prt bundle: the vertex- or fragment-shader variant under distant
+    lighting (docs/sh_prt.md)."""
+    from prtcore.runtime.sh_gl import render_sh_prt_to_file
+
+    for flag, value in (("--time", args.time), ("--basis", args.basis),
+                        ("--indirect-only", args.indirect_only or None),
+                        ("--no-indirect", args.no_indirect or None)):
+        if value is not None:
+            raise PrtError(f"render: {flag}: not an option for an sh_prt bundle")
+    res, label = render_sh_prt_to_file(args.bundle, args.light, args.camera, args.out,
+                                       exposure=args.exposure)
+    times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
+    print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, sh_prt) on "
+          f"{label}; first frame, wall clock: {times}")
+    return 0
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
+    from prtcore.io.bundle import read_manifest
     from prtcore.runtime.gl import render_to_file
 
+    if read_manifest(Path(args.bundle)).get("method") == "sh_prt":
+        return _render_sh_prt(args)
     if args.indirect_only and args.no_indirect:
         raise PrtError("render: --indirect-only and --no-indirect exclude each other")
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"

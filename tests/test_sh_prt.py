@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scenes import bake_sh_prt_bundle
 
 from prtcore.core.spec import parse_spec
 from prtcore.emitters.environment import light_sh
+from prtcore.io.transfer_textures import read_transfer_textures, write_transfer_textures
 from prtcore.methods import sh_prt
 from prtcore.pipeline import run_intake
 from prtcore.reference.pathtracer import default_tracer
@@ -30,9 +32,9 @@ def baked(tmp_path_factory):
 
 def test_texture_files_round_trip_and_are_dilated(baked, tmp_path):
     _, texels, _, tex = baked
-    names = sh_prt.write_transfer_textures(tmp_path, tex, dtype="float")
+    names = write_transfer_textures(tmp_path, tex.image, dtype="float")
     assert names == [f"sh_transfer_{c}_{k:02d}.exr" for c in "RGB" for k in range(3)]
-    back = sh_prt.read_transfer_textures(tmp_path, 3)
+    back = read_transfer_textures(tmp_path, 3)
     np.testing.assert_array_equal(back, tex.image.astype(np.float32))
     # padding texels carry their source texel's transfer
     d = texels.dilate_xy[0]
@@ -76,23 +78,6 @@ def test_storage_is_checked(baked):
 # The method in the pipeline: bake → bundle → relight with an environment light file
 
 
-def _bake(tmp_path, storage):
-    import json
-
-    from prtcore.cli import main
-
-    asset = floor_object.write_floor_object(tmp_path / "fo.glb")
-    spec = dict(floor_object.SPEC, atlas={"resolution": 32, "padding": 2},
-                method={"name": "sh_prt"},
-                sh_prt={"storage": storage, "bands": 3, "strata": 4, "bounce": True},
-                output={"dtype": "float"})
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
-    out = tmp_path / f"b_{storage}"
-    assert main(["bake", str(asset), "--spec", str(tmp_path / "spec.json"), "--out",
-                 str(out), "-q"]) == 0
-    return out
-
-
 @pytest.mark.parametrize("storage", ["texture", "vertex"])
 def test_sh_prt_bake_relights_with_an_environment_file(tmp_path, storage, capsys):
     import json
@@ -104,7 +89,7 @@ def test_sh_prt_bake_relights_with_an_environment_file(tmp_path, storage, capsys
     from prtcore.io.bundle import read_manifest, verify_bundle
     from prtcore.io.imageio import read_image, write_exr
 
-    out = _bake(tmp_path, storage)
+    out = bake_sh_prt_bundle(tmp_path, storage)
     m = read_manifest(out)
     verify_bundle(out, m)
     schema = json.loads((Path(sh_prt.__file__).parents[1] / "data" /

@@ -16,8 +16,8 @@ poster's T₁ computed from the stored T₀ (interpolated from the vertices, or 
 the dilated texture at the bounce's hit point).
 
 :func:`bake_sh_prt` is the library entry point (``prtcore compare`` uses it);
-:func:`write_transfer_textures` / :func:`read_transfer_textures` the file format, and
-:func:`memory_table` the poster's Table 1 for one asset.
+:mod:`prtcore.io.transfer_textures` the file format, and :func:`memory_table` the poster's
+Table 1 for one asset.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
 from prtcore.io.bundle import raw_file
 from prtcore.io.imageio import read_image, write_exr, write_png
+from prtcore.io.transfer_textures import read_transfer_textures, write_transfer_textures
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
@@ -125,33 +126,6 @@ def bake_sh_prt(scene: Scene, tracer: RayTracer, storage: str, bands: int, strat
 
 # ---------------------------------------------------------------------------------------
 # Files
-
-
-def write_transfer_textures(directory: Path, result: ShPrtResult, dtype: str = "half"
-                            ) -> list[str]:
-    """Transfer textures as RGBA EXRs: ``sh_transfer_{c}_{k:02d}.exr`` holds coefficients
-    4k .. 4k+3 of colour channel c (R, G, B), dilated; the last file of a channel is
-    zero-padded. Returns the file names."""
-    h, w, _, n = result.image.shape
-    names = []
-    for c, cname in enumerate("RGB"):
-        for k in range(math.ceil(n / 4)):
-            block = np.zeros((h, w, 4), np.float32)
-            part = result.image[:, :, c, 4 * k:4 * k + 4]
-            block[:, :, :part.shape[2]] = part
-            name = f"sh_transfer_{cname}_{k:02d}.exr"
-            write_exr(directory / name, block, dtype=dtype)  # R, G, B, A = 4k .. 4k+3
-            names.append(name)
-    return names
-
-
-def read_transfer_textures(directory: Path, bands: int) -> np.ndarray:
-    """The (H, W, 3, L²) float32 transfer image written by :func:`write_transfer_textures`."""
-    n = bands * bands
-    files = math.ceil(n / 4)
-    parts = [[read_image(directory / f"sh_transfer_{c}_{k:02d}.exr") for k in range(files)]
-             for c in "RGB"]
-    return np.stack([np.concatenate(p, axis=2)[:, :, :n] for p in parts], axis=2)
 
 
 def evaluate_texture(image: np.ndarray, uv: np.ndarray, light: np.ndarray) -> np.ndarray:
@@ -293,7 +267,7 @@ class ShPrtMethod(Method):
                    "storage_bytes": bake.storage_bytes,
                    "convention": "prtcore.core.sh (docs/sh_prt.md)"}
         if bake.storage == "texture":
-            section["files"] = write_transfer_textures(directory, bake, dtype)
+            section["files"] = write_transfer_textures(directory, bake.image, dtype)
             section["layout"] = ("sh_transfer_{R,G,B}_{k}.exr: R, G, B, A = coefficients "
                                  "4k..4k+3 of that colour channel, dilated")
             section["dtype"] = dtype

@@ -7,6 +7,7 @@ import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { TransformControls } from 'three/addons/controls/TransformControls.js';
 import {
   LIGHTS_GLSL, LightPass, coefficients, familyResidual, loadBundle, normaliseLight,
+  poseKeyframe,
 } from './runtime.js';
 
 const MODES = { full: 0, direct: 1, indirect: 2, albedo: 3, element: 4, points: 0, checker: 6,
@@ -161,6 +162,7 @@ async function main() {
   renderer.autoClear = true;
   const bundle = await loadBundle(document.body.dataset.bundle);
   const m = bundle.manifest;
+  poseKeyframe(bundle, 0);  // keyframe bundles: the first keyframe (as relight without --time)
   const pass = new LightPass(renderer, bundle);
   const weights = new THREE.DataTexture(new Float32Array(4 * bundle.planes), bundle.planes, 1,
                                         THREE.RGBAFormat, THREE.FloatType);
@@ -197,14 +199,19 @@ async function main() {
     meshes.push(mesh);
   }
   // measurement points as dots, coloured by their direct light, lifted off the surface
-  const P = bundle.P, pp = new Float32Array(3 * P);
-  for (let p = 0; p < P; p++) {
-    for (let c = 0; c < 3; c++) {
-      pp[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
-    }
-  }
+  const P = bundle.P;
   const dotsGeometry = new THREE.BufferGeometry();
-  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(pp, 3));
+  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
+  function placeDots() {
+    const pp = dotsGeometry.attributes.position;
+    for (let p = 0; p < P; p++) {
+      for (let c = 0; c < 3; c++) {
+        pp.array[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
+      }
+    }
+    pp.needsUpdate = true;
+  }
+  placeDots();
   dotsGeometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
   const dots = new THREE.Points(dotsGeometry, new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3, defines, uniforms: view, vertexShader: POINTS_VS,
@@ -273,7 +280,7 @@ async function main() {
   gizmo.addEventListener('change', () => requestRender());
   controls.addEventListener('change', () => requestRender());
 
-  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0 };
+  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0, keyframe: 0 };
   let x = null;
 
   function placeGizmo(light) {
@@ -285,13 +292,15 @@ async function main() {
     lightObj.updateMatrixWorld(true);
     arrow.visible = light.type !== 'point';
   }
-  function lightFromGizmo() {
+  // The current light as a light-file object, placed where the gizmo is.
+  function lightDict() {
     const l = state.light;
     const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
-    applyLight({ type: l.type, color: state.color, intensity: state.intensity,
-      position: lightObj.position.toArray(), direction: dir.toArray(), range: l.range || undefined,
-      spot: state.spot }, false);
+    const pos = l.type === 'directional' ? l.position.toArray() : lightObj.position.toArray();
+    return { type: l.type, color: state.color, intensity: state.intensity, position: pos,
+      direction: dir.toArray(), range: l.range || undefined, spot: state.spot };
   }
+  function lightFromGizmo() { applyLight(lightDict(), false); }
   // Set the light: shadow maps, cluster pass, coefficients, badge; then a frame.
   function applyLight(dict, moveGizmo = true) {
     const light = normaliseLight(dict);
@@ -402,6 +411,10 @@ async function main() {
   // controls
   const basis = $('basis');
   basis.max = String(bundle.nBasis);
+  if (bundle.keyframes) {  // keyframe bundles: a time slider over the keyframes
+    $('time-row').hidden = false;
+    $('time').max = String(bundle.keyframes.count - 1);
+  }
   basis.value = String(bundle.nBasis);
   $('element').max = String(bundle.nBasis - 1);
   const sync = () => {
@@ -413,10 +426,21 @@ async function main() {
     $('basis-out').textContent = basis.value;
     $('exposure-out').textContent = `${Number($('exposure').value) >= 0 ? '+' : ''}${$('exposure').value} EV`;
     gizmo.setMode($('gizmo').value);
+    const k = Number($('time').value) | 0;
+    if (bundle.keyframes) {
+      $('time-out').textContent = `${bundle.keyframes.times[k].toFixed(2)} s (${k + 1}/${bundle.keyframes.count})`;
+    }
+    if (bundle.keyframes && k !== state.keyframe) {  // pose, then the light pass again
+      state.keyframe = k;
+      poseKeyframe(bundle, k);
+      pass.updateClusters();
+      placeDots();
+      if (state.light) { applyLight(lightDict(), false); return; }
+    }
     updateCoefficients();
     requestRender();
   };
-  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo']) {
+  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo', 'time']) {
     $(id).addEventListener('input', sync);
   }
   const relightFromForm = () => {
@@ -440,7 +464,7 @@ async function main() {
     type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: true });
   Object.assign(prt, {
     bundle: { P: bundle.P, nB: bundle.nB, nBasis: bundle.nBasis, W: bundle.W, H: bundle.H,
-              flipV: bundle.flipV },
+              flipV: bundle.flipV, keyframes: bundle.keyframes ? bundle.keyframes.count : 0 },
     setLight(dict) { applyLight(dict); renderNow(); return { x: prt.x, u: prt.u, s: prt.s }; },
     setView({ position, target, up = [0, 1, 0], fov_y_deg = 40 }) {
       camera.position.set(...position);
