@@ -13,7 +13,7 @@ benchmarks/results/hair_accuracy.json, per variant:
   assumption (``radially_averaged=True``) — what the gather and solve themselves cost.
 
 Usage: python benchmarks/hair_accuracy.py [--strands 1000] [--rays 256] [--paths 1024]
-       [--texels 300]
+       [--texels 300] [--texels-per-strand 4]
 """
 
 from __future__ import annotations
@@ -52,9 +52,10 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=8)
     ap.add_argument("--paths", type=int, default=1024)
     ap.add_argument("--texels", type=int, default=300)
+    ap.add_argument("--texels-per-strand", type=int, default=4)
     args = ap.parse_args()
     hair = tangle(args.strands)
-    space = build_strand_space(hair, 4)
+    space = build_strand_space(hair, args.texels_per_strand)
     tracer, mesh = hair_tracer(space)
     t0 = time.perf_counter()
     direct = fibre_direct(space, tracer, LIGHTS, args.samples, seed=1)

@@ -69,6 +69,10 @@ FIBRE_BATCH = 1 << 18
 #: before they are summed into CSR, and the CSR), and per ray in flight.
 MEM_PER_TEXEL_RAY = 24
 MEM_PER_RAY_IN_FLIGHT = 200
+#: Memory of the fibre tubes per polyline segment (bytes): prtcore's float64 vertices,
+#: faces and face normals plus Embree's copies and BVH, measured at 10k strands × 16
+#: segments by benchmarks/hair_geometry.py (89 + 112 MiB) and rounded up.
+MEM_PER_FIBRE_SEGMENT = 1400
 
 
 def hair_tracer(space: StrandSpace, scene: Scene | None = None, sides: int = DEFAULT_SIDES,
