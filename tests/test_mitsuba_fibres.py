@@ -28,7 +28,7 @@ pytestmark = pytest.mark.slow
 def test_mitsuba_agrees_with_the_fibre_path_tracer_and_the_fast_path():
     from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect
 
-    hair = tangle(600)
+    hair = tangle(1000)
     hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
     space = build_strand_space(hair, 12)
     tracer, mesh = hair_tracer(space)
@@ -37,10 +37,12 @@ def test_mitsuba_agrees_with_the_fibre_path_tracer_and_the_fast_path():
     term = fibre_gather(space, tracer, mesh, 0, rays=128, seed=2)
     fast, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4,
                               first_bounce=harmonic_first_bounce(term, direct))
-    sel = np.random.default_rng(0).choice(space.count, 60, replace=False)
-    mit = mitsuba_fibre_indirect(space, lights, sel, 128, seed=5)
-    ours = fibre_reference(space, tracer, mesh, 0, lights, sel, 128, seed=7)
+    sel = np.random.default_rng(0).choice(space.count, 100, replace=False)
+    mit = mitsuba_fibre_indirect(space, lights, sel, 256, seed=5)
+    ours = fibre_reference(space, tracer, mesh, 0, lights, sel, 512, seed=7)
     pt = noise_corrected_error(ours, *mit)
     fa = noise_corrected_error(fast[sel].astype(float), *mit)
-    assert abs(pt["bias"]) < 0.04, pt
-    assert abs(fa["bias"]) < 0.06, fa
+    # benchmarks/hair_accuracy.py (150 texels × 256 Mitsuba rays): path tracer +3.1 %,
+    # fast path −1.2 % of Mitsuba; here within 5 % plus three standard errors
+    assert abs(pt["bias"]) < 0.05 + 3 * pt["bias_se"], pt
+    assert abs(fa["bias"]) < 0.05 + 3 * fa["bias_se"], fa
