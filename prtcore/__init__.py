@@ -47,6 +47,10 @@ _PUBLIC = {
     "is_bundle": "prtcore.io.bundle",
     "load_light_file": "prtcore.emitters.lightfile",
     "relight": "prtcore.runtime.cpu",
+    # the web viewer (package data: page and static files)
+    "viewer_page": "prtcore.viewer.page",
+    "viewer_static_path": "prtcore.viewer.page",
+    "viewer_content_type": "prtcore.viewer.page",
 }
 
 __all__ = ["__version__", *sorted(_PUBLIC)]

@@ -144,13 +144,36 @@ def _warn_family(command: str, data, lights, tracer) -> None:
               "bake's held-out figures", file=sys.stderr)
 
 
+def _relight_sh_prt(args: argparse.Namespace, bundle: Path) -> int:
+    """relight of an sh_prt bundle: distant lighting (an environment map and/or
+    directional lights, docs/sh_prt.md) → the lightmap of outgoing radiance."""
+    from prtcore.emitters.environment import load_distant_lighting
+    from prtcore.io.bundle import read_manifest
+    from prtcore.io.imageio import write_exr
+    from prtcore.methods.sh_prt import relight_bundle
+
+    for flag, value in (("--time", args.time), ("--basis", args.basis)):
+        if value is not None:
+            raise PrtError(f"{flag}: an sh_prt bundle has no keyframes or basis")
+    manifest = read_manifest(bundle)
+    image = relight_bundle(bundle, manifest, load_distant_lighting(args.light))
+    write_exr(args.out, image, dtype="float")
+    sec = manifest["sh_prt"]
+    print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, sh_prt {sec['storage']}, "
+          f"{sec['bands']} bands)")
+    return 0
+
+
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
+    from prtcore.io.bundle import read_manifest
     from prtcore.io.imageio import write_exr
     from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
+    if read_manifest(bundle).get("method") == "sh_prt":
+        return _relight_sh_prt(args, bundle)
     manifest, data, scene, key = _posed_runtime("relight", bundle, args.time)
     lights = load_light_file(args.light)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
@@ -167,9 +190,30 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_sh_prt(args: argparse.Namespace) -> int:
+    """render of an sh_prt bundle: the vertex- or fragment-shader variant under distant
+    lighting (docs/sh_prt.md)."""
+    from prtcore.runtime.sh_gl import render_sh_prt_to_file
+
+    for flag, value in (("--time", args.time), ("--basis", args.basis),
+                        ("--indirect-only", args.indirect_only or None),
+                        ("--no-indirect", args.no_indirect or None)):
+        if value is not None:
+            raise PrtError(f"render: {flag}: not an option for an sh_prt bundle")
+    res, label = render_sh_prt_to_file(args.bundle, args.light, args.camera, args.out,
+                                       exposure=args.exposure)
+    times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
+    print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, sh_prt) on "
+          f"{label}; first frame, wall clock: {times}")
+    return 0
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
+    from prtcore.io.bundle import read_manifest
     from prtcore.runtime.gl import render_to_file
 
+    if read_manifest(Path(args.bundle)).get("method") == "sh_prt":
+        return _render_sh_prt(args)
     if args.indirect_only and args.no_indirect:
         raise PrtError("render: --indirect-only and --no-indirect exclude each other")
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
@@ -198,6 +242,23 @@ def _cmd_render(args: argparse.Namespace) -> int:
     times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
     print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, {mode}) on "
           f"{label}; first frame, wall clock per pass: {times}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from prtcore.viewer.server import ViewerServer
+
+    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet,
+                          reference=args.reference, reference_light=args.light)
+    print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)
+    if not args.no_browser:
+        import webbrowser
+
+        webbrowser.open(server.url)
+    try:
+        server.serve_forever()
+    finally:
+        server.close()
     return 0
 
 
@@ -341,6 +402,19 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--shadow-resolution", type=int, default=1024,
                     help="side of each shadow-map view")
     sp.set_defaults(func=_cmd_render)
+
+    sp = sub.add_parser("view", help="the web viewer of a bundle on 127.0.0.1 (WebGL2)")
+    sp.add_argument("bundle", help="bundle directory")
+    sp.add_argument("--port", type=int, default=8019, help="port (0: any free port)")
+    sp.add_argument("--no-browser", action="store_true",
+                    help="print the URL only; do not open a browser")
+    sp.add_argument("--reference", default=None,
+                    help="a path-traced indirect lightmap of the bundle (`prtcore reference "
+                         "DIR --light L --out REF.exr`): the page's error heat map")
+    sp.add_argument("--light", default=None, help="with --reference: the light file it was "
+                                                  "traced for (the page starts with it)")
+    common(sp)
+    sp.set_defaults(func=_cmd_view)
 
     sp = sub.add_parser("reference", help="indirect lightmap by the independent path tracer")
     sp.add_argument("source", help="asset file or bundle directory")

@@ -28,6 +28,7 @@ method stores for the asset besides the mesh.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -179,8 +180,9 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
                "sh_vertex": vert.storage_bytes, "sh_texture": tex.storage_bytes}
 
     # 3. held-out lights: the key light, then the bake's own held-out lights
-    _, hold = sample_configurations(bake_spec.lights, scene.center, scene.radius,
-                                    scene.lights)
+    # the held-out stream does not depend on the training count (which may be "auto")
+    _, hold = sample_configurations(dataclasses.replace(bake_spec.lights, count=0),
+                                    scene.center, scene.radius, scene.lights)
     lights: list[Light] = ([key_light] if key_light is not None else []) + [
         lt for lt in hold if lt.type == "directional"]
     lights = lights[:opt.lights]

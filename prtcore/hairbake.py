@@ -33,6 +33,7 @@ from prtcore.core.progress import ProgressCallback, StageTimer
 from prtcore.core.spec import BakeSpec, spec_hash, spec_to_dict
 from prtcore.emitters.families import sample_configurations
 from prtcore.intake.hair import hair_scene
+from prtcore.intake.plan import fixed_counts
 from prtcore.intake.points import MeasurementPoints, place_measurement_points
 from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
 from prtcore.io.hair import load_hair, write_hair
@@ -83,6 +84,7 @@ def hair_spec(spec: BakeSpec) -> BakeSpec:
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
+    spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),

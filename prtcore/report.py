@@ -13,13 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from prtcore.core.progress import bar
-from prtcore.fit.model import TransferModel, relative_rmse
-from prtcore.fit.transfer import projection_bound, reconstruct
+from prtcore.fit.model import TransferModel
+from prtcore.fit.transfer import heldout_errors
 
 TABLE_N = (4, 8, 16, 32, 64)
-#: The CPU blend timing runs on at most this many pixels (1024²) and is scaled linearly.
-BLEND_TIMING_PIXELS = 1 << 20
+#: The CPU blend timing runs on at most this many pixels (512²; 64 elements are then 68 MB,
+#: far beyond the caches, so the product is as memory-bound as at atlas size) and is scaled
+#: linearly to the atlas.
+BLEND_TIMING_PIXELS = 1 << 18
 
 
 def truncate(model: TransferModel, n: int) -> TransferModel:
@@ -57,19 +58,86 @@ def _time(fn, repeat: int) -> float:
     return float(np.median(ts))
 
 
+def heldout_metrics(model: TransferModel, holdout_direct: np.ndarray,
+                    holdout_indirect: np.ndarray, ns: list[int],
+                    groups: np.ndarray | None = None) -> list[dict[str, float | None]]:
+    """The accuracy columns of the table for each n of ``ns`` (the verdict's inputs; also
+    what automatic sizing judges a (P, K) by, prtcore/sizing.py).
+
+    holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3); groups : (H,) keyframe of
+    each held-out configuration (per-keyframe transfers only). Configurations without
+    direct light at the points are left out; those without indirect light count only in
+    the global and absolute errors. Per n: the per-light relative RMSE (mean, max) and
+    projection bound (mean, max), both pooled over the lights (√(Σ‖rec − ref‖² / Σ‖ref‖²),
+    each light weighing the indirect light it holds), the error relative to the RMS of
+    *all* held-out lightmaps (mean, max), the absolute RMSE (radiance units) and the
+    fraction of texels reconstructed negative.
+    """
+    H = holdout_direct.shape[1]
+    T = holdout_indirect.shape[0]
+    lit = np.array([np.linalg.norm(holdout_direct[:, h, :]) > 0 for h in range(H)], bool)
+    # every size's reconstructions and projections in one pass over the texels
+    # (fit/transfer.py heldout_errors), not one pass per light and size
+    use = np.flatnonzero(lit)
+    err = heldout_errors(model, holdout_direct[:, use], holdout_indirect[:, use], ns,
+                         None if groups is None else np.asarray(groups)[use])
+    # the honest scale: the RMS of the held-out indirect over *all* held-out
+    # configurations, so a light with almost no indirect light does not read as 14 000 %
+    ref_ss = np.zeros(H)
+    ref_ss[use] = err.ref_ss
+    ref_ss[~lit] = [float(np.sum(holdout_indirect[:, h, :].astype(np.float64) ** 2))
+                    for h in np.flatnonzero(~lit)]
+    global_norm = float(np.sqrt(np.mean(ref_ss))) if H else 0.0
+    has_ref = err.ref_ss > 0
+    out = []
+    for i in range(len(ns)):
+        diff = np.sqrt(err.sse[i])
+        errs = diff[has_ref] / np.sqrt(err.ref_ss[has_ref])
+        bounds = np.sqrt(err.bound_sse[i][has_ref] / err.ref_ss[has_ref])
+        errs_global = diff / global_norm if global_norm > 0 else np.zeros(0)
+        abs_rmse = diff / np.sqrt(3 * T)
+        negative = err.negative[i]
+        # pooled: Σ‖rec − ref‖², Σ (bound·‖ref‖)², Σ‖ref‖²
+        pooled = (float(err.sse[i][has_ref].sum()), float(err.bound_sse[i][has_ref].sum()),
+                  float(err.ref_ss[has_ref].sum()))
+        out.append({
+            "heldout_rmse_mean": float(np.mean(errs)) if errs.size else None,
+            "heldout_rmse_max": float(np.max(errs)) if errs.size else None,
+            "projection_bound_mean": float(np.mean(bounds)) if bounds.size else None,
+            "projection_bound_max": float(np.max(bounds)) if bounds.size else None,
+            # pooled over the held-out lights: √(Σ‖rec − ref‖² / Σ‖ref‖²) and the same for
+            # the projection; a light with almost no indirect light weighs what it holds
+            "heldout_rmse_pooled": float(np.sqrt(pooled[0] / pooled[2])) if pooled[2] else None,
+            "projection_bound_pooled": float(np.sqrt(pooled[1] / pooled[2]))
+            if pooled[2] else None,
+            # per configuration ‖rec − ref‖ / RMS of all held-out indirect lightmaps
+            "heldout_rmse_global_mean": float(np.mean(errs_global)) if errs_global.size
+            else None,
+            "heldout_rmse_global_max": float(np.max(errs_global)) if errs_global.size
+            else None,
+            # radiance units (linear RGB, per texel and channel)
+            "heldout_abs_rmse_mean": float(np.mean(abs_rmse)) if abs_rmse.size else None,
+            "negative_texel_fraction": float(np.mean(negative)) if negative.size else None,
+        })
+    return out
+
+
 def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
                      holdout_indirect: np.ndarray, atlas_pixels: int,
                      planes_bytes_per_element: float, reference: str,
-                     groups: np.ndarray | None = None) -> dict:
+                     groups: np.ndarray | None = None, shipped: int | None = None) -> dict:
     """The table.
 
     holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3) reference indirect radiance.
     atlas_pixels : W·H (the blend runs over the whole atlas, as in a fragment shader).
     groups : (H,) keyframe of each held-out configuration (per-keyframe transfers only).
+    shipped : the n that ships, given a row too (≤ model.n_basis; the verdict's row)
     """
     ns = [n for n in TABLE_N if n <= model.n_basis]
-    if model.n_basis not in ns:
-        ns.append(model.n_basis)
+    for extra in (model.n_basis, shipped):
+        if extra is not None and extra not in ns:
+            ns.append(extra)
+    ns = sorted(ns)
     H = holdout_direct.shape[1]
     rows = []
     rng = np.random.default_rng(0)
@@ -81,37 +149,13 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             skipped.append({"index": h, "reason": "zero direct"})
         elif not np.linalg.norm(holdout_indirect[:, h, :]) > 0:
             skipped.append({"index": h, "reason": "zero indirect"})
-    # a bar on the report stage's timer (the pipeline passes none): each n costs the
-    # held-out reconstructions and the run-time measurements
-    # the honest scale: the RMS of the held-out indirect over *all* held-out
-    # configurations, so a light with almost no indirect light does not read as 14 000 %
-    T = holdout_indirect.shape[0]
-    ref_ss = [float(np.sum(holdout_indirect[:, h, :].astype(np.float64) ** 2))
-              for h in range(H)]
-    global_norm = float(np.sqrt(np.mean(ref_ss))) if H else 0.0
-    for n in bar(sorted(ns), "error vs run time", total=len(ns)):
-        errs, bounds, errs_global, abs_rmse, negative = [], [], [], [], []
-        pooled = [0.0, 0.0, 0.0]  # Σ‖rec − ref‖², Σ (bound·‖ref‖)², Σ‖ref‖²
-        for h in range(H):
-            x = holdout_direct[:, h, :].astype(np.float64)
-            ref = holdout_indirect[:, h, :].astype(np.float64)
-            if not np.linalg.norm(x) > 0:
-                continue
-            g = None if groups is None else int(groups[h])
-            rec = reconstruct(model, x, n=n, group=g).astype(np.float64)
-            diff = float(np.linalg.norm(rec - ref))
-            if global_norm > 0:
-                errs_global.append(diff / global_norm)
-            abs_rmse.append(diff / np.sqrt(3 * T))
-            negative.append(float(np.mean((rec < 0).any(axis=1))))
-            if not np.linalg.norm(ref) > 0:
-                continue
-            errs.append(relative_rmse(rec, ref))
-            bounds.append(projection_bound(model, ref, x, n=n))
-            ref_norm = float(np.linalg.norm(ref))
-            pooled[0] += diff**2
-            pooled[1] += (bounds[-1] * ref_norm) ** 2
-            pooled[2] += ref_norm**2
+    accuracy = heldout_metrics(model, holdout_direct, holdout_indirect, ns, groups)
+    # the blend timing's image, allocated once at the largest size (a product's speed does
+    # not depend on the values)
+    px = min(atlas_pixels, BLEND_TIMING_PIXELS)
+    planes_max = 3 + (max(ns) - 1) * (1 if model.channels == "mono" else 3)
+    img_all = np.full(px * planes_max, 0.5, dtype=np.float32)
+    for i, n in enumerate(ns):
         M = model.transfer[..., : n - 1, :]
         M = M if M.ndim == 3 else M[0]
         x32 = rng.random((M.shape[-1],)).astype(np.float32)
@@ -119,8 +163,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         planes = 3 + (n - 1) * (1 if model.channels == "mono" else 3)
         # timed on at most BLEND_TIMING_PIXELS pixels and scaled to the atlas (linear in
         # pixels): a 4096² atlas of 64 elements would otherwise allocate 9 GB here
-        px = min(atlas_pixels, BLEND_TIMING_PIXELS)
-        img = rng.random((px, planes), dtype=np.float32)
+        img = img_all[:px * planes].reshape(px, planes)
         w = rng.random((planes, 3)).astype(np.float32)
         blend_s = _time(lambda img=img, w=w: img @ w, 5) * (atlas_pixels / px)
         files = -(-planes // 4)
@@ -128,21 +171,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
         rows.append({
             "n": n,
-            "heldout_rmse_mean": float(np.mean(errs)) if errs else None,
-            "heldout_rmse_max": float(np.max(errs)) if errs else None,
-            "projection_bound_mean": float(np.mean(bounds)) if bounds else None,
-            "projection_bound_max": float(np.max(bounds)) if bounds else None,
-            # pooled over the held-out lights: √(Σ‖rec − ref‖² / Σ‖ref‖²) and the same for
-            # the projection; a light with almost no indirect light weighs what it holds
-            "heldout_rmse_pooled": float(np.sqrt(pooled[0] / pooled[2])) if pooled[2] else None,
-            "projection_bound_pooled": float(np.sqrt(pooled[1] / pooled[2]))
-            if pooled[2] else None,
-            # per configuration ‖rec − ref‖ / RMS of all held-out indirect lightmaps
-            "heldout_rmse_global_mean": float(np.mean(errs_global)) if errs_global else None,
-            "heldout_rmse_global_max": float(np.max(errs_global)) if errs_global else None,
-            # radiance units (linear RGB, per texel and channel)
-            "heldout_abs_rmse_mean": float(np.mean(abs_rmse)) if abs_rmse else None,
-            "negative_texel_fraction": float(np.mean(negative)) if negative else None,
+            **accuracy[i],
             "cpu_coefficients_us": u_s * 1e6,
             "cpu_blend_ms": blend_s * 1e3,
             "textures": files,

@@ -1,5 +1,6 @@
 #!/usr/bin/env python
-"""Regenerate the golden images of tests/test_render.py and write a difference report.
+"""Regenerate the golden images of tests/test_render.py and tests/test_viewer.py, and write
+a difference report.
 
     .venv/bin/python scripts/regen_goldens.py [--dry-run] [-k EXPR]
 
@@ -8,7 +9,8 @@ still compare, and fail where the render changed: that is expected here), then, 
 render: writes ``tests/_golden_report/<name>_{before,after,diff}.png`` and a line of
 ``tests/_golden_report/report.md`` (pixels beyond the tolerance, largest difference,
 whether the old golden would still pass), and copies the render over
-``tests/goldens/<name>.png`` (not with ``--dry-run``). Look at the report before committing
+``tests/goldens/<name>.png`` and the viewer's page screenshot over ``docs/viewer.png`` (the
+README's; not with ``--dry-run``). Look at the report before committing
 new goldens, and say in the commit what changed and why.
 
 Exit status: 0 when every golden view was rendered (changed or not), 1 when a golden test
@@ -31,17 +33,19 @@ ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
 GOLDENS = TESTS / "goldens"
 REPORT = TESTS / "_golden_report"
+#: The README's screenshot of the web viewer, taken by tests/test_viewer.py's golden test.
+PAGE_SHOT = ROOT / "docs" / "viewer.png"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dry-run", action="store_true", help="report only; keep the goldens")
-    ap.add_argument("-k", default="golden_cornell or golden_shared_asset",
+    ap.add_argument("-k", default="golden_cornell or golden_shared_asset or golden_viewer",
                     help="pytest -k expression selecting the golden tests")
     args = ap.parse_args(argv)
 
     sys.path.insert(0, str(TESTS))
-    from test_render import GOLDEN_OUTLIERS, GOLDEN_TOLERANCE, compare_to_golden
+    from golden_images import GOLDEN_OUTLIERS, GOLDEN_TOLERANCE, compare_to_golden
 
     from prtcore.io.imageio import read_image, write_png
 
@@ -54,12 +58,14 @@ def main(argv: list[str] | None = None) -> int:
         with open(log, "w") as f:
             proc = subprocess.run(
                 [sys.executable, "-m", "pytest", "-q", "-m", "", "-p", "no:cacheprovider",
-                 "tests/test_render.py", "-k", args.k], cwd=ROOT, env=env, stdout=f,
+                 "tests/test_render.py", "tests/test_viewer.py", "-k", args.k], cwd=ROOT,
+                env=env, stdout=f,
                 stderr=subprocess.STDOUT)
         text = log.read_text(errors="replace")
-        made = sorted(renders.glob("*.png"))
+        made = sorted(p for p in renders.glob("*.png") if p.name != "viewer_page.png")
         failed = [ln for ln in text.splitlines() if ln.startswith(("FAILED", "ERROR"))]
-        other = [ln for ln in failed if "pixels differ" not in ln and "shape" not in ln]
+        other = [ln for ln in failed if "pixels differ" not in ln and "shape" not in ln
+                 and "missing: create it" not in ln]
         if not made or other:
             sys.stderr.write(text[-6000:])
             sys.stderr.write(f"\nregen_goldens: pytest exit {proc.returncode}; "
@@ -102,6 +108,10 @@ def main(argv: list[str] | None = None) -> int:
                 write_png(old, after)
         lines += ["", "Goldens " + ("not written (--dry-run)." if args.dry_run
                                     else f"written to {GOLDENS.relative_to(ROOT)}/.")]
+        shot = renders / "viewer_page.png"
+        if shot.is_file() and not args.dry_run:
+            shutil.copyfile(shot, PAGE_SHOT)
+            lines.append(f"README screenshot written to {PAGE_SHOT.relative_to(ROOT)}.")
         (REPORT / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
         print("\n".join(lines))
         print(f"\nreport: {REPORT / 'report.md'}")

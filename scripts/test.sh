@@ -5,5 +5,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 bash scripts/services.sh  # PostgreSQL + Redis for the scale-out service tests
+bash scripts/browser.sh   # Chromium for the viewer tests (tests/test_viewer.py)
 .venv/bin/ruff check .
 exec .venv/bin/python -m pytest -m "" -q "$@"

@@ -66,3 +66,23 @@ def inside_sphere(subdivisions: int = 2, radius: float = 1.0
     v = np.asarray(m.vertices, float)
     return v, np.asarray(m.faces)[:, ::-1].copy(), -v / np.linalg.norm(v, axis=1,
                                                                         keepdims=True)
+
+
+def bake_sh_prt_bundle(tmp_path, storage: str, *, bounce: bool = True):
+    """An sh_prt bundle (``storage`` "texture" or "vertex", 3 bands, 16 rays per sample) of
+    the project's floor-and-object scene at a 32² atlas, baked through the CLI."""
+    import json
+
+    from prtcore.cli import main
+    from prtcore.scenes import floor_object
+
+    asset = floor_object.write_floor_object(tmp_path / "fo.glb")
+    spec = dict(floor_object.SPEC, atlas={"resolution": 32, "padding": 2},
+                method={"name": "sh_prt"},
+                sh_prt={"storage": storage, "bands": 3, "strata": 4, "bounce": bounce},
+                output={"dtype": "float"})
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    out = tmp_path / f"b_{storage}"
+    assert main(["bake", str(asset), "--spec", str(tmp_path / "spec.json"), "--out",
+                 str(out), "-q"]) == 0
+    return out

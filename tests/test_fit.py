@@ -22,6 +22,7 @@ from prtcore.fit.ridge import direct_svd, loo_sse, ridge_solve
 from prtcore.fit.transfer import (
     fit_transfer,
     fit_transfer64,
+    heldout_errors,
     projection_bound,
     reconstruct,
     reconstruct64,
@@ -550,3 +551,37 @@ def test_diagnostics_report_unlit_points_and_spectra():
                                    np.linalg.svd(Dc, compute_uv=False), rtol=1e-9, atol=1e-14)
     assert d["direct_effective_rank"] == [6, 6, 6] and d["direct_condition"] == [None] * 3
     assert d["n_basis"] == 4 and d["ridge"] == 0.0
+
+
+@pytest.mark.parametrize("kind", ["mono", "rgb", "gamma", "per_group"])
+def test_heldout_errors_equal_the_one_light_functions(kind):
+    """The report's one-pass errors (every light, every n) are reconstruct64's and
+    projection_bound's, light by light and n by n."""
+    rng = np.random.default_rng(21)
+    T, P, K, H = 120, 7, 40, 5
+    op = rng.standard_normal((T, P))
+    D = coloured_lights(rng, P, K + H)
+    I = transport(op, D) + 0.05 * rng.standard_normal((T, K + H, 3))  # not in any span
+    I[:, :, 1] += 0.2  # a negative reconstruction somewhere, but not everywhere
+    kw = {"channels": "rgb"} if kind == "rgb" else {"gamma": 2.2} if kind == "gamma" else {}
+    groups = np.arange(K + H) % 2 if kind == "per_group" else None
+    if groups is not None:
+        kw.update(groups=groups[:K], per_group=True)
+    m = fit_transfer(D[:, :K], np.abs(I[:, :K]) if kind == "gamma" else I[:, :K], basis=9,
+                     ridge=1e-3, **kw)
+    X, R = D[:, K:], I[:, K:]
+    ns = (1, 4, 9)
+    e = heldout_errors(m, X, R, ns, None if groups is None else groups[K:])
+    assert e.ns == ns
+    for h in range(H):
+        g = None if groups is None else int(groups[K + h])
+        ref = R[:, h]
+        assert e.ref_ss[h] == pytest.approx(float(np.sum(ref**2)), rel=1e-12)
+        for i, n in enumerate(ns):
+            rec = reconstruct64(m, X[:, h], n=n, group=g)
+            assert e.sse[i, h] == pytest.approx(float(np.sum((rec - ref) ** 2)), rel=1e-9)
+            assert e.negative[i, h] == pytest.approx(float(np.mean((rec < 0).any(axis=1))))
+            bound = projection_bound(m, ref, X[:, h], n=n)  # the basis is shared by groups
+            assert np.sqrt(e.bound_sse[i, h] / e.ref_ss[h]) == pytest.approx(bound, rel=1e-7)
+    # the negative count is exercised (gamma's decoding clamps at 0: none there)
+    assert (e.negative.max() == 0) if kind == "gamma" else (0 < e.negative.max() < 1)

@@ -20,11 +20,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from golden_images import (
+    GOLDEN_TOLERANCE,
+    compare_to_golden,
+)
+from golden_images import check_golden as _golden
 from scenes import TINY_SPEC
 
 from prtcore import pipeline
@@ -50,13 +54,6 @@ ROOT = Path(__file__).resolve().parents[1]
 CORNELL = ROOT / "examples" / "cornell_box.glb"
 CAMERA = ROOT / "examples" / "cameras" / "cornell.json"
 LIGHTS = ROOT / "examples" / "lights"
-GOLDENS = Path(__file__).resolve().parent / "goldens"
-FAILURES = Path(__file__).resolve().parent / "_failures"
-
-#: Per-pixel tolerance of a golden comparison, in 8-bit levels (any channel).
-GOLDEN_TOLERANCE = 8
-#: Fraction of pixels allowed beyond the tolerance.
-GOLDEN_OUTLIERS = 0.01
 
 #: A shared asset with textures, several materials and self-shadowing.
 TRUCK = "CesiumMilkTruck.glb"
@@ -436,27 +433,6 @@ def test_direct_view_matches_ray_traced_direct(cornell, name):
 # Golden images
 
 
-def _golden(name: str, rgb8: np.ndarray, goldens: Path = GOLDENS) -> None:
-    """Compare with tests/goldens/<name>.png (see the module docstring). Always compares;
-    ``PRT_GOLDEN_RENDERS=DIR`` (scripts/regen_goldens.py) also saves the output there."""
-    assert rgb8.dtype == np.uint8 and max(rgb8.shape[:2]) <= 256
-    if renders := os.environ.get("PRT_GOLDEN_RENDERS"):
-        Path(renders).mkdir(parents=True, exist_ok=True)
-        write_png(Path(renders) / f"{name}.png", rgb8)
-    path = goldens / f"{name}.png"
-    assert path.is_file(), f"{path} missing: create it with scripts/regen_goldens.py"
-    ok, message, diff = compare_to_golden(rgb8, np.round(read_image(path) * 255).astype(
-        np.uint8))
-    if not ok:
-        FAILURES.mkdir(exist_ok=True)
-        write_png(FAILURES / f"{name}_output.png", rgb8)
-        write_png(FAILURES / f"{name}_golden.png",
-                  np.round(read_image(path) * 255).astype(np.uint8))
-        if diff is not None:
-            write_png(FAILURES / f"{name}_diff.png", diff)
-        pytest.fail(f"{name}: {message} (images in {FAILURES})")
-
-
 @pytest.mark.parametrize("env", [{}, {"PRT_REGEN_GOLDENS": "1"}, {"PRT_UPDATE_GOLDENS": "1"},
                                  {"PRT_GOLDEN_RENDERS": "renders"}])
 def test_golden_check_always_compares(tmp_path, monkeypatch, env):
@@ -474,18 +450,6 @@ def test_golden_check_always_compares(tmp_path, monkeypatch, env):
     _golden("g", golden, goldens=tmp_path)  # and an equal render passes
     with pytest.raises(AssertionError, match="missing"):
         _golden("absent", golden, goldens=tmp_path)
-
-
-def compare_to_golden(out: np.ndarray, golden: np.ndarray) -> tuple[bool, str, np.ndarray | None]:
-    """(passed, message, amplified difference image or None)."""
-    if out.shape != golden.shape:
-        return False, f"shape {out.shape} ≠ golden {golden.shape}", None
-    d = np.abs(out.astype(np.int16) - golden.astype(np.int16)).max(axis=2)
-    frac = float((d > GOLDEN_TOLERANCE).mean())
-    diff = np.clip(d * 8, 0, 255).astype(np.uint8)[:, :, None].repeat(3, axis=2)
-    return frac <= GOLDEN_OUTLIERS, (f"{frac:.2%} of pixels differ by more than "
-                                     f"{GOLDEN_TOLERANCE}/255 (allowed "
-                                     f"{GOLDEN_OUTLIERS:.0%}); max {int(d.max())}"), diff
 
 
 def test_golden_comparison_can_fail():

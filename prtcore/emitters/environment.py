@@ -190,11 +190,7 @@ def rotated_family(env: Environment, count: int, seed: int) -> tuple[Environment
     """``count`` copies of ``env`` turned about the world up axis (+y) by seeded random
     angles (a rotating environment, as the runtime turns it)."""
     rng = np.random.default_rng(seed)
-    out = []
-    for a in rng.uniform(0.0, 2.0 * math.pi, count):
-        c, s = math.cos(a), math.sin(a)
-        out.append(env.rotated(np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])))
-    return tuple(out)
+    return tuple(env.rotated(rotation_about_y(a)) for a in rng.uniform(0.0, 360.0, count))
 
 
 def sky_with_sun(rng: np.random.Generator, *, sun_lux: float = 3.0, height: int = 64
@@ -220,3 +216,73 @@ def directional_with_ambient(rng: np.random.Generator, *, lux: tuple[float, floa
     light = Light(type="directional", color=np.ones(3), intensity=e, direction=d,
                   name="directional")
     return constant_environment(np.full(3, rng.uniform(*ambient))), light
+
+
+def rotation_about_y(degrees: float) -> np.ndarray:
+    """(3, 3) rotation by ``degrees`` about world up (+y), right-handed."""
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+@dataclass(frozen=True, eq=False)
+class DistantLighting:
+    """What a distant-light file holds: an optional environment and directional lights."""
+
+    environment: Environment | None
+    lights: tuple[Light, ...]
+
+    def sh_coefficients(self, bands: int) -> np.ndarray:
+        """(L², 3) float64 SH of all of it (environment projected, lights as deltas)."""
+        out = np.zeros((bands * bands, 3))
+        if self.environment is not None:
+            out += self.environment.sh_coefficients(bands)
+        for light in self.lights:
+            out += light_sh(light, bands)
+        return out
+
+
+def load_distant_lighting(path: str | Path) -> DistantLighting:
+    """A light file for distant lighting (docs/lights.md, "Environment maps"): a light file
+    of directional lights, or an object with ``"environment": {"file": F, "rotation_y_deg":
+    a, "scale": s}`` (F relative to the light file; a about +y; both optional) and optionally
+    ``"lights": [...]`` (directional). Errors name the file and the key."""
+    from prtcore.core.jsonfile import read_json
+    from prtcore.emitters.lightfile import light_from_dict, load_light_file
+
+    file = str(path)
+    data = read_json(path, lambda what: LightFileError(f"{file}: {what}"))
+    if not (isinstance(data, dict) and "environment" in data):
+        lights = load_light_file(path)
+        env = None
+    else:
+        unknown = sorted(set(data) - {"environment", "lights"})
+        if unknown:
+            raise LightFileError(f"{file}: {unknown[0]}: unknown key")
+        e = data["environment"]
+        if not isinstance(e, dict) or not isinstance(e.get("file"), str):
+            raise LightFileError(f"{file}: environment: expected {{\"file\": \"map.exr\", "
+                                 f"...}}")
+        bad = sorted(set(e) - {"file", "rotation_y_deg", "scale"})
+        if bad:
+            raise LightFileError(f"{file}: environment.{bad[0]}: unknown key")
+        nums = {}
+        for key, default in (("rotation_y_deg", 0.0), ("scale", 1.0)):
+            v = e.get(key, default)
+            if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+                raise LightFileError(f"{file}: environment.{key}: expected a number, got {v!r}")
+            nums[key] = float(v)
+        if nums["scale"] < 0:
+            raise LightFileError(f"{file}: environment.scale: must be ≥ 0")
+        env = load_environment(Path(file).parent / e["file"],
+                               rotation=rotation_about_y(nums["rotation_y_deg"]),
+                               scale=nums["scale"])
+        raw = data.get("lights", [])
+        if not isinstance(raw, list):
+            raise LightFileError(f"{file}: lights: expected a list of lights")
+        lights = tuple(light_from_dict(x, f"lights[{i}]", file) for i, x in enumerate(raw))
+    for i, light in enumerate(lights):
+        if light.type != "directional":
+            raise LightFileError(f"{file}: lights[{i}].type: distant lighting takes "
+                                 f"directional lights only, got {light.type!r}")
+    return DistantLighting(env, lights)

@@ -80,6 +80,7 @@ closed-form leave-one-out cross-validation of the transfer (basis held fixed).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -219,6 +220,117 @@ def projection_bound(
     if den == 0.0:
         return 0.0 if num == 0.0 else float("inf")
     return float(np.sqrt(num / den))
+
+
+@dataclass(frozen=True)
+class HeldoutErrors:
+    """Squared errors of many held-out configurations at several basis sizes, from one pass
+    over the texels (:func:`heldout_errors`). H configurations, N sizes.
+
+    ns : (N,) the element counts n (mean included), ascending
+    sse : (N, H) float64 ``‖reconstruct(x_h, n) − ref_h‖²`` (Frobenius, float64)
+    bound_sse : (N, H) float64 the same for the projection of ref_h onto the first n
+        elements (what :func:`projection_bound` squares, times ``ref_ss``)
+    ref_ss : (H,) float64 ``‖ref_h‖²``
+    negative : (N, H) float64 fraction of texels with a negative channel in the
+        reconstruction
+    """
+
+    ns: tuple[int, ...]
+    sse: np.ndarray
+    bound_sse: np.ndarray
+    ref_ss: np.ndarray
+    negative: np.ndarray
+
+
+def heldout_errors(model: TransferModel, X: np.ndarray, R: np.ndarray, ns,
+                   groups: np.ndarray | None = None, block_rows: int | None = None
+                   ) -> HeldoutErrors:
+    """:func:`reconstruct` and :func:`projection_bound` for H configurations and N basis
+    sizes at once: one pass over blocks of texel rows (two with gamma), each size's
+    reconstruction the previous one plus its new elements.
+
+    X : (P, H, 3) direct vectors; R : (T, H, 3) reference indirect; ns : element counts
+    (1 ≤ n ≤ model.n_basis); groups : (H,) keyframe id of each configuration (per-group
+    models). Numbers equal the one-configuration functions' up to float64 round-off
+    (:func:`reconstruct` rounds to float32 first; here everything stays float64). Without
+    gamma the projection's error is closed-form, ``‖r‖² − 2cᵀp + cᵀGc`` with
+    ``r = ref − s·m``, ``p = Uᵀr``, ``G = UᵀU`` and c the least-squares coefficients.
+    """
+    ns = tuple(sorted(int(n) for n in ns))
+    nbs = [_resolve_n(model, n) for n in ns]
+    nb_max = max(nbs, default=0)
+    X = np.asarray(X)
+    H, T = X.shape[1], model.texels
+    if R.shape != (T, H, 3):
+        raise ValueError(f"heldout_errors: R shape {R.shape}, expected ({T}, {H}, 3)")
+    mono = model.channels == "mono"
+    s = np.zeros(H)
+    U = np.zeros((nb_max, H, 3))  # the runtime coefficients u of each configuration
+    for h in range(H):
+        M, b = _group_transfer(model, None if groups is None else int(groups[h]))
+        xg = _check_x(model, X[:, h])
+        s[h] = float(np.linalg.norm(xg))
+        U[:, h] = (np.einsum("cip,pc->ci", M[:, :nb_max].astype(np.float64), xg)
+                   + s[h] * b[:, :nb_max].astype(np.float64)).T
+    N = len(ns)
+    sse, neg = np.zeros((N, H)), np.zeros((N, H))
+    ref_ss, r_ss = np.zeros(H), np.zeros(H)
+    gram = np.zeros((1 if mono else 3, nb_max, nb_max))
+    proj = np.zeros((nb_max, H, 3))
+    rows = default_rows(8 * (6 * 3 * H + 2 * nb_max + 8), block_rows)
+
+    def expand(ub, coef, a, b):  # Σ_{a ≤ i < b} coef_i U_i: (rows, H, 3)
+        if mono:
+            return (ub[:, a:b] @ coef[a:b].reshape(b - a, 3 * H)).reshape(len(ub), H, 3)
+        return np.einsum("tic,ihc->thc", ub[:, a:b], coef[a:b])
+
+    for sl in blocks(T, rows):
+        ub = model.basis[sl, :nb_max].astype(np.float64)
+        ref = np.asarray(R[sl], dtype=np.float64)
+        sm = s[None, :, None] * model.mean[sl].astype(np.float64)[:, None, :]
+        r = gamma_encode(ref, model.gamma) - sm
+        ref_ss += np.einsum("thc,thc->h", ref, ref)
+        r_ss += np.einsum("thc,thc->h", r, r)
+        if mono:
+            gram[0] += ub.T @ ub
+            proj += (ub.T @ r.reshape(len(r), -1)).reshape(nb_max, H, 3)
+        else:
+            gram += np.einsum("tic,tjc->cij", ub, ub)
+            proj += np.einsum("tic,thc->ihc", ub, r)
+        y, done = sm, 0
+        for i, nb in enumerate(nbs):
+            if nb > done:
+                y = y + expand(ub, U, done, nb)
+                done = nb
+            rec = gamma_decode(y, model.gamma) if model.gamma is not None else y
+            d = rec - ref
+            sse[i] += np.einsum("thc,thc->h", d, d)
+            neg[i] += (rec < 0).any(axis=2).sum(axis=0)
+
+    coef = np.zeros((N, nb_max, H, 3))  # least-squares coefficients of each size
+    for i, nb in enumerate(nbs):
+        for c in range(3):
+            if nb:
+                coef[i, :nb, :, c] = scipy.linalg.lstsq(gram[0 if mono else c][:nb, :nb],
+                                                        proj[:nb, :, c])[0]
+    bound = np.zeros((N, H))
+    if model.gamma is None:
+        for i, nb in enumerate(nbs):
+            ci, p = coef[i, :nb], proj[:nb]
+            gc = (np.einsum("ij,jhc->ihc", gram[0, :nb, :nb], ci) if mono
+                  else np.einsum("cij,jhc->ihc", gram[:, :nb, :nb], ci))
+            bound[i] = np.maximum(r_ss - np.einsum("ihc,ihc->h", ci, 2 * p - gc), 0.0)
+    else:  # the projection decoded through gamma, as at run time: a second pass
+        for sl in blocks(T, rows):
+            ub = model.basis[sl, :nb_max].astype(np.float64)
+            ref = np.asarray(R[sl], dtype=np.float64)
+            sm = s[None, :, None] * model.mean[sl].astype(np.float64)[:, None, :]
+            for i, nb in enumerate(nbs):
+                d = gamma_decode(sm + expand(ub, coef[i], 0, nb), model.gamma) - ref
+                bound[i] += np.einsum("thc,thc->h", d, d)
+    return HeldoutErrors(ns=ns, sse=sse, bound_sse=bound, ref_ss=ref_ss,
+                         negative=neg / max(T, 1))
 
 
 def reconstruct64(model: TransferModel, x: np.ndarray, n: int | None = None,

@@ -256,7 +256,9 @@ def verify_bundle(path: Path, manifest: dict | None = None) -> None:
             raise BundleError(f"{path}: {name} does not match its manifest checksum")
 
 
-def _load_raw(path: Path, desc: dict) -> np.ndarray:
+def load_raw(path: Path, desc: dict) -> np.ndarray:
+    """The array a manifest's raw-file description (:func:`raw_file`) names, in bundle
+    ``path``; a missing file or a size that disagrees with the shape is a BundleError."""
     p = path / desc["file"]
     if not p.is_file():
         raise BundleError(f"{path}: {desc['file']} is missing")
@@ -281,18 +283,18 @@ def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
     ch = np.asarray(basis["plane_channel"], np.int8)
     cov = read_image(path / m["atlas"]["coverage"])[:, :, 0] > 0.5
     pts = m["points"]
-    clusters = _load_raw(path, pts["clusters"])
+    clusters = load_raw(path, pts["clusters"])
     return RuntimeData(
         planes=planes, plane_element=el, plane_channel=ch,
-        transfer=_load_raw(path, m["transfer"]["matrix"]),
-        offset=_load_raw(path, m["transfer"]["offset"]),
+        transfer=load_raw(path, m["transfer"]["matrix"]),
+        offset=load_raw(path, m["transfer"]["offset"]),
         gamma=m["fit"]["gamma"], coverage=cov,
         cluster_position=clusters[:, 0:3], cluster_normal=clusters[:, 3:6],
         cluster_albedo=clusters[:, 6:9],
-        cluster_owner=_load_raw(path, pts["clusters_owner"]).astype(np.int64),
+        cluster_owner=load_raw(path, pts["clusters_owner"]).astype(np.int64),
         point_count=int(pts["count"]),
         keyframe_times=None if not m.get("keyframes") else tuple(m["keyframes"]["times"]),
-        direct_span=_load_raw(path, m["family"]["span"]) if m.get("family") else None,
+        direct_span=load_raw(path, m["family"]["span"]) if m.get("family") else None,
         family_warn_above=m["family"]["warn_above"] if m.get("family") else None,
     )
 
@@ -304,7 +306,7 @@ def load_keyframe(path: Path, manifest: dict, k: int) -> dict[str, np.ndarray]:
     n = len(kf.get("times", ()))
     if not 0 <= k < n:
         raise BundleError(f"{path}: keyframe {k} out of range (the bundle has {n})")
-    return {name: _load_raw(Path(path), kf[name])[k]
+    return {name: load_raw(Path(path), kf[name])[k]
             for name in ("vertices", "clusters", "points")}
 
 

@@ -12,14 +12,29 @@ from prtcore.core.errors import PrtError
 
 #: The EXR DateTime attribute written on every file (see write_exr).
 REPRODUCIBLE_DATETIME = "1980:01:01 00:00:00"
+#: Row order of every EXR written here: row 0 is the top row of the image (the manifest's
+#: ``atlas.exr_row_order``). three.js's EXRLoader stores scanlines bottom-up, so the web
+#: viewer samples a top-down file at (u, 1 - v).
+EXR_ROW_ORDER = "top_down"
+#: EXR compressions the writer accepts: lossless ones that three.js r187's EXRLoader decodes
+#: (the web viewer reads the bundle's EXRs). Refused: the lossy B44/B44A, DWAA/DWAB and
+#: PXR24 (a basis plane must round-trip exactly) and HTJ2K (EXRLoader cannot decode it).
+EXR_COMPRESSIONS = ("none", "rle", "zips", "zip", "piz")
 
 
 def write_exr(path: str | Path, image: np.ndarray, dtype: str = "float",
-              channel_names: tuple[str, ...] | None = None) -> None:
-    """Write (h, w, c) float data as an EXR (zip compression). dtype "half" or "float".
+              channel_names: tuple[str, ...] | None = None, compression: str = "zip") -> None:
+    """Write (h, w, c) float data as a scanline EXR. dtype "half" or "float"; compression one
+    of :data:`EXR_COMPRESSIONS` (zip by default: what browsers' EXRLoader reads).
 
-    Row 0 of ``image`` is the top row of the file. Non-finite values are refused.
+    Row 0 of ``image`` is the top row of the file (:data:`EXR_ROW_ORDER`). Non-finite values
+    are refused.
     """
+    if compression not in EXR_COMPRESSIONS:
+        raise PrtError(f"{path}: EXR compression {compression!r} is not written (lossy or not "
+                       f"decodable by the web viewer); use one of {', '.join(EXR_COMPRESSIONS)}")
+    if dtype not in ("half", "float"):
+        raise PrtError(f"{path}: EXR dtype {dtype!r}; expected half or float")
     image = np.asarray(image, dtype=np.float32)
     if image.ndim == 2:
         image = image[:, :, None]
@@ -28,7 +43,7 @@ def write_exr(path: str | Path, image: np.ndarray, dtype: str = "float",
     h, w, c = image.shape
     fmt = oiio.HALF if dtype == "half" else oiio.FLOAT
     spec = oiio.ImageSpec(w, h, c, fmt)
-    spec.attribute("compression", "zip")
+    spec.attribute("compression", compression)
     # OpenImageIO stamps the write time otherwise; a fixed stamp keeps bundles bit-identical
     # for the same asset + spec + seed.
     spec.attribute("DateTime", REPRODUCIBLE_DATETIME)

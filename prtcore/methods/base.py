@@ -5,8 +5,8 @@ manifest's ``method`` key names it, and an engine reads that key first. The pipe
 never branches on a method's name: it asks :func:`method`.
 
 Members register themselves (``@register``) and are imported by ``prtcore.methods``
-(one line each). Data-driven PRT (:mod:`prtcore.methods.data_driven`) is the one member
-today; classic SH-PRT and transfer textures, and learnt transfer, are new modules here.
+(one line each): data-driven PRT (:mod:`prtcore.methods.data_driven`), classic SH-PRT and
+transfer textures (:mod:`prtcore.methods.sh_prt`); learnt transfer is a new module here.
 """
 
 from __future__ import annotations
@@ -28,6 +28,10 @@ class BakeInputs:
     intake : the pipeline's IntakeResult (scene, texels, points, plan, prepare)
     train, hold : the training and held-out lights; keyframes : the KeyframeSet or None
     data : the transport Dataset (direct at points and indirect per texel for train + hold)
+    indirect : None, or the training and held-out lightmaps ((T, K, 3), (T, H, 3) float32)
+        as the fit sees them (denoised), when automatic sizing already prepared them
+    sizing : None, or what automatic sizing chose and why (:mod:`prtcore.sizing`), as JSON
+        data for the manifest and the report
     """
 
     spec: BakeSpec
@@ -36,12 +40,20 @@ class BakeInputs:
     hold: tuple[Light, ...]
     keyframes: Any
     data: Any
+    indirect: Any = None
+    sizing: dict | None = None
 
 
 class Method:
     """One kind of precomputed transfer."""
 
     name: ClassVar[str]
+    #: the method fits from the light-transport dataset (``BakeInputs.data``); when False
+    #: the pipeline skips the transport stages and ``data`` is None
+    needs_dataset: ClassVar[bool] = True
+    #: ``validate.reference_spp`` > 0 path-traces the bundle's held-out lights
+    #: (:func:`prtcore.validate.validate_bundle`, data-driven runtime data)
+    path_traced_validation: ClassVar[bool] = True
 
     def fit(self, inputs: BakeInputs, timer: StageTimer) -> Any:
         """Fit the model (timed stages "fit" and "report"); returns the method's result."""

@@ -21,8 +21,8 @@ from prtcore.core.formula import RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
-from prtcore.fit.model import TransferModel, relative_rmse
-from prtcore.fit.transfer import fit_transfer, reconstruct
+from prtcore.fit.model import TransferModel
+from prtcore.fit.transfer import fit_transfer, heldout_errors, reconstruct
 from prtcore.io.bundle import (
     basis_planes,
     planes_layout,
@@ -33,7 +33,7 @@ from prtcore.io.bundle import (
 from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
-from prtcore.receivers.smoothing import smooth_texels, smoothing_operator
+from prtcore.receivers.smoothing import denoise_lightmaps
 from prtcore.report import (
     TABLE_N,
     error_vs_runtime,
@@ -73,14 +73,18 @@ class DataDriven(Method):
         D, I = data.direct_points[:, :K], data.indirect[:, :K]
         Dh, Ih = data.direct_points[:, K:], data.indirect[:, K:]
         reference = "fast transport of the held-out lights"
-        if spec.fit.denoise > 0:
+        if inputs.indirect is not None:  # prepared by automatic sizing (prtcore/sizing.py)
+            I, Ih = inputs.indirect
+            if spec.fit.denoise > 0:
+                reference += f", denoised (radius {spec.fit.denoise:g} texels)"
+        elif spec.fit.denoise > 0:
             # the gather's per-texel noise stays out of the basis; the held-out lightmaps
             # carry the same noise and are filtered alike, or the table would count that
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
             with timer.stage("denoise"):
-                I = _denoised(texels, I, spec.fit.denoise)
-                Ih = _denoised(texels, Ih, spec.fit.denoise)
+                I = denoise_lightmaps(texels, I, spec.fit.denoise)
+                Ih = denoise_lightmaps(texels, Ih, spec.fit.denoise)
             reference += f", denoised (radius {spec.fit.denoise:g} texels)"
         holdout = (Dh, Ih) if len(inputs.hold) else None
         per_group = kfs is not None and kfs.transfer == "per_keyframe"
@@ -110,7 +114,8 @@ class DataDriven(Method):
                 table = error_vs_runtime(full, Dh, Ih, texels.width * texels.height,
                                          texels.width * texels.height * dtype_bytes,
                                          reference=reference,
-                                         groups=kfs.holdout if per_group else None)
+                                         groups=kfs.holdout if per_group else None,
+                                         shipped=model.n_basis)
             else:
                 table = {"reference": None, "heldout_configurations": 0, "rows": []}
         diag = model.diagnostics.to_dict()
@@ -217,17 +222,19 @@ class DataDriven(Method):
         report_atlas.png (UV layout, texel density, utilisation)."""
         texels, data, model = inputs.intake.texels, inputs.data, result.model
         K = len(inputs.train)
-        worst, worst_err = None, -1.0
-        for h in range(len(inputs.hold)):
-            x = data.direct_points[:, K + h].astype(np.float64)
-            ref = data.indirect[:, K + h].astype(np.float64)
-            if not (np.linalg.norm(x) > 0 and np.linalg.norm(ref) > 0):
-                continue
-            g = None if model.group_ids is None else int(inputs.keyframes.holdout[h])
-            rec = reconstruct(model, x, group=g).astype(np.float64)
-            err = relative_rmse(rec, ref)
-            if err > worst_err:
-                worst, worst_err = (h, ref, rec), err
+        worst = None
+        X, R = data.direct_points[:, K:], data.indirect[:, K:]
+        use = np.flatnonzero([np.linalg.norm(X[:, h]) > 0 and np.linalg.norm(R[:, h]) > 0
+                              for h in range(R.shape[1])])
+        if len(use):  # every light's error in one pass (fit/transfer.py), then the worst
+            groups = None if model.group_ids is None else inputs.keyframes.holdout[use]
+            e = heldout_errors(model, X[:, use], R[:, use], [model.n_basis], groups)
+            i = int(np.argmax(e.sse[0] / e.ref_ss))
+            h = int(use[i])
+            g = None if groups is None else int(groups[i])
+            rec = reconstruct(model, X[:, h].astype(np.float64), group=g).astype(np.float64)
+            worst = h, R[:, h].astype(np.float64), rec
+            worst_err = float(np.sqrt(e.sse[0, i] / e.ref_ss[i]))
         if worst is not None:
             h, ref, rec = worst
             plot_worst(texels.to_image(ref, dilate=False)[:, :, :3],
@@ -241,13 +248,3 @@ class DataDriven(Method):
                    inputs.intake.prepare.utilisation,
                    f"{texels.width}×{texels.height} atlas, {texels.count} texels",
                    directory / "report_atlas.png")
-
-
-def _denoised(texels, I, radius: float, block: int = 16) -> np.ndarray:
-    """The training lightmaps I (T, K, 3) through the seam-aware filter of ``radius``
-    texels (receivers/smoothing.py), ``block`` configurations at a time: (T, K, 3) float32."""
-    W = smoothing_operator(texels, radius=radius)
-    out = np.empty(I.shape, dtype=np.float32)
-    for k0 in range(0, I.shape[1], block):
-        out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
-    return out

@@ -16,8 +16,8 @@ poster's T₁ computed from the stored T₀ (interpolated from the vertices, or 
 the dilated texture at the bounce's hit point).
 
 :func:`bake_sh_prt` is the library entry point (``prtcore compare`` uses it);
-:func:`write_transfer_textures` / :func:`read_transfer_textures` the file format, and
-:func:`memory_table` the poster's Table 1 for one asset.
+:mod:`prtcore.io.transfer_textures` the file format, and :func:`memory_table` the poster's
+Table 1 for one asset.
 """
 
 from __future__ import annotations
@@ -26,14 +26,19 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from prtcore.core import sh
 from prtcore.core.materials import CLAMP_TO_EDGE, sample_texture
+from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
-from prtcore.io.imageio import read_image, write_exr
+from prtcore.io.bundle import raw_file
+from prtcore.io.imageio import read_image, write_exr, write_png
+from prtcore.io.transfer_textures import read_transfer_textures, write_transfer_textures
+from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
     ShTransfer,
@@ -123,33 +128,6 @@ def bake_sh_prt(scene: Scene, tracer: RayTracer, storage: str, bands: int, strat
 # Files
 
 
-def write_transfer_textures(directory: Path, result: ShPrtResult, dtype: str = "half"
-                            ) -> list[str]:
-    """Transfer textures as RGBA EXRs: ``sh_transfer_{c}_{k:02d}.exr`` holds coefficients
-    4k .. 4k+3 of colour channel c (R, G, B), dilated; the last file of a channel is
-    zero-padded. Returns the file names."""
-    h, w, _, n = result.image.shape
-    names = []
-    for c, cname in enumerate("RGB"):
-        for k in range(math.ceil(n / 4)):
-            block = np.zeros((h, w, 4), np.float32)
-            part = result.image[:, :, c, 4 * k:4 * k + 4]
-            block[:, :, :part.shape[2]] = part
-            name = f"sh_transfer_{cname}_{k:02d}.exr"
-            write_exr(directory / name, block, dtype=dtype)  # R, G, B, A = 4k .. 4k+3
-            names.append(name)
-    return names
-
-
-def read_transfer_textures(directory: Path, bands: int) -> np.ndarray:
-    """The (H, W, 3, L²) float32 transfer image written by :func:`write_transfer_textures`."""
-    n = bands * bands
-    files = math.ceil(n / 4)
-    parts = [[read_image(directory / f"sh_transfer_{c}_{k:02d}.exr") for k in range(files)]
-             for c in "RGB"]
-    return np.stack([np.concatenate(p, axis=2)[:, :, :n] for p in parts], axis=2)
-
-
 def evaluate_texture(image: np.ndarray, uv: np.ndarray, light: np.ndarray) -> np.ndarray:
     """The fragment-shader variant on the CPU: bilinear transfer at lightmap ``uv`` (m, 2)
     (TEXCOORD_1, origin top-left, clamped at the edges) dotted with light SH (L², 3).
@@ -220,3 +198,145 @@ def glossy_tpfl(fixed: np.ndarray, reflected: np.ndarray, exponent: float,
     """TPFL: the stored SH of ``L·V`` for the fixed light (n, 3, L²) and the Phong lobe at
     the mirror directions (no triple product at runtime). Returns (n, 3) float64."""
     return phong_from_radiance_sh(fixed, reflected, exponent, specular)
+
+
+# ---------------------------------------------------------------------------------------
+# The method (``"method": {"name": "sh_prt"}`` in the bake spec)
+
+#: how an engine evaluates an sh_prt bundle (the manifest's runtime.formula)
+SH_PRT_FORMULA = (
+    "outgoing radiance, channel c = sum_i T[c, i] * l[i, c]: T the stored transfer vector "
+    "(per vertex, interpolated barycentrically; or per fragment from the transfer textures "
+    "sampled bilinearly at TEXCOORD_1, texture k of channel c holding coefficients "
+    "4k..4k+3 in R, G, B, A), l the light's real SH coefficients (prtcore.core.sh: "
+    "orthonormal, no Condon-Shortley phase, index l(l+1)+m) of the distant radiance")
+
+
+def _uniform_sky(bands: int) -> np.ndarray:
+    """(L², 3) SH of a uniform white sky of radiance 1 (only the DC term, √(4π))."""
+    light = np.zeros((bands * bands, 3))
+    light[0] = math.sqrt(4.0 * math.pi)
+    return light
+
+
+def sky_lightmap(scene: Scene, texels: TexelSpace, result: ShPrtResult) -> np.ndarray:
+    """(t, 3) outgoing radiance at the covered texels under a uniform white sky of radiance
+    1 (albedo × ambient occlusion, plus the bounce): the bake's preview image."""
+    light = _uniform_sky(result.bands)
+    if result.storage == "texture":
+        return result.transfer.radiance(light)
+    return evaluate_vertex(scene, result.transfer, texels.triangle, texels.barycentric, light)
+
+
+@dataclass(frozen=True, eq=False)
+class ShPrtBake:
+    """The method's result: the SH-PRT bake and its preview lightmap (t, 3)."""
+
+    bake: ShPrtResult
+    preview: np.ndarray
+    spec: object
+
+
+@register
+class ShPrtMethod(Method):
+    """Classic SH-PRT (per vertex) or transfer textures (per texel): no light dataset, no
+    fit; the transfer is ray traced directly (stage "fit")."""
+
+    name = "sh_prt"
+    needs_dataset = False
+    path_traced_validation = False
+
+    def fit(self, inputs: BakeInputs, timer: StageTimer) -> ShPrtBake:
+        spec = inputs.spec.sh_prt
+        scene, texels = inputs.intake.scene, inputs.intake.texels
+        tracer = RayTracer(scene.positions, scene.faces, scene.radius)
+        with timer.stage("fit"):
+            bake = bake_sh_prt(scene, tracer, spec.storage, spec.bands, spec.strata,
+                               spec.seed, bounce=spec.bounce, texels=texels)
+        with timer.stage("report"):
+            preview = sky_lightmap(scene, texels, bake)
+        return ShPrtBake(bake, preview, spec)
+
+    def write(self, directory: Path, inputs: BakeInputs, result: ShPrtBake
+              ) -> tuple[dict, dict]:
+        bake, texels = result.bake, inputs.intake.texels
+        dtype = inputs.spec.output.dtype
+        section = {"storage": bake.storage, "bands": bake.bands,
+                   "coefficients": bake.bands ** 2, "kind": bake.transfer.kind,
+                   "rays_per_sample": bake.transfer.samples, "seed": result.spec.seed,
+                   "storage_bytes": bake.storage_bytes,
+                   "convention": "prtcore.core.sh (docs/sh_prt.md)"}
+        if bake.storage == "texture":
+            section["files"] = write_transfer_textures(directory, bake.image, dtype)
+            section["layout"] = ("sh_transfer_{R,G,B}_{k}.exr: R, G, B, A = coefficients "
+                                 "4k..4k+3 of that colour channel, dilated")
+            section["dtype"] = dtype
+        else:
+            section["vertex_transfer"] = raw_file(directory / "sh_vertex_transfer.bin",
+                                                  bake.transfer.coeffs.astype(np.float32))
+            section["layout"] = "vertex_transfer[v, c, i]: vertex v of asset.glb, channel c"
+        img = texels.to_image(result.preview)
+        write_exr(directory / "coverage.exr", img[:, :, -1:], dtype="half",
+                  channel_names=("Y",))
+        memory = memory_table(len(inputs.intake.scene.positions), (texels.width,),
+                              (bake.bands,))
+        sections = {"sh_prt": section, "runtime": {"formula": SH_PRT_FORMULA},
+                    "memory": memory}
+        report = {"sh_prt": section, "memory": memory, "bake_seconds": bake.seconds}
+        return sections, report
+
+    def summary(self, result: ShPrtBake, seconds: dict[str, float],
+                with_verdict: bool = True) -> str:
+        b = result.bake
+        lines = [f"sh_prt: {b.storage} storage, {b.bands} bands ({b.bands ** 2} "
+                 f"coefficients × 3 channels), {b.transfer.kind}, {b.transfer.samples} rays "
+                 f"per sample, {b.storage_bytes / 1024:.1f} KiB, {b.seconds:.1f} s"]
+        if with_verdict:
+            lines.append(self.verdict(result)["line"])
+        return "\n".join(lines)
+
+    def verdict(self, result: ShPrtBake) -> dict[str, Any]:
+        return {"status": "unknown", "line": "verdict: not judged — sh_prt has no held-out "
+                "fit; `prtcore compare` measures it against the path tracer",
+                "causes": []}
+
+    def revalidate(self, result: ShPrtBake, inputs: BakeInputs, validation: dict
+                   ) -> ShPrtBake:
+        return result
+
+    def plot(self, result: ShPrtBake, path: Path) -> None:
+        """report.png: the preview (uniform white sky) over the atlas, tone-mapped."""
+        b = result.bake
+        if b.storage == "texture":
+            rgb = np.einsum("hwcl,lc->hwc", b.image.astype(np.float64),
+                            _uniform_sky(b.bands))
+        else:
+            return  # vertex storage: the preview lives on the texels (report.json)
+        write_png(path, (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
+
+
+def relight_bundle(bundle: Path, manifest: dict, lighting) -> np.ndarray:
+    """The lightmap of an sh_prt bundle under distant lighting (an object with
+    ``sh_coefficients(bands)``, e.g. :class:`prtcore.emitters.environment.DistantLighting`):
+    (H, W, 4) float32 RGBA, A = coverage. Texture storage: ``T · l`` per texel; vertex
+    storage: ``T · l`` per vertex interpolated at the texels (what the vertex-shader
+    variant shows on the atlas)."""
+    from prtcore.io.bundle import load_raw
+    from prtcore.io.gltf.loader import load_asset
+    from prtcore.receivers.texels import build_texel_space
+
+    section, atlas = manifest["sh_prt"], manifest["atlas"]
+    light = lighting.sh_coefficients(section["bands"])
+    coverage = read_image(bundle / atlas["coverage"])[:, :, :1]
+    if section["storage"] == "texture":
+        image = read_transfer_textures(bundle, section["bands"])
+        rgb = np.einsum("hwcl,lc->hwc", image.astype(np.float64), light)
+    else:
+        scene = load_asset(bundle / manifest["asset"]["file"])
+        texels = build_texel_space(scene, atlas["width"], atlas["height"],
+                                   padding=atlas["padding"])
+        coeffs = load_raw(bundle, section["vertex_transfer"]).astype(np.float64)
+        t = ShTransfer(coeffs, section["kind"], section["bands"], 0)
+        values = evaluate_vertex(scene, t, texels.triangle, texels.barycentric, light)
+        rgb = texels.to_image(values)[:, :, :3]
+    return np.concatenate([rgb, coverage], axis=2).astype(np.float32)

@@ -52,6 +52,7 @@ from prtcore.runtime.glcontext import (
     make_current,
     matrix_bytes,
     renderer_label,
+    scene_clip_from_world,
     set_uniform,
     unbind_framebuffer,
 )
@@ -352,11 +353,7 @@ class BundleRenderer:
         if mode not in MODES:
             raise PrtError(f"render: mode {mode!r}: expected one of {', '.join(MODES)}")
         fbo = self._target(camera.width, camera.height, 2)
-        dist = float(np.linalg.norm(camera.position - self.center))
-        near = max(1e-4 * self.radius, 0.5 * (dist - 1.01 * self.radius)) \
-            if dist > 1.01 * self.radius else 1e-4 * self.radius
-        far = dist + 1.01 * self.radius
-        clip = camera.clip_from_view(near, far) @ camera.view_from_world()
+        clip = scene_clip_from_world(camera, self.center, self.radius)
         self._shadows.bind(prog)
         self._bind_blend(prog, layers)
         set_uniform(prog, "clip_from_world", matrix_bytes(clip))

@@ -43,6 +43,16 @@ def matrix_bytes(m: np.ndarray) -> bytes:
     return np.ascontiguousarray(np.asarray(m, np.float64).T, dtype="<f4").tobytes()
 
 
+def scene_clip_from_world(camera, center: np.ndarray, radius: float) -> np.ndarray:
+    """(4, 4) float64 clip-from-world matrix of a :class:`~prtcore.reference.camera.Camera`
+    whose near and far planes bracket a scene's bounding sphere (centre (3,), radius): the
+    depth range every camera pass uses."""
+    dist = float(np.linalg.norm(camera.position - center))
+    near = max(1e-4 * radius, 0.5 * (dist - 1.01 * radius)) \
+        if dist > 1.01 * radius else 1e-4 * radius
+    return camera.clip_from_view(near, dist + 1.01 * radius) @ camera.view_from_world()
+
+
 def set_uniform(prog, name: str, value) -> None:
     """Set a uniform if the compiler kept it (unused uniforms are optimised away)."""
     try:

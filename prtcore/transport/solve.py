@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
+from prtcore.transport import kernels
 
 #: Rows per float32 partial sum of column norms (the partial sums add up in float64).
 NORM_BLOCK = 1 << 12
@@ -39,36 +40,27 @@ SOLVE_METHODS = ("chebyshev", "neumann")
 
 
 class SparseProduct:
-    """``matrix @ x`` for a CSR matrix and dense (n, c) arrays, rows split over threads.
-
-    scipy releases the GIL in its sparse × dense kernel, so the row blocks (cut once, not
-    per product) run in parallel. Output dtype = x's dtype (float32 here).
+    """``matrix @ x`` for a CSR matrix and dense (n, c) float32 arrays, rows split over
+    ``threads`` threads (:func:`prtcore.transport.kernels.csr_dense`, rounding as scipy's
+    kernel). The CSR arrays and row chunks are prepared once, not per product.
     """
 
     def __init__(self, matrix: sp.csr_matrix, threads: int = 2):
-        self.matrix = matrix
-        self.shape = matrix.shape
-        m = matrix.shape[0]
-        parts = max(1, threads) if m >= 2 * 4096 else 1
-        bounds = np.linspace(0, m, parts + 1).astype(np.int64)
-        self.blocks = [(int(bounds[i]), int(bounds[i + 1]), matrix[bounds[i]:bounds[i + 1]])
-                       for i in range(parts)]
+        m = matrix if matrix.dtype == np.float32 else matrix.astype(np.float32)
+        self.shape = m.shape
+        self.indptr = m.indptr.astype(np.int64)
+        self.indices = m.indices.astype(np.int64)
+        self.data = np.ascontiguousarray(m.data)
+        self.threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+        self.chunks = kernels.row_chunks(m.shape[0], self.threads)
 
     def __call__(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """x : (n, c); out : optional (m, c) C-contiguous array of x's dtype to fill."""
-        x = np.ascontiguousarray(x)
+        """x : (n, c); out : optional (m, c) C-contiguous float32 array to fill."""
+        x = np.ascontiguousarray(x, dtype=np.float32)
         if out is None:
-            out = np.empty((self.shape[0], x.shape[1]), dtype=x.dtype)
-        if len(self.blocks) == 1:
-            out[...] = self.matrix @ x
-            return out
-
-        def part(block) -> None:
-            a, b, mat = block
-            out[a:b] = mat @ x
-
-        with ThreadPoolExecutor(len(self.blocks)) as ex:
-            list(ex.map(part, self.blocks))
+            out = np.empty((self.shape[0], x.shape[1]), dtype=np.float32)
+        numba.set_num_threads(self.threads)
+        kernels.csr_dense(self.indptr, self.indices, self.data, x, out, self.chunks)
         return out
 
 
@@ -293,40 +285,51 @@ def _neumann(product, rho32, b, max_bounces, tolerance):
 
 
 def _chebyshev(product, rho32, b, lo, hi, max_bounces, tolerance):
-    """Chebyshev iteration for (I − A) x = b, A's spectrum in [lo, hi] per channel.
+    """Chebyshev iteration for (I − A) x = b, A's spectrum in [lo, hi] per channel; each
+    step one fused pass (:func:`prtcore.transport.kernels.chebyshev_step`).
     Overwrites b. Returns (None, n, resid, False) when the change grows (divergence)."""
     alpha, beta = 1.0 - hi, 1.0 - lo  # spectrum of I − A
     theta = (beta + alpha) / 2.0
     delta = np.maximum((beta - alpha) / 2.0, 1e-6)
     sigma = theta / delta
     rho_k = 1.0 / sigma
-    r = b  # residual b − (I − A)·0
-    d = r / theta.astype(np.float32)
-    x = np.zeros_like(b)
-    src = np.empty_like(b)  # work arrays, reused by every product
-    ad = np.empty_like(b)
+    shape = b.shape
+    t = shape[0]
+    r = b.reshape(t, -1)  # residual b − (I − A)·0
+    d = r / np.tile(theta.astype(np.float32), shape[1])
+    x = d.copy()  # x holds bounce 1
+    src = np.multiply(d.reshape(shape), rho32[:, None, :]).reshape(t, -1)
+    d_new, src_new = np.empty_like(d), np.empty_like(d)  # work arrays, swapped every step
+    shared = product.shared if isinstance(product, ChannelProduct) else product
+    if isinstance(product, ChannelProduct):  # the channels' matrices, stacked
+        e_indptr = np.stack([p.indptr for p in product.extra])
+        e_indptr += np.cumsum([0] + [len(p.data) for p in product.extra[:-1]])[:, None]
+        e_indices = np.concatenate([p.indices for p in product.extra])
+        e_data = np.concatenate([p.data for p in product.extra])
+    else:
+        e_indptr = np.zeros((3, t + 1), dtype=np.int64)
+        e_indices, e_data = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float32)
+    parts = (len(shared.chunks) - 1, d.shape[1])
+    norm_d, norm_x = np.empty(parts), np.empty(parts)
+    numba.set_num_threads(shared.threads)
     n, resid, conv = 1, 1.0, False
     best = np.inf
-    while True:
-        x += d  # x now holds bounces 1 … n
-        if n > 1:
-            resid = _relative(_col_norms(d), _col_norms(x))
-            best = min(best, resid)
-            if resid < tolerance:
-                conv = True
-                break
-            if resid > CHEBYSHEV_DIVERGENCE * best:
-                return None, n, resid, False
-        if n >= max_bounces:
-            break
-        _apply(product, rho32, d, src, ad)
-        n += 1
-        ad -= d
-        r += ad  # r ← r − (I − A) d
+    while n < max_bounces:
         rho_new = 1.0 / (2.0 * sigma - rho_k)
-        np.multiply(r, (2.0 * rho_new / delta).astype(np.float32), out=ad)
-        d *= (rho_new * rho_k).astype(np.float32)
-        d += ad
+        kernels.chebyshev_step(shared.indptr, shared.indices, shared.data, e_indptr,
+                               e_indices, e_data, rho32, src, d, r, x, src_new, d_new,
+                               (2.0 * rho_new / delta).astype(np.float32),
+                               (rho_new * rho_k).astype(np.float32), shared.chunks,
+                               norm_d, norm_x)
         rho_k = rho_new
-    return x, n, resid, conv
-
+        d, d_new, src, src_new = d_new, d, src_new, src
+        n += 1  # x now holds bounces 1 … n
+        resid = _relative(np.sqrt(norm_d.sum(axis=0)).reshape(shape[1:]),
+                          np.sqrt(norm_x.sum(axis=0)).reshape(shape[1:]))
+        best = min(best, resid)
+        if resid < tolerance:
+            conv = True
+            break
+        if resid > CHEBYSHEV_DIVERGENCE * best:
+            return None, n, resid, False
+    return x.reshape(shape), n, resid, conv

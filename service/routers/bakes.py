@@ -11,7 +11,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 
 from jobs import artifacts
 from jobs.config import Settings
@@ -275,3 +275,37 @@ def get_report(job_id: JobId, store: Annotated[JobStore, Depends(deps.store)],
     except (OSError, ValueError):
         raise ApiError(410, "gone", f"the report of bake {job_id} is no longer in the "
                                     "artifact location") from None
+
+
+@router.get("/{job_id}/viewer", summary="The web viewer of a finished bake (HTML, WebGL2)",
+            response_class=HTMLResponse,
+            responses={200: {"content": {"text/html": {}}},
+                       **responses(401, 404, 409, 410, 422)})
+def get_viewer(job_id: JobId, store: Annotated[JobStore, Depends(deps.store)],
+               settings: Annotated[Settings, Depends(deps.settings)]) -> HTMLResponse:
+    """The page of ``prtcore view`` for this bake: its scripts under ``viewer/static/`` and
+    the bundle under ``artifacts/``, both relative to this URL and behind the same bearer
+    token (a browser sends none by itself: with ``PRT_API_TOKENS`` set, put a proxy that
+    adds the header in front)."""
+    from prtcore import viewer_page
+
+    _finished(store, settings, job_id)
+    _manifest(settings, job_id)  # 410 when the bundle is gone
+    return HTMLResponse(viewer_page("./viewer/static/", "./artifacts/"))
+
+
+@router.get("/{job_id}/viewer/static/{path:path}", summary="A file of the web viewer",
+            response_class=FileResponse,
+            responses={200: {"content": {"text/javascript": {}}},
+                       **responses(401, 404, 422)})
+def get_viewer_file(job_id: JobId, path: Annotated[str, Path(max_length=255)],
+                    store: Annotated[JobStore, Depends(deps.store)]) -> FileResponse:
+    """viewer.js, runtime.js, viewer.css and the vendored three.js (package data; the same
+    for every bake)."""
+    from prtcore import viewer_content_type, viewer_static_path
+
+    _get(store, job_id)
+    f = viewer_static_path(path)
+    if f is None:
+        raise ApiError(404, "not_found", f"the viewer has no file {path!r}")
+    return FileResponse(f, media_type=viewer_content_type(f.name))

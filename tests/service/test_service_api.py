@@ -280,6 +280,30 @@ def test_bearer_tokens(app_client):
     assert c.get("/healthz").status_code == 200  # health stays open for probes
 
 
+def test_viewer_page_and_files_sit_behind_the_artifacts_token(app_client):
+    """/v1/bakes/{id}/viewer: the viewer page of a finished bake, its scripts under
+    viewer/static/ and the bundle under artifacts/ (both relative to the page), with the
+    bearer token the artifacts need; 409 before the bake has succeeded."""
+    from service_harness import mark_succeeded
+
+    c = app_client(api_tokens=["s3cret"])
+    ok = {"Authorization": "Bearer s3cret"}
+    job_id = post(c, CORNELL, headers=ok).json()["id"]
+    base = f"/v1/bakes/{job_id}/viewer"
+    assert c.get(base, headers=ok).status_code == 409  # still queued
+    mark_succeeded(c.settings.db_url, c.settings.artifacts, job_id)
+    for url in (base, f"{base}/static/viewer.js", f"/v1/bakes/{job_id}/artifacts/manifest.json"):
+        assert c.get(url).status_code == 401, url
+    page = c.get(base, headers=ok)
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    assert 'data-bundle="./artifacts/"' in page.text
+    assert '"three": "./viewer/static/three/build/three.module.js"' in page.text
+    js = c.get(f"{base}/static/three/build/three.module.js", headers=ok)
+    assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
+    for bad in ("index.html", "../page.py", "nothing.js"):
+        assert c.get(f"{base}/static/{bad}", headers=ok).status_code == 404, bad
+
+
 def test_health_ready_metrics(app_client):
     c = app_client()
     assert c.get("/healthz").json() == {"status": "ok"}

@@ -1,0 +1,186 @@
+"""Headless OpenGL runtime of ``sh_prt`` bundles (docs/sh_prt.md): one camera pass.
+
+* vertex storage — the vertex-shader variant (Sloan et al. 2002): each vertex reads its
+  transfer vector (L² per channel) from a storage buffer and dots it with the light's SH;
+  the rasteriser interpolates the colour;
+* texture storage — the fragment-shader variant (transfer textures): the transfer
+  textures, one RGBA layer per four coefficients of a channel in a texture array, are
+  filtered bilinearly at TEXCOORD_1 and dotted with the light's SH per fragment.
+
+The light's SH (distant lighting: an environment, rotated on the CPU by
+:func:`prtcore.core.sh.rotate`, plus directional lights) is a storage buffer uploaded per
+frame. Images as :mod:`prtcore.runtime.gl`: float RGBA, row 0 at the top, A = 1 where the
+pixel sees the front of a surface. The pass is timed with a GL timer query and the wall
+clock (:class:`prtcore.runtime.glcontext.PassTimer`).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from prtcore.core.errors import PrtError
+from prtcore.reference.camera import Camera
+from prtcore.runtime.gl import RenderResult
+from prtcore.runtime.glcontext import (
+    PassTimer,
+    check_gl,
+    create_context,
+    current,
+    make_current,
+    matrix_bytes,
+    scene_clip_from_world,
+    set_uniform,
+    unbind_framebuffer,
+)
+from prtcore.runtime.glsl import shader_source
+
+#: position and TEXCOORD_1 of the scene buffer
+SH_VERTEX_FORMAT = "3f 2f"
+
+
+class ShPrtRenderer:
+    """The GPU runtime of one sh_prt bundle (the manifest's ``sh_prt`` section)."""
+
+    def __init__(self, bundle: str | Path, ctx=None):
+        import moderngl
+
+        from prtcore.io.bundle import load_raw, read_manifest
+        from prtcore.io.gltf.loader import load_asset
+        from prtcore.io.transfer_textures import read_transfer_textures
+
+        self.bundle = Path(bundle)
+        self.manifest = read_manifest(self.bundle)
+        if self.manifest.get("method") != "sh_prt":
+            raise PrtError(f"{self.bundle}: not an sh_prt bundle")
+        sec = self.manifest["sh_prt"]
+        self.bands, self.storage = int(sec["bands"]), sec["storage"]
+        self.scene = load_asset(self.bundle / self.manifest["asset"]["file"])
+        if self.scene.uv1 is None:
+            raise PrtError(f"{self.bundle}: asset.glb has no TEXCOORD_1")
+        self.center = np.asarray(self.scene.center, np.float64)
+        self.radius = float(max(self.scene.radius, 1e-30))
+        self.files = math.ceil(self.bands ** 2 / 4)
+        self.ctx = ctx if ctx is not None else create_context()
+        self._own_ctx = ctx is None
+        self._mgl = moderngl
+        self._timer = PassTimer(self.ctx)
+        self._objects: list = []
+        make_current(self.ctx)
+        sc, c = self.scene, self.ctx
+        self._prog = self._keep(c.program(vertex_shader=shader_source("sh_vs.glsl"),
+                                          fragment_shader=shader_source("sh_fs.glsl")))
+        verts = np.concatenate([sc.positions, sc.uv1], axis=1)
+        vbo = self._keep(c.buffer(np.ascontiguousarray(verts, dtype="<f4").tobytes()))
+        ibo = self._keep(c.buffer(np.ascontiguousarray(sc.faces, dtype="<u4").tobytes()))
+        self._vao = self._keep(c.vertex_array(self._prog, [(vbo, SH_VERTEX_FORMAT, "in_pos",
+                                                            "in_uv1")],
+                                              index_buffer=ibo, index_element_size=4))
+        if self.storage == "vertex":
+            t = load_raw(self.bundle, sec["vertex_transfer"]).astype("<f4")
+            self._transfer = self._keep(c.buffer(np.ascontiguousarray(t).tobytes()))
+            self._tex = self._keep(c.texture_array((1, 1, 1), 4, dtype="f4"))
+        else:
+            img = read_transfer_textures(self.bundle, self.bands)  # (H, W, 3, L²)
+            h, w = img.shape[:2]
+            pad = np.zeros((h, w, 3, 4 * self.files), np.float32)
+            pad[..., :self.bands ** 2] = img
+            layers = pad.reshape(h, w, 3, self.files, 4).transpose(2, 3, 0, 1, 4)
+            self._tex = self._keep(c.texture_array(
+                (w, h, 3 * self.files), 4,
+                np.ascontiguousarray(layers.reshape(-1, h, w, 4), "<f4").tobytes(),
+                dtype="f4"))
+            self._tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._tex.repeat_x = self._tex.repeat_y = False
+            self._transfer = self._keep(c.buffer(reserve=16))
+        self._light = self._keep(c.buffer(reserve=16 * 4 * self.files))
+        self._fbos: dict = {}
+        check_gl(self.ctx, "sh_prt setup")
+
+    def _keep(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    def release(self) -> None:
+        """Free the GL objects (framebuffer 0 bound first, see glcontext), and the context
+        when this renderer created it; also on leaving a ``with`` block."""
+        make_current(self.ctx)
+        unbind_framebuffer(self.ctx)
+        while self._objects:
+            self._objects.pop().release()
+        self._fbos.clear()
+        self._timer.release()
+        if self._own_ctx:
+            self.ctx.release()
+
+    def __enter__(self) -> ShPrtRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    @current
+    def render(self, light_sh: np.ndarray, camera: Camera) -> RenderResult:
+        """One frame under light SH coefficients (L², 3) through ``camera``."""
+        mgl, c, prog = self._mgl, self.ctx, self._prog
+        n = self.bands ** 2
+        light = np.asarray(light_sh, np.float64)
+        if light.shape != (n, 3):
+            raise PrtError(f"render: light SH of shape {light.shape}; expected ({n}, 3)")
+        buf = np.zeros((4 * self.files, 4), "<f4")
+        buf[:n, :3] = light
+        self._light.write(buf.tobytes())
+        key = (camera.width, camera.height)
+        if key not in self._fbos:
+            tex = self._keep(c.texture(key, 4, dtype="f4"))
+            depth = self._keep(c.depth_renderbuffer(key))
+            self._fbos[key] = self._keep(c.framebuffer(color_attachments=[tex],
+                                                       depth_attachment=depth))
+        fbo = self._fbos[key]
+        clip = scene_clip_from_world(camera, self.center, self.radius)
+        set_uniform(prog, "clip_from_world", matrix_bytes(clip))
+        set_uniform(prog, "vertex_storage", int(self.storage == "vertex"))
+        set_uniform(prog, "n_coeffs", n)
+        set_uniform(prog, "files", self.files)
+        set_uniform(prog, "transfer_tex", 0)
+        self._tex.use(location=0)
+        self._transfer.bind_to_storage_buffer(5)
+        self._light.bind_to_storage_buffer(6)
+        self._timer.reset()
+        with self._timer.timed(f"sh_{self.storage}"):
+            fbo.use()
+            fbo.viewport = (0, 0, *fbo.size)
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            c.enable(mgl.DEPTH_TEST)
+            c.disable(mgl.CULL_FACE | mgl.BLEND)
+            self._vao.render(mgl.TRIANGLES)
+            c.disable(mgl.DEPTH_TEST)
+        h, w = camera.height, camera.width
+        img = np.frombuffer(fbo.read(components=4, dtype="f4"), "<f4").reshape(h, w, 4)
+        check_gl(c, "sh_prt render")
+        gpu, wall = self._timer.results()
+        return RenderResult(image=img[::-1].copy(), uv1=np.zeros((h, w, 2), np.float32),
+                            milliseconds=gpu, wall_milliseconds=wall)
+
+
+def render_sh_prt_to_file(bundle: str | Path, light_path: str | Path,
+                          camera_path: str | Path, out: str | Path, *, exposure: float = 1.0
+                          ) -> tuple[RenderResult, str]:
+    """``prtcore render`` of an sh_prt bundle: distant lighting (docs/lights.md) → one frame
+    to a PNG or EXR. Returns the frame and the GL renderer's label."""
+    from prtcore.emitters.environment import load_distant_lighting
+    from prtcore.reference.camera import load_camera
+    from prtcore.runtime.gl import write_render
+    from prtcore.runtime.glcontext import renderer_label
+
+    if Path(out).suffix.lower() not in (".png", ".exr"):
+        raise PrtError(f"{out}: output must end in .png or .exr")
+    lighting = load_distant_lighting(light_path)
+    camera = load_camera(camera_path)
+    with ShPrtRenderer(bundle) as r:
+        res = r.render(lighting.sh_coefficients(r.bands), camera)
+        label = renderer_label(r.ctx)
+    write_render(out, res.image, exposure)
+    return res, label

@@ -1,0 +1,109 @@
+"""Compiled (numba) kernels of the indirect solve: CSR × dense products, and one Chebyshev
+step fused into a single pass over the texels (:mod:`prtcore.transport.solve`).
+
+Why: the solve is memory-bound. With numpy, a Chebyshev step reads and writes the
+(T, 3K) float32 arrays about ten times (ρ∘d, the product, four updates, two column
+norms); the fused step streams each array once per step, rows split over threads.
+
+Every kernel rounds exactly as the numpy/scipy code it replaces: float32 products and sums
+in the same order (scipy's ``csr_matvecs`` adds ``a·x[j]`` into a zeroed row, non-zeros in
+storage order), no fused multiply-add (``fastmath`` off), so a bake's numbers do not change.
+Column norms accumulate in float64.
+
+Compiled on first use and cached on disk (``cache=True``; numba's cache directory,
+``NUMBA_CACHE_DIR`` where the package directory is read-only).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: Row chunks per thread (load balance: texel rows differ in their non-zeros).
+CHUNKS_PER_THREAD = 8
+
+
+def row_chunks(rows: int, threads: int) -> np.ndarray:
+    """Boundaries (c + 1,) int64 of the row chunks the kernels split ``rows`` into."""
+    c = max(1, min(rows, CHUNKS_PER_THREAD * max(1, threads)))
+    return np.linspace(0, rows, c + 1).astype(np.int64)
+
+
+@numba.njit(inline="always", cache=True)
+def _row_product(indptr, indices, data, x, i, acc):  # pragma: no cover - compiled
+    """acc (c,) float32 ← Σ_jj data[jj]·x[indices[jj]] over row i (zeroed first)."""
+    acc[:] = 0
+    for jj in range(indptr[i], indptr[i + 1]):
+        g = data[jj]
+        xj = x[indices[jj]]
+        for col in range(len(acc)):
+            acc[col] += g * xj[col]
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def csr_dense(indptr, indices, data, x, out, chunks):  # pragma: no cover - compiled
+    """out[i] = Σ_jj data[jj]·x[indices[jj]] for every row i (float32, scipy's order).
+
+    indptr (T + 1,) / indices (nnz,) / data (nnz,) float32: CSR; x (n, c) float32
+    C-contiguous; out (T, c) float32, overwritten; chunks : :func:`row_chunks`.
+    """
+    for ci in numba.prange(len(chunks) - 1):
+        for i in range(chunks[ci], chunks[ci + 1]):
+            _row_product(indptr, indices, data, x, i, out[i])
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def chebyshev_step(indptr, indices, data, e_indptr, e_indices, e_data, rho, src, d, r, x,
+                   src_new, d_new, c_r, c_d, chunks, norm_d,
+                   norm_x):  # pragma: no cover - compiled
+    """One step of the Chebyshev iteration of :func:`prtcore.transport.solve._chebyshev`,
+    all rows in one pass:
+
+    ``ad = A·src − d``; ``r += ad``; ``d_new = d·c_d + r·c_r``; ``x += d_new``;
+    ``src_new = ρ∘d_new`` (the next product's input), and the squared column norms of
+    d_new and x.
+
+    A = G (indptr, indices, data: CSR float32) plus, on channel c's columns only, the
+    channel's own matrix (:class:`prtcore.transport.solve.ChannelProduct`; the subsurface
+    walks): e_indptr (3, T + 1) int64 into e_indices / e_data, all zero without. Rounding
+    as ChannelProduct: G's sum, then each channel matrix's own sum added to it.
+    Arrays (T, 3k) float32 C-contiguous, column ``3·k + channel``: src = ρ∘d (read for all
+    rows, so d_new and src_new are separate buffers), d, r, x (updated in place), src_new,
+    d_new (written). rho (T, 3) float32; c_r, c_d (3,) float32 per channel; chunks :
+    :func:`row_chunks`; norm_d, norm_x (chunks − 1, 3k) float64, overwritten with each
+    chunk's partial sums of squares (the caller adds the chunks).
+    """
+    ncol = d.shape[1]
+    for ci in numba.prange(len(chunks) - 1):
+        acc = np.empty(ncol, dtype=np.float32)
+        acc_c = np.empty(ncol // 3, dtype=np.float32)
+        nd = norm_d[ci]
+        nx = norm_x[ci]
+        nd[:] = 0.0
+        nx[:] = 0.0
+        for i in range(chunks[ci], chunks[ci + 1]):
+            _row_product(indptr, indices, data, src, i, acc)
+            for c in range(3):
+                if e_indptr[c, i] == e_indptr[c, i + 1]:
+                    continue
+                acc_c[:] = 0
+                for jj in range(e_indptr[c, i], e_indptr[c, i + 1]):
+                    g = e_data[jj]
+                    sj = src[e_indices[jj]]
+                    for kk in range(ncol // 3):
+                        acc_c[kk] += g * sj[3 * kk + c]
+                for kk in range(ncol // 3):
+                    acc[3 * kk + c] += acc_c[kk]
+            di, ri, xi = d[i], r[i], x[i]
+            dn, sn, rh = d_new[i], src_new[i], rho[i]
+            for col in range(ncol):
+                c = col % 3
+                rv = ri[col] + (acc[col] - di[col])
+                ri[col] = rv
+                v = di[col] * c_d[c] + rv * c_r[c]
+                dn[col] = v
+                sn[col] = v * rh[c]
+                xv = xi[col] + v
+                xi[col] = xv
+                nd[col] += np.float64(v) * np.float64(v)
+                nx[col] += np.float64(xv) * np.float64(xv)

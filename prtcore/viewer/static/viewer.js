@@ -1,0 +1,585 @@
+// The prtcore viewer page: orbit a bake, drag its light, look at the terms of the runtime.
+// Rendering is on demand (a frame after each change); runtime.js does the PRT runtime.
+// Test hook: window.prt (ready, error, x, u, s, pixel(), atlas(), setLight(), setView(),
+// set()), used by tests/test_viewer.py.
+import * as THREE from 'three';
+import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { TransformControls } from 'three/addons/controls/TransformControls.js';
+import {
+  LIGHTS_GLSL, LightPass, coefficients, familyResidual, loadBundle, normaliseLight,
+  poseKeyframe,
+} from './runtime.js';
+
+const MODES = { full: 0, direct: 1, indirect: 2, albedo: 3, element: 4, points: 0, checker: 6,
+                uv: 7, error: 8 };
+// Heat map: relative error |indirect - reference| / mean reference, red at this value.
+const ERROR_FULL_SCALE = 0.5;
+const TONEMAPS = { aces: 0, reinhard: 1, linear: 2 };
+const $ = (id) => document.getElementById(id);
+const prt = { ready: false, error: null, frames: 0 };
+window.prt = prt;
+
+function fail(text) {
+  prt.error = text;
+  const m = $('message');
+  m.textContent = text;
+  m.className = 'error';
+}
+
+const HEADER = 'precision highp float;\nprecision highp int;\nprecision highp sampler2DArray;\n';
+
+// The basis blend (prtcore/runtime/shaders/blend.glsl) with the bundle's row order, and the
+// display transform.
+const BLEND_GLSL = `
+uniform highp sampler2DArray u_basis;
+uniform highp sampler2D u_weights;  // (planes, 1) RGBA32F: the RGB weight of every plane
+uniform int u_planes;
+uniform float u_gamma;              // 0: none
+uniform int u_flipV;
+uniform int u_output;               // 0: linear radiance (read-back), 1: display
+uniform float u_exposure;
+uniform int u_tonemap;
+vec2 atlas_uv(vec2 uv1) { return vec2(uv1.x, u_flipV == 1 ? 1.0 - uv1.y : uv1.y); }
+vec3 indirect_at(vec2 uv1) {
+  vec2 t = atlas_uv(uv1);
+  vec3 c = vec3(0.0);
+  for (int f = 0; f < N_LAYERS; ++f) {
+    vec4 p = texture(u_basis, vec3(t, float(f)));
+    for (int k = 0; k < 4; ++k) {
+      int j = 4 * f + k;
+      if (j < u_planes) c += p[k] * texelFetch(u_weights, ivec2(j, 0), 0).rgb;
+    }
+  }
+  if (u_gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(u_gamma));
+  return c;
+}
+vec3 srgb(vec3 c) {
+  c = clamp(c, 0.0, 1.0);
+  return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+vec4 display(vec3 c) {
+  if (u_output == 0) return vec4(c, 1.0);
+  c *= exp2(u_exposure);
+  if (u_tonemap == 0) c = c * (2.51 * c + 0.03) / (c * (2.43 * c + 0.59) + 0.14);
+  else if (u_tonemap == 1) c = c / (1.0 + c);
+  return vec4(srgb(c), 1.0);
+}
+`;
+
+const SURFACE_VS = `${HEADER}
+uniform mat4 modelMatrix; uniform mat4 viewMatrix; uniform mat4 projectionMatrix;
+uniform int u_mode;
+in vec3 position; in vec3 normal; in vec2 uv; in vec2 uv1;
+out vec3 v_pos; out vec3 v_nrm; out vec2 v_uv0; out vec2 v_uv1;
+void main() {
+  vec4 wp = modelMatrix * vec4(position, 1.0);
+  v_pos = wp.xyz; v_nrm = mat3(modelMatrix) * normal; v_uv0 = uv; v_uv1 = uv1;
+  // UV layout: the mesh drawn at TEXCOORD_1, the image's top row at the top
+  gl_Position = u_mode == 7 ? vec4(uv1.x * 2.0 - 1.0, 1.0 - uv1.y * 2.0, 0.0, 1.0)
+                            : projectionMatrix * viewMatrix * wp;
+}`;
+
+// prtcore/runtime/shaders/camera_fs.glsl plus the viewer's modes.
+const SURFACE_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}
+uniform vec3 u_eye;
+uniform vec3 u_baseColor;
+uniform int u_hasMap;
+uniform int u_mapChannel;
+uniform mat3 u_mapTransform;
+uniform sampler2D u_map;
+uniform int u_mode;          // MODES of viewer.js
+uniform float u_elementScale;
+uniform vec2 u_atlasSize;
+uniform highp sampler2D u_reference;  // path-traced indirect lightmap (mode 8)
+uniform float u_referenceScale;       // 1 / (mean reference radiance * full scale)
+in vec3 v_pos; in vec3 v_nrm; in vec2 v_uv0; in vec2 v_uv1;
+out vec4 f_color;
+void main() {
+  if (u_mode == 8) {  // per-texel error heat map: blue 0, green, red at full scale
+    vec3 ref = texture(u_reference, atlas_uv(v_uv1)).rgb;
+    float e = length(indirect_at(v_uv1) - ref) / sqrt(3.0) * u_referenceScale;
+    if (u_output == 0) { f_color = vec4(vec3(e), 1.0); return; }
+    float t = clamp(e, 0.0, 1.0);
+    f_color = vec4(srgb(vec3(smoothstep(0.5, 1.0, t), 1.0 - abs(2.0 * t - 1.0), 1.0 - smoothstep(0.0, 0.5, t))), 1.0);
+    return;
+  }
+  if (u_mode == 7) { f_color = display(indirect_at(v_uv1)); return; }
+  if (u_mode == 6) {  // texel density: one checker square per lightmap texel
+    ivec2 t = ivec2(floor(atlas_uv(v_uv1) * u_atlasSize));
+    f_color = vec4(vec3(((t.x + t.y) & 1) == 0 ? 0.85 : 0.35), 1.0);
+    return;
+  }
+  if (!gl_FrontFacing) { f_color = vec4(0.0, 0.0, 0.0, 1.0); return; }  // inside geometry
+  vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
+  if (dot(ng, u_eye - v_pos) < 0.0) ng = -ng;
+  vec3 n = normalize(v_nrm);
+  if (!(dot(n, ng) > 0.0)) n = ng;  // prtcore.core.geometry.shading_normals
+  vec3 albedo = u_baseColor;
+  if (u_hasMap != 0) {
+    vec2 uv = u_mapChannel == 1 ? v_uv1 : v_uv0;
+    albedo *= texture(u_map, (u_mapTransform * vec3(uv, 1.0)).xy).rgb;
+  }
+  albedo = clamp(albedo, 0.0, 0.99);
+  if (u_mode == 3) { f_color = u_output == 0 ? vec4(albedo, 1.0) : vec4(srgb(albedo), 1.0); return; }
+  if (u_mode == 4) {  // one basis element, signed: positive as is, negative in blue
+    vec3 v = indirect_at(v_uv1) * u_elementScale;
+    float neg = max(-(v.r + v.g + v.b) / 3.0, 0.0);
+    f_color = u_output == 0 ? vec4(indirect_at(v_uv1), 1.0)
+                            : vec4(srgb(max(v, 0.0) + vec3(0.0, 0.0, neg)), 1.0);
+    return;
+  }
+  vec3 col = vec3(0.0);
+  if (u_mode != 2) col += albedo / PI * irradiance(v_pos, n, ng);
+  if (u_mode != 1) col += indirect_at(v_uv1);
+  f_color = display(col);
+}`;
+
+// The indirect lightmap at atlas size (prtcore/runtime/shaders/atlas_fs.glsl): texel (x, y),
+// y from the top row, at TEXCOORD_1 ((x+0.5)/W, (y+0.5)/H); A = coverage.
+const ATLAS_FS = `${HEADER}${BLEND_GLSL}
+uniform sampler2D u_coverage;
+uniform vec2 u_atlasSize;
+out vec4 f_color;
+void main() {
+  vec2 t = vec2(floor(gl_FragCoord.x), u_atlasSize.y - 1.0 - floor(gl_FragCoord.y));
+  vec2 uv1 = (t + 0.5) / u_atlasSize;
+  f_color = vec4(indirect_at(uv1), texture(u_coverage, atlas_uv(uv1)).r);
+}`;
+
+const POINTS_VS = `${HEADER}
+uniform mat4 modelViewMatrix; uniform mat4 projectionMatrix;
+in vec3 position; in vec3 color; out vec3 v_color;
+void main() { v_color = color; gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); gl_PointSize = 5.0; }`;
+const POINTS_FS = `${HEADER}${BLEND_GLSL}
+in vec3 v_color; out vec4 f_color;
+void main() { vec2 d = gl_PointCoord - 0.5; if (dot(d, d) > 0.25) discard; f_color = display(v_color); }`;
+
+// A path-traced reference served with the bundle (prtcore view --reference): its indirect
+// lightmap (written top-down like the bundle's EXRs, so sampled like the basis), its light,
+// and its covered texels (A > 0) in image order with their mean radiance.
+async function loadReference(base, bundle) {
+  if (!base) return null;
+  const [texture, lights] = await Promise.all([
+    new EXRLoader().setDataType(THREE.FloatType).loadAsync(base + 'reference.exr'),
+    fetch(base + 'light.json').then((r) => { if (!r.ok) throw new Error(`${base}light.json: HTTP ${r.status}`); return r.json(); }),
+  ]);
+  const { width: W, height: H, data } = texture.image;
+  if (W !== bundle.W || H !== bundle.H) {
+    throw new Error(`reference.exr is ${W}×${H}, the atlas ${bundle.W}×${bundle.H}`);
+  }
+  texture.minFilter = texture.magFilter = THREE.NearestFilter;
+  const image = new Float32Array(4 * W * H);  // EXRLoader rows are bottom-up
+  for (let r = 0; r < H; r++) image.set(data.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+  let sum = 0, n = 0;
+  for (let i = 0; i < W * H; i++) {
+    if (image[4 * i + 3] > 0) { sum += (image[4 * i] + image[4 * i + 1] + image[4 * i + 2]) / 3; n++; }
+  }
+  return { texture, image, light: lights.lights ? lights.lights[0] : lights, mean: n ? sum / n : 1 };
+}
+
+// Relative RMS error of an indirect lightmap (H, W, 4; row 0 at the top) against the
+// reference over the reference's covered texels.
+function relativeError(atlas, reference) {
+  let num = 0, den = 0;
+  const ref = reference.image;
+  for (let i = 0; i < ref.length; i += 4) {
+    if (!(ref[i + 3] > 0)) continue;
+    for (let c = 0; c < 3; c++) { num += (atlas[i + c] - ref[i + c]) ** 2; den += ref[i + c] ** 2; }
+  }
+  return den > 0 ? Math.sqrt(num / den) : 0;
+}
+
+async function main() {
+  const canvas = $('view');
+  const gl = canvas.getContext('webgl2');
+  if (!gl) {
+    fail('This viewer needs WebGL2, which this browser does not provide (or has turned ' +
+         'off). Open it in a browser with WebGL2, or use `prtcore render`.');
+    return;
+  }
+  if (!gl.getExtension('EXT_color_buffer_float')) {
+    fail('This viewer needs float render targets (EXT_color_buffer_float), which this ' +
+         'browser does not provide.');
+    return;
+  }
+  const renderer = new THREE.WebGLRenderer({ canvas, context: gl, antialias: false,
+                                             preserveDrawingBuffer: true });
+  renderer.setPixelRatio(1);
+  renderer.setSize(canvas.width, canvas.height, false);
+  renderer.autoClear = true;
+  const bundle = await loadBundle(document.body.dataset.bundle);
+  const m = bundle.manifest;
+  const reference = await loadReference(document.body.dataset.reference, bundle);
+  if (!reference) $('mode').querySelector('option[value=error]').remove();
+  poseKeyframe(bundle, 0);  // keyframe bundles: the first keyframe (as relight without --time)
+  const pass = new LightPass(renderer, bundle);
+  const weights = new THREE.DataTexture(new Float32Array(4 * bundle.planes), bundle.planes, 1,
+                                        THREE.RGBAFormat, THREE.FloatType);
+  weights.minFilter = weights.magFilter = THREE.NearestFilter;
+  const view = {
+    u_basis: { value: bundle.basis }, u_weights: { value: weights },
+    u_planes: { value: bundle.planes }, u_gamma: { value: bundle.gamma ?? 0 },
+    u_flipV: { value: bundle.flipV ? 1 : 0 }, u_output: { value: 1 },
+    u_exposure: { value: 0 }, u_tonemap: { value: 0 }, u_mode: { value: 0 },
+    u_elementScale: { value: 1 }, u_eye: { value: new THREE.Vector3() },
+    u_reference: { value: reference ? reference.texture : null },
+    u_referenceScale: { value: reference ? 1 / (reference.mean * ERROR_FULL_SCALE) : 1 },
+    u_atlasSize: { value: new THREE.Vector2(bundle.W, bundle.H) },
+  };
+  const defines = { N_LAYERS: bundle.layers };
+  const scene = new THREE.Scene();
+  const meshes = [];
+  for (const src of bundle.meshes) {
+    const mat = src.material, map = mat.map ?? null;
+    if (map) map.updateMatrix();
+    const g = src.geometry;
+    if (!g.attributes.uv) g.setAttribute('uv', new THREE.Float32BufferAttribute(new Float32Array(2 * g.attributes.position.count), 2));
+    if (!g.attributes.normal) g.computeVertexNormals();
+    const material = new THREE.RawShaderMaterial({
+      glslVersion: THREE.GLSL3, side: THREE.DoubleSide, defines,
+      uniforms: { ...pass.uniforms, ...view,
+        u_baseColor: { value: new THREE.Vector3(mat.color.r, mat.color.g, mat.color.b) },
+        u_hasMap: { value: map ? 1 : 0 }, u_mapChannel: { value: map ? map.channel : 0 },
+        u_mapTransform: { value: map ? map.matrix : new THREE.Matrix3() }, u_map: { value: map } },
+      vertexShader: SURFACE_VS, fragmentShader: SURFACE_FS,
+    });
+    const mesh = new THREE.Mesh(g, material);
+    mesh.matrixAutoUpdate = false;
+    mesh.matrix.copy(src.matrixWorld);
+    scene.add(mesh);
+    meshes.push(mesh);
+  }
+  // measurement points as dots, coloured by their direct light, lifted off the surface
+  const P = bundle.P;
+  const dotsGeometry = new THREE.BufferGeometry();
+  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
+  function placeDots() {
+    const pp = dotsGeometry.attributes.position;
+    for (let p = 0; p < P; p++) {
+      for (let c = 0; c < 3; c++) {
+        pp.array[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
+      }
+    }
+    pp.needsUpdate = true;
+  }
+  placeDots();
+  dotsGeometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
+  const dots = new THREE.Points(dotsGeometry, new THREE.RawShaderMaterial({
+    glslVersion: THREE.GLSL3, defines, uniforms: view, vertexShader: POINTS_VS,
+    fragmentShader: POINTS_FS }));
+  dots.visible = false;
+  scene.add(dots);
+  // UV layout: triangle edges in TEXCOORD_1 space over the lightmap
+  const uvScene = new THREE.Scene();
+  for (const mesh of meshes) {
+    uvScene.add(new THREE.Mesh(mesh.geometry, mesh.material));
+    const uv1 = mesh.geometry.attributes.uv1, flat = new THREE.BufferGeometry();
+    const pos = new Float32Array(3 * uv1.count);
+    for (let i = 0; i < uv1.count; i++) {
+      pos[3 * i] = 2 * uv1.getX(i) - 1;
+      pos[3 * i + 1] = 1 - 2 * uv1.getY(i);
+    }
+    flat.setAttribute('position', new THREE.BufferAttribute(pos, 3));
+    flat.setIndex(mesh.geometry.index);
+    uvScene.add(new THREE.LineSegments(new THREE.WireframeGeometry(flat),
+                                       new THREE.LineBasicMaterial({ color: 0x4fa3ff })));
+  }
+  const uvCamera = new THREE.OrthographicCamera(-1, 1, 1, -1, -1, 1);
+  // atlas pass (test hook and the UV layout's read-back)
+  const atlasTarget = new THREE.WebGLRenderTarget(bundle.W, bundle.H, {
+    type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: false,
+    minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter });
+  const atlasScene = new THREE.Scene();
+  const tri = new THREE.BufferGeometry();
+  tri.setAttribute('position', new THREE.BufferAttribute(new Float32Array([-1, -1, 0, 3, -1, 0, -1, 3, 0]), 3));
+  const atlasMesh = new THREE.Mesh(tri, new THREE.RawShaderMaterial({
+    glslVersion: THREE.GLSL3, defines, depthTest: false,
+    uniforms: { ...view, u_output: { value: 0 }, u_coverage: { value: bundle.coverage } },
+    vertexShader: `${HEADER}in vec3 position; void main() { gl_Position = vec4(position, 1.0); }`,
+    fragmentShader: ATLAS_FS }));
+  atlasMesh.frustumCulled = false;
+  atlasScene.add(atlasMesh);
+
+  // The indirect lightmap (H, W, 4) float32, row 0 at the top, A = coverage.
+  function readAtlas() {
+    renderer.setRenderTarget(atlasTarget);
+    renderer.render(atlasScene, uvCamera);
+    renderer.setRenderTarget(null);
+    const W = bundle.W, H = bundle.H, raw = new Float32Array(4 * W * H), out = new Float32Array(4 * W * H);
+    renderer.readRenderTargetPixels(atlasTarget, 0, 0, W, H, raw);
+    for (let r = 0; r < H; r++) {  // read-back rows come bottom first
+      out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+    }
+    return out;
+  }
+
+  // camera and controls
+  const camera = new THREE.PerspectiveCamera(40, 1, 1e-3 * bundle.radius, 20 * bundle.radius);
+  const controls = new OrbitControls(camera, canvas);
+  function frame() {
+    camera.position.copy(bundle.center).add(new THREE.Vector3(0, 0, 2.9 * bundle.radius));
+    camera.up.set(0, 1, 0);
+    controls.target.copy(bundle.center);
+    camera.lookAt(bundle.center);
+    controls.update();
+    requestRender();
+  }
+  // the light: a gizmo whose position and -Z axis are the light's
+  const trainedTypes = [...new Set((m.spec?.lights?.families ?? []).map((f) => f.type))];
+  const start = reference?.light ?? bundle.holdoutLights[0] ?? { type: trainedTypes[0] ?? 'point', intensity: 1,
+    position: [bundle.center.x, bundle.center.y + bundle.radius, bundle.center.z] };
+  const lightObj = new THREE.Object3D();
+  const marker = new THREE.Mesh(new THREE.SphereGeometry(0.03 * bundle.radius, 12, 8),
+                                new THREE.MeshBasicMaterial({ color: 0xffdd44 }));
+  const arrow = new THREE.ArrowHelper(new THREE.Vector3(0, 0, -1), new THREE.Vector3(),
+                                      0.3 * bundle.radius, 0xffdd44);
+  lightObj.add(marker, arrow);
+  scene.add(lightObj);
+  const gizmo = new TransformControls(camera, canvas);
+  gizmo.attach(lightObj);
+  gizmo.setSize(0.6);
+  scene.add(gizmo.getHelper());
+  gizmo.addEventListener('dragging-changed', (e) => { controls.enabled = !e.value; });
+  gizmo.addEventListener('objectChange', () => { lightFromGizmo(); });
+  gizmo.addEventListener('change', () => requestRender());
+  controls.addEventListener('change', () => requestRender());
+
+  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0, keyframe: 0 };
+  let x = null;
+
+  function placeGizmo(light) {
+    const p = light.type === 'directional'
+      ? bundle.center.clone().addScaledVector(light.direction, -1.5 * bundle.radius)
+      : light.position.clone();
+    lightObj.position.copy(p);
+    lightObj.lookAt(p.clone().sub(light.direction));  // -Z along the light's direction
+    lightObj.updateMatrixWorld(true);
+    arrow.visible = light.type !== 'point';
+  }
+  // The current light as a light-file object, placed where the gizmo is.
+  function lightDict() {
+    const l = state.light;
+    const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
+    const pos = l.type === 'directional' ? l.position.toArray() : lightObj.position.toArray();
+    return { type: l.type, color: state.color, intensity: state.intensity, position: pos,
+      direction: dir.toArray(), range: l.range || undefined, spot: state.spot };
+  }
+  function lightFromGizmo() { applyLight(lightDict(), false); }
+  // Set the light: shadow maps, cluster pass, coefficients, badge; then a frame.
+  function applyLight(dict, moveGizmo = true) {
+    const light = normaliseLight(dict);
+    state.atReference = dict === reference?.light;
+    state.light = light;
+    state.color = dict.color ?? [1, 1, 1];
+    state.intensity = dict.intensity ?? 1;
+    state.spot = dict.spot;
+    const t0 = performance.now();
+    pass.setLight(light);
+    x = pass.direct();
+    prt.lightMs = performance.now() - t0;
+    updateCoefficients();
+    const colours = dotsGeometry.attributes.color;
+    for (let i = 0; i < 3 * P; i++) colours.array[i] = x[i];
+    colours.needsUpdate = true;
+    if (moveGizmo) placeGizmo(light);
+    badge(light);
+    if (reference) {
+      prt.referenceError = relativeError(readAtlas(), reference);
+    }
+    $('light-type').value = light.type;
+    $('light-intensity').value = String(state.intensity);
+    $('light-color').value = '#' + new THREE.Color().setRGB(...state.color).getHexString();
+    requestRender();
+  }
+  function updateCoefficients() {
+    if (x === null) return;  // no light yet
+    const sel = state.mode === 'element';
+    const c = coefficients(bundle, x, state.basis);
+    prt.x = Array.from(x);
+    prt.u = Array.from(c.u);
+    prt.s = c.s;
+    if (sel) {  // the planes of one element, unit weights per channel
+      weights.image.data.fill(0);
+      let peak = 0;
+      for (let j = 0; j < bundle.planes; j++) {
+        if (bundle.planeElement[j] !== state.element) continue;
+        const ch = bundle.planeChannel[j];
+        for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
+        peak = Math.max(peak, 1);
+      }
+      view.u_gamma.value = 0;
+      view.u_elementScale.value = elementScale(state.element);
+    } else {
+      weights.image.data.set(c.w);
+      view.u_gamma.value = bundle.gamma ?? 0;
+    }
+    weights.needsUpdate = true;
+  }
+  function elementScale(e) {  // 1 / max |plane| of the element, from the EXR data
+    let peak = 0;
+    const data = bundle.basis.image.data, n = bundle.W * bundle.H;
+    for (let j = 0; j < bundle.planes; j++) {
+      if (bundle.planeElement[j] !== e) continue;
+      const f = j >> 2, k = j & 3;
+      for (let i = 0; i < n; i++) {
+        peak = Math.max(peak, Math.abs(THREE.DataUtils.fromHalfFloat(data[(f * n + i) * 4 + k])));
+      }
+    }
+    return peak > 0 ? 1 / peak : 1;
+  }
+  function badge(light) {
+    const notes = [];
+    if (trainedTypes.length && !trainedTypes.includes(light.type)) {
+      notes.push(`${light.type} light: the bake was trained on ${trainedTypes.join(', ')} lights`);
+    }
+    const r = familyResidual(bundle, x);
+    prt.familyResidual = r;
+    if (r !== null && r > bundle.warnAbove) {
+      notes.push(`light outside the trained family: ${(100 * r).toFixed(1)} % of its direct ` +
+                 `vector lies outside the training lights' span (warning above ` +
+                 `${(100 * bundle.warnAbove).toFixed(1)} %)`);
+    }
+    $('badge').hidden = notes.length === 0;
+    $('badge').textContent = notes.join('; ');
+    prt.badge = notes.join('; ');
+  }
+
+  // rendering, on demand
+  let pending = false;
+  function requestRender() {
+    if (pending) return;
+    pending = true;
+    requestAnimationFrame(() => { pending = false; renderNow(); });
+  }
+  function draw(target, output) {
+    const mode = MODES[state.mode];
+    view.u_mode.value = mode;
+    view.u_output.value = output;
+    view.u_eye.value.copy(camera.position);
+    dots.visible = state.mode === 'points';
+    gizmo.getHelper().visible = output === 1;
+    lightObj.visible = output === 1;
+    renderer.setRenderTarget(target);
+    renderer.setClearColor(0x000000, 1);
+    if (state.mode === 'uv') renderer.render(uvScene, uvCamera);
+    else renderer.render(scene, camera);
+    renderer.setRenderTarget(null);
+  }
+  function renderNow() {
+    const t0 = performance.now();
+    draw(null, 1);
+    prt.frames += 1;
+    prt.frameMs = performance.now() - t0;
+    $('stats').textContent = `${bundle.P} points, ${bundle.clusterCount} supersamples, ` +
+      `${state.basis}/${bundle.nBasis} basis elements\nlight pass ${prt.lightMs.toFixed(1)} ms, ` +
+      `frame ${prt.frameMs.toFixed(1)} ms` +
+      (prt.familyResidual === null ? '' : `\nout-of-family measure ${(100 * prt.familyResidual).toFixed(1)} %`) +
+      (reference ? `\nindirect vs path-traced reference: ${(100 * prt.referenceError).toFixed(1)} % ` +
+        (state.atReference ? '(its light)' : '(the light has moved: the heat map compares with the reference light\'s)') : '');
+  }
+
+  // controls
+  const basis = $('basis');
+  basis.max = String(bundle.nBasis);
+  if (bundle.keyframes) {  // keyframe bundles: a time slider over the keyframes
+    $('time-row').hidden = false;
+    $('time').max = String(bundle.keyframes.count - 1);
+  }
+  basis.value = String(bundle.nBasis);
+  $('element').max = String(bundle.nBasis - 1);
+  const sync = () => {
+    state.mode = $('mode').value;
+    state.basis = Number(basis.value);
+    state.element = Math.min(Math.max(Number($('element').value) | 0, 0), bundle.nBasis - 1);
+    view.u_exposure.value = Number($('exposure').value);
+    view.u_tonemap.value = TONEMAPS[$('tonemap').value];
+    $('basis-out').textContent = basis.value;
+    $('exposure-out').textContent = `${Number($('exposure').value) >= 0 ? '+' : ''}${$('exposure').value} EV`;
+    gizmo.setMode($('gizmo').value);
+    const k = Number($('time').value) | 0;
+    if (bundle.keyframes) {
+      $('time-out').textContent = `${bundle.keyframes.times[k].toFixed(2)} s (${k + 1}/${bundle.keyframes.count})`;
+    }
+    if (bundle.keyframes && k !== state.keyframe) {  // pose, then the light pass again
+      state.keyframe = k;
+      poseKeyframe(bundle, k);
+      pass.updateClusters();
+      placeDots();
+      if (state.light) { applyLight(lightDict(), false); return; }
+    }
+    updateCoefficients();
+    requestRender();
+  };
+  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo', 'time']) {
+    $(id).addEventListener('input', sync);
+  }
+  const relightFromForm = () => {
+    const c = new THREE.Color($('light-color').value);
+    const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
+    const type = $('light-type').value;
+    applyLight({ type, color: [c.r, c.g, c.b], intensity: Number($('light-intensity').value),
+      position: lightObj.position.toArray(), direction: dir.toArray(),
+      spot: type === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined },
+    false);
+    arrow.visible = type !== 'point';
+  };
+  for (const id of ['light-type', 'light-color', 'light-intensity']) {
+    $(id).addEventListener('change', relightFromForm);
+  }
+  $('frame').addEventListener('click', frame);
+  $('reset').addEventListener('click', () => { applyLight(start); frame(); });
+
+  // the test hook
+  const readTarget = new THREE.WebGLRenderTarget(canvas.width, canvas.height, {
+    type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: true });
+  Object.assign(prt, {
+    bundle: { P: bundle.P, nB: bundle.nB, nBasis: bundle.nBasis, W: bundle.W, H: bundle.H,
+              flipV: bundle.flipV, keyframes: bundle.keyframes ? bundle.keyframes.count : 0 },
+    setLight(dict) { applyLight(dict); renderNow(); return { x: prt.x, u: prt.u, s: prt.s }; },
+    setView({ position, target, up = [0, 1, 0], fov_y_deg = 40 }) {
+      camera.position.set(...position);
+      camera.up.set(...up);
+      camera.fov = fov_y_deg;
+      camera.updateProjectionMatrix();
+      controls.target.set(...target);
+      camera.lookAt(controls.target);
+      controls.update();
+      renderNow();
+    },
+    set(options) {
+      for (const [k, v] of Object.entries(options)) $(k).value = String(v);
+      sync();
+      renderNow();
+    },
+    // linear float RGBA of canvas pixel (px, py), py from the top, in `mode`
+    pixel(mode, px, py) {
+      const keep = state.mode;
+      state.mode = mode;
+      draw(readTarget, 0);
+      state.mode = keep;
+      const out = new Float32Array(4);
+      renderer.readRenderTargetPixels(readTarget, px, canvas.height - 1 - py, 1, 1, out);
+      return Array.from(out);
+    },
+    // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
+    atlas() { return Array.from(readAtlas()); },
+  });
+
+  sync();
+  applyLight(start);
+  frame();
+  renderNow();
+  $('message').textContent = `${m.asset.source}: ${m.atlas.width}×${m.atlas.height} atlas, ` +
+    `${bundle.nBasis} basis elements. Drag the light; T/R: move/aim.`;
+  window.addEventListener('keydown', (e) => {
+    if (e.key === 't') { $('gizmo').value = 'translate'; sync(); }
+    if (e.key === 'r') { $('gizmo').value = 'rotate'; sync(); }
+  });
+  prt.ready = true;
+}
+
+main().catch((e) => {
+  fail(`cannot show this bundle: ${e.message}`);
+  console.error(String(e.stack));
+});

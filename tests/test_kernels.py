@@ -1,0 +1,80 @@
+"""transport/kernels.py: the compiled solve kernels round exactly as the numpy/scipy
+formulation they replace (bit for bit), so a bake's numbers do not move."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from prtcore.transport import kernels
+
+
+def _operator(rng, t: int, per_row: int = 9) -> sp.csr_matrix:
+    rows = np.repeat(np.arange(t), per_row)
+    cols = rng.integers(0, t, len(rows))
+    g = sp.csr_matrix((rng.random(len(rows)) / per_row, (rows, cols)), shape=(t, t),
+                      dtype=np.float32)
+    g.sum_duplicates()
+    g.sort_indices()
+    return g
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_csr_dense_is_scipys_product(threads):
+    rng = np.random.default_rng(0)
+    g = _operator(rng, 3001)
+    x = rng.random((3001, 30)).astype(np.float32)
+    out = np.full((3001, 30), np.nan, dtype=np.float32)
+    kernels.csr_dense(g.indptr.astype(np.int64), g.indices.astype(np.int64), g.data, x, out,
+                      kernels.row_chunks(3001, threads))
+    assert np.array_equal(out, g @ x)
+
+
+@pytest.mark.parametrize("channels", [False, True])
+def test_chebyshev_step_is_the_numpy_step(channels):
+    """One fused step equals the numpy step, with G alone and with per-channel matrices
+    added (solve.ChannelProduct: the subsurface walks' operator)."""
+    rng = np.random.default_rng(1)
+    t, k = 2500, 4
+    g = _operator(rng, t)
+    extra = [_operator(rng, t, per_row=2) for _ in range(3)] if channels else []
+    for m in extra:  # some rows without a walk
+        m.data[: m.indptr[t // 2]] = 0
+        m.eliminate_zeros()
+    rho = rng.uniform(0.1, 0.9, (t, 3)).astype(np.float32)
+    d, r, x = (rng.standard_normal((t, k, 3)).astype(np.float32) for _ in range(3))
+    c_r = np.array([0.7, 0.8, 0.9], dtype=np.float32)
+    c_d = np.array([0.3, 0.2, 0.1], dtype=np.float32)
+    # numpy, as solve.py wrote it before the fused kernel
+    src = (d * rho[:, None, :]).reshape(t, -1)
+    ad = g @ src
+    for c, m in enumerate(extra):
+        ad[:, c::3] += m @ np.ascontiguousarray(src[:, c::3])
+    ad = ad.reshape(t, k, 3)
+    ad -= d
+    r_np = r + ad
+    d_np = d * c_d + r_np * c_r
+    x_np = x + d_np
+    # fused
+    chunks = kernels.row_chunks(t, 2)
+    flat = [a.reshape(t, -1).copy() for a in (d, r, x)]
+    src_new, d_new = np.empty_like(src), np.empty_like(src)
+    nd, nx = np.empty((len(chunks) - 1, 3 * k)), np.empty((len(chunks) - 1, 3 * k))
+    e_ptr = np.zeros((3, t + 1), dtype=np.int64)
+    if extra:
+        e_ptr = np.stack([m.indptr for m in extra]).astype(np.int64)
+        e_ptr += np.cumsum([0, extra[0].nnz, extra[1].nnz])[:, None]
+    e_idx = np.concatenate([m.indices for m in extra] or [[]]).astype(np.int64)
+    e_dat = np.concatenate([m.data for m in extra] or [[]]).astype(np.float32)
+    kernels.chebyshev_step(g.indptr.astype(np.int64), g.indices.astype(np.int64), g.data,
+                           e_ptr, e_idx, e_dat, rho, src, flat[0], flat[1], flat[2],
+                           src_new, d_new, c_r, c_d, chunks, nd, nx)
+    assert np.array_equal(flat[1], r_np.reshape(t, -1))
+    assert np.array_equal(d_new, d_np.reshape(t, -1))
+    assert np.array_equal(flat[2], x_np.reshape(t, -1))
+    assert np.array_equal(src_new, (d_np * rho[:, None, :]).reshape(t, -1))
+    assert np.allclose(np.sqrt(nd.sum(axis=0)), np.linalg.norm(d_np.reshape(t, -1), axis=0),
+                       rtol=1e-6)
+    assert np.allclose(np.sqrt(nx.sum(axis=0)), np.linalg.norm(x_np.reshape(t, -1), axis=0),
+                       rtol=1e-6)
