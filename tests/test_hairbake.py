@@ -51,11 +51,17 @@ def test_hair_bundle_states_its_strand_layout(bundle):
     assert m["verdict"]["status"] == "pass" and m["verdict"]["ratio"] <= 1.25
 
 
-def test_relight_writes_the_strand_texture(bundle, tmp_path):
+@pytest.fixture
+def light(tmp_path):
+    """A point light beside the tangle, as a light file."""
+    path = tmp_path / "light.json"
+    path.write_text(json.dumps({"type": "point", "position": [0.06, 0.04, 0.02],
+                                "intensity": 0.05, "color": [1, 1, 1]}))
+    return path
+
+
+def test_relight_writes_the_strand_texture(bundle, light, tmp_path):
     _, out = bundle
-    light = tmp_path / "light.json"
-    light.write_text(json.dumps({"type": "point", "position": [0.06, 0.04, 0.02],
-                                 "intensity": 0.05, "color": [1, 1, 1]}))
     exr = tmp_path / "relit.exr"
     assert cli_main(["relight", str(out), "--light", str(light), "--out", str(exr)]) == 0
     img = read_image(exr)
@@ -75,11 +81,8 @@ def test_hair_bake_refuses_what_it_cannot_do_by_key(tmp_path, key, value):
         bake(asset, parse_spec({**SPEC, key: value}), tmp_path / "out", quiet=True)
 
 
-def test_render_draws_the_strands(bundle, tmp_path):
+def test_render_draws_the_strands(bundle, light, tmp_path):
     _, out = bundle
-    light = tmp_path / "light.json"
-    light.write_text(json.dumps({"type": "point", "position": [0.06, 0.04, 0.02],
-                                 "intensity": 0.05, "color": [1, 1, 1]}))
     cam = tmp_path / "cam.json"
     cam.write_text(json.dumps({"position": [0, 0.02, 0.12], "target": [0, 0, 0],
                                "fov_y_deg": 40, "width": 48, "height": 48}))
