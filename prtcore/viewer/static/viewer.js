@@ -388,7 +388,7 @@ async function main() {
       prt.referenceError = relativeError(readAtlas(), reference);
     }
     $('light-type').value = light.type;
-    $('light-intensity').value = String(state.intensity);
+    $('light-intensity').value = String(+Number(state.intensity).toPrecision(4));
     $('light-color').value = '#' + new THREE.Color().setRGB(...state.color).getHexString();
     requestRender();
   }
