@@ -235,7 +235,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_view(args: argparse.Namespace) -> int:
     from prtcore.viewer.server import ViewerServer
 
-    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet)
+    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet,
+                          reference=args.reference, reference_light=args.light)
     print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)
     if not args.no_browser:
         import webbrowser
@@ -394,6 +395,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--port", type=int, default=8019, help="port (0: any free port)")
     sp.add_argument("--no-browser", action="store_true",
                     help="print the URL only; do not open a browser")
+    sp.add_argument("--reference", default=None,
+                    help="a path-traced indirect lightmap of the bundle (`prtcore reference "
+                         "DIR --light L --out REF.exr`): the page's error heat map")
+    sp.add_argument("--light", default=None, help="with --reference: the light file it was "
+                                                  "traced for (the page starts with it)")
     common(sp)
     sp.set_defaults(func=_cmd_view)
 

@@ -63,7 +63,7 @@ def viewer(bundle, browser):
     uncaught exceptions for the whole module."""
     log: list[str] = []
     with ViewerServer(bundle, quiet=True).start() as server:
-        page = browser.new_page(viewport={"width": 640, "height": 400})
+        page = browser.new_page(viewport={"width": 640, "height": 440})
         page.on("console", lambda m: m.type == "error" and log.append(f"console: {m.text}"))
         page.on("pageerror", lambda e: log.append(f"pageerror: {e}"))
         page.goto(server.url)
@@ -212,6 +212,37 @@ def test_golden_viewer_cornell(viewer, bundle):
         Path(renders).mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(Path(renders) / "viewer_page.png"))
     check_golden("viewer_cornell", rgb8)
+
+
+def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, tmp_path):
+    """`prtcore view DIR --reference REF.exr --light L.json`: the page starts with the
+    reference's light, reports the indirect lightmap's relative RMS error against the
+    reference as numpy computes it from `prtcore relight` and the same EXR (to 1e-5), and
+    its heat-map mode draws. (The error includes the reference's Monte Carlo noise.)"""
+    (tmp_path / "light.json").write_text(json.dumps(LIGHT))
+    ref = tmp_path / "reference.exr"
+    assert main(["reference", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                 str(ref), "--spp", "16", "-q"]) == 0
+    want = read_image(ref)
+    _, relight_image = relit
+    cov = want[:, :, 3] > 0
+    err = np.sqrt(((relight_image[cov, :3] - want[cov, :3]) ** 2).sum()
+                  / (want[cov, :3] ** 2).sum())
+    errors: list[str] = []
+    with ViewerServer(bundle, quiet=True, reference=ref,
+                      reference_light=tmp_path / "light.json").start() as server:
+        page = browser.new_page()
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url)
+        wait_ready(page)
+        assert abs(page.evaluate("prt.referenceError") - err) <= 1e-5
+        assert "indirect vs path-traced reference" in page.text_content("#stats")
+        page.evaluate("o => prt.set(o)", {"mode": "error"})
+        img = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert(
+            "RGB"))
+        assert img.reshape(-1, 3).std(axis=0).max() > 5
+        page.close()
+    assert errors == []
 
 
 def test_no_webgl2_says_so(browser, bundle):
