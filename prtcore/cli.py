@@ -219,6 +219,19 @@ def _cmd_render(args: argparse.Namespace) -> int:
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
+    from prtcore.io.bundle import read_manifest
+
+    if "strands" in read_manifest(Path(args.bundle)):  # hair: ray traced on the CPU
+        from prtcore.reference.camera import load_camera
+        from prtcore.runtime.gl import write_render
+        from prtcore.runtime.strands import render_strands
+
+        image = render_strands(args.bundle, load_light_file(args.light),
+                               load_camera(args.camera), n=args.basis, mode=mode)
+        write_render(args.out, image, args.exposure)
+        print(f"rendered: {args.out} ({image.shape[1]}×{image.shape[0]}, {mode}) on the "
+              "CPU (hair: fibre tubes ray traced, strand texture sampled)")
+        return 0
 
     _, data, scene, _ = _posed_runtime("render", Path(args.bundle), args.time)
     lights = load_light_file(args.light)
