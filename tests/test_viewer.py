@@ -185,6 +185,28 @@ def test_every_mode_draws(viewer, mode):
     page.evaluate("o => prt.set(o)", {"mode": "full"})
 
 
+def test_light_form_relights(viewer):
+    """The light's form fields drive the light pass: doubling the intensity doubles x and u
+    (no gamma in this bundle), a pure red colour leaves no green or blue direct light, and
+    the reset button brings back the start light."""
+    page, _ = viewer
+    r1 = _set_light(page, LIGHT)
+    page.fill("#light-intensity", str(2 * LIGHT["intensity"]))
+    page.dispatch_event("#light-intensity", "change")
+    x1, x2 = np.asarray(r1["x"]), np.asarray(page.evaluate("prt.x"))
+    u1, u2 = np.asarray(r1["u"]), np.asarray(page.evaluate("prt.u"))
+    np.testing.assert_allclose(x2, 2 * x1, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(u2, 2 * u1, rtol=1e-5, atol=1e-9 * np.abs(u1).max())
+    page.fill("#light-color", "#ff0000")
+    page.dispatch_event("#light-color", "change")
+    x = np.asarray(page.evaluate("prt.x")).reshape(-1, 3)
+    assert x[:, 0].max() > 0 and not x[:, 1:].any()
+    page.click("#reset")
+    start = np.asarray(page.evaluate("prt.x"))
+    assert not np.allclose(start, x.ravel())
+    _set_light(page, LIGHT)
+
+
 def test_out_of_family_badge(viewer):
     """A light far outside the box: the badge names it, with the measure."""
     page, _ = viewer

@@ -70,6 +70,14 @@ DOCS: dict[str, str] = {
     "fit.denoise": "radius in texels (0–8) of the seam-aware filter applied to the "
                    "training lightmaps before the basis is fitted (0: off); the held-out "
                    "lightmaps the verdict is judged on are not filtered",
+    "fit.transfer": "`ridge` (linear, paper 4.3) · `mlp` (the ridge plus a learnt "
+                    "residual network trained on its leave-one-out errors; "
+                    "docs/bundle.md)",
+    "fit.mlp_width": "`mlp`: neurons per hidden layer, 1–256",
+    "fit.mlp_layers": "`mlp`: hidden layers (leaky ReLU), 1–8",
+    "fit.mlp_steps": "`mlp`: AdamW steps at most (the count is chosen on a seeded "
+                     "validation fifth of the training lights), 0–100000",
+    "fit.seed": "`mlp`: seed of the initial weights and the validation split",
     "keyframes.animation": "animation index or name to bake keyframes of; null: static",
     "keyframes.count": "keyframes drawn (stratified) when `times` is not given, 1–4096",
     "keyframes.times": "explicit keyframe times in seconds",

@@ -514,15 +514,22 @@ async function main() {
   for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo', 'time']) {
     $(id).addEventListener('input', sync);
   }
-  const relightFromForm = () => {
-    const c = new THREE.Color($('light-color').value);
-    const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
-    const type = $('light-type').value;
-    applyLight({ type, color: [c.r, c.g, c.b], intensity: Number($('light-intensity').value),
-      position: lightObj.position.toArray(), direction: dir.toArray(),
-      spot: type === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined },
-    false);
-    arrow.visible = type !== 'point';
+  // A field of the light's form changed: only that property of the light changes (the
+  // colour picker holds 8-bit sRGB; it is read only when it is the field that changed).
+  const relightFromForm = (e) => {
+    const d = lightDict(), v = e.target.value;
+    if (e.target.id === 'light-color') {
+      const c = new THREE.Color(v);
+      d.color = [c.r, c.g, c.b];
+    } else if (e.target.id === 'light-intensity') {
+      d.intensity = Number(v);
+    } else {
+      d.type = v;
+      d.position = lightObj.position.toArray();
+      d.spot = v === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined;
+    }
+    applyLight(d, false);
+    arrow.visible = d.type !== 'point';
   };
   for (const id of ['light-type', 'light-color', 'light-intensity']) {
     $(id).addEventListener('change', relightFromForm);
