@@ -461,7 +461,7 @@ async function main() {
     gizmo.getHelper().visible = output === 1;
     lightObj.visible = output === 1;
     renderer.setRenderTarget(target);
-    renderer.setClearColor(0x000000, 1);
+    renderer.setClearColor(0x000000, output === 1 ? 1 : 0);  // read-back: A = 0 off the asset
     if (state.mode === 'uv') renderer.render(uvScene, uvCamera);
     else renderer.render(scene, camera);
     renderer.setRenderTarget(null);
@@ -567,6 +567,19 @@ async function main() {
       state.mode = keep;
       const out = new Float32Array(4);
       renderer.readRenderTargetPixels(readTarget, px, canvas.height - 1 - py, 1, 1, out);
+      return Array.from(out);
+    },
+    // the canvas in `mode` as linear float RGBA (H, W, 4), row 0 at the top, A = 0 where
+    // no surface is seen
+    image(mode) {
+      const keep = state.mode;
+      state.mode = mode;
+      draw(readTarget, 0);
+      state.mode = keep;
+      const W = canvas.width, H = canvas.height, raw = new Float32Array(4 * W * H);
+      renderer.readRenderTargetPixels(readTarget, 0, 0, W, H, raw);
+      const out = new Float32Array(4 * W * H);
+      for (let r = 0; r < H; r++) out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
       return Array.from(out);
     },
     // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
