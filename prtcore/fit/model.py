@@ -154,17 +154,14 @@ def gamma_encode(values: np.ndarray, gamma: float | None) -> np.ndarray:
 
 
 def gamma_decode(values: np.ndarray, gamma: float | None) -> np.ndarray:
-    """The runtime's decode, inverse of :func:`gamma_encode`: max(v, 0)^gamma (no exponent
-    without gamma), float64.
+    """Inverse of :func:`gamma_encode` for the runtime: max(v, 0)^gamma, float64.
 
-    Negative values are clamped to 0 first, with or without gamma: the runtime's
-    negative-value policy (:data:`prtcore.core.formula.RUNTIME_FORMULA`). A truncated
-    linear basis rings below zero along shadow edges; an engine that lets it subtract light
-    shows dark fringes, so the runtime clamps, and every error the fit reports is of the
-    clamped reconstruction.
+    Negative gamma-space values are clamped to 0 first. For None, a float64 copy, unclamped.
     """
-    v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
-    return v if gamma is None else v ** gamma
+    v = np.array(values, dtype=np.float64)
+    if gamma is None:
+        return v
+    return np.maximum(v, 0.0) ** gamma
 
 
 def relative_rmse(a: np.ndarray, b: np.ndarray) -> float:

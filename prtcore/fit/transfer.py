@@ -303,10 +303,10 @@ def heldout_errors(model: TransferModel, X: np.ndarray, R: np.ndarray, ns,
             if nb > done:
                 y = y + expand(ub, U, done, nb)
                 done = nb
-            rec = gamma_decode(y, model.gamma)  # clamped at 0, as at run time
+            rec = gamma_decode(y, model.gamma) if model.gamma is not None else y
             d = rec - ref
             sse[i] += np.einsum("thc,thc->h", d, d)
-            neg[i] += (y < 0).any(axis=2).sum(axis=0)  # texels the clamp acts on
+            neg[i] += (rec < 0).any(axis=2).sum(axis=0)
 
     coef = np.zeros((N, nb_max, H, 3))  # least-squares coefficients of each size
     for i, nb in enumerate(nbs):
