@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from prtcore.core.errors import SpecError
+from prtcore.core.errors import LimitExceeded, SpecError
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
@@ -40,7 +40,7 @@ from prtcore.io.hair import load_hair, write_hair
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
-from prtcore.transport.fibre import hair_tracer
+from prtcore.transport.fibre import MEM_PER_FIBRE_SEGMENT, hair_tracer
 from prtcore.transport.hair import bake_hair_dataset
 
 METHOD = "data_driven"
@@ -112,12 +112,11 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                       limit_bytes: int) -> int:
     """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
     with the fibre operator, plus the first bounce's harmonics: two more (T, K, 3)
-    float32) against ``limit_bytes``; returns the estimate."""
-    from prtcore.core.errors import LimitExceeded
-
+    float32, plus the fibre tubes) against ``limit_bytes``; returns the estimate."""
     k = spec.lights.count + spec.lights.holdout
+    segments = space.hair.point_count - space.hair.strand_count
     est = estimate_bake_bytes(space.count, k, spec.transport, ("fibre",)) \
-        + 2 * space.count * k * 12
+        + 2 * space.count * k * 12 + segments * MEM_PER_FIBRE_SEGMENT
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",

@@ -3,7 +3,8 @@
 For n ∈ {4, 8, 16, 32, 64} (≤ what the fit allows): relative RMSE of the held-out
 configurations against their reference, the projection bound (the reference projected
 onto the basis: the best any transfer could do with n elements), the CPU cost of the
-coefficients (u = M·x, µs) and of the basis blend at atlas size (ms), and storage.
+coefficients (u = M·x, plus the learnt residual of an "mlp" transfer; µs) and of the
+basis blend at atlas size (ms), and storage.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.mlp import transfer_residual, transfer_rows
 from prtcore.fit.model import TransferModel
 from prtcore.fit.transfer import heldout_errors
 
@@ -44,8 +46,10 @@ def truncate(model: TransferModel, n: int) -> TransferModel:
                 w for w in diag.warnings if not w.startswith("basis count ")) + (
                 (f"basis count {n} capped at {model.n_basis}: the indirect data has rank "
                  f"{diag.indirect_rank} after mean subtraction",) if capped else ()))
+    learnt = None if model.learnt is None else model.learnt.select_outputs(
+        transfer_rows(model.basis.shape[1], min(nb, model.basis.shape[1])))
     return dataclasses.replace(model, basis=model.basis[:, :nb], transfer=model.transfer[
-        ..., :nb, :], offset=model.offset[..., :nb], diagnostics=diag)
+        ..., :nb, :], offset=model.offset[..., :nb], diagnostics=diag, learnt=learnt)
 
 
 def _time(fn, repeat: int) -> float:
@@ -159,7 +163,14 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         M = model.transfer[..., : n - 1, :]
         M = M if M.ndim == 3 else M[0]
         x32 = rng.random((M.shape[-1],)).astype(np.float32)
-        u_s = _time(lambda M=M, x32=x32: [M[c] @ x32 for c in range(3)], 200)
+        net = None if model.learnt is None else model.learnt.select_outputs(
+            transfer_rows(model.basis.shape[1], n - 1))
+        if net is None:
+            u_s = _time(lambda M=M, x32=x32: [M[c] @ x32 for c in range(3)], 200)
+        else:  # the learnt residual is part of the coefficients' cost
+            x3 = np.random.default_rng(1).random((M.shape[-1], 3))
+            u_s = _time(lambda M=M, x32=x32, net=net, x3=x3: (
+                [M[c] @ x32 for c in range(3)], transfer_residual(net, x3)), 200)
         planes = 3 + (n - 1) * (1 if model.channels == "mono" else 3)
         # timed on at most BLEND_TIMING_PIXELS pixels and scaled to the atlas (linear in
         # pixels): a 4096² atlas of 64 elements would otherwise allocate 9 GB here
@@ -169,6 +180,9 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         files = -(-planes // 4)
         storage = int(files * 4 * planes_bytes_per_element + M.size * 4 * (
             1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
+        if net is not None:
+            storage += 4 * sum(w.size + c.size for w, c in zip(net.weights, net.biases,
+                                                               strict=True))
         rows.append({
             "n": n,
             **accuracy[i],

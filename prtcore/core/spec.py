@@ -110,6 +110,13 @@ class FitSpec:
     #: radius in texels of the seam-aware filter applied to the training lightmaps before
     #: the basis is fitted (0: off); keeps the gather's per-texel noise out of the basis
     denoise: float = 1.5
+    #: the transfer regressor: "ridge" | "mlp" (ridge + a learnt residual, issue 18)
+    transfer: str = "ridge"
+    mlp_width: int = 64
+    mlp_layers: int = 2
+    mlp_steps: int = 2000
+    #: seed of the learnt transfer's initial weights and validation split
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -198,6 +205,10 @@ class ShPrtSpec:
     strata: int = 16
     bounce: bool = True
     seed: int = 5
+    #: > 0: a glossy Phong layer (TP, texture storage): ρ_s of every material
+    specular: float = 0.0
+    #: its Phong exponent n
+    exponent: float = 8.0
 
 
 @dataclass(frozen=True)
@@ -535,6 +546,11 @@ def _parse(data: Any) -> BakeSpec:
         # ~1e6 at g = 0.05, and the float32 model long before): refused, see fit.py
         gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=1.0, hi=10.0),
         denoise=_num(f.get("denoise", FitSpec().denoise), "fit.denoise", lo=0.0, hi=8.0),
+        transfer=_choice(f.get("transfer", "ridge"), "fit.transfer", ("ridge", "mlp")),
+        mlp_width=_int(f.get("mlp_width", 64), "fit.mlp_width", lo=1, hi=256),
+        mlp_layers=_int(f.get("mlp_layers", 2), "fit.mlp_layers", lo=1, hi=8),
+        mlp_steps=_int(f.get("mlp_steps", 2000), "fit.mlp_steps", lo=0, hi=100000),
+        seed=_int(f.get("seed", 0), "fit.seed", lo=0),
     )
 
     k = _section(KeyframesSpec, root.get("keyframes", {}), "keyframes")
@@ -554,6 +570,9 @@ def _parse(data: Any) -> BakeSpec:
                          ("shared", "per_keyframe")),
         seed=_int(k.get("seed", 4), "keyframes.seed", lo=0),
     )
+    if fit.transfer == "mlp" and keyframes.transfer == "per_keyframe":
+        raise SpecError("fit.transfer", "'mlp' learns one shared transfer; "
+                        "keyframes.transfer 'per_keyframe' needs 'ridge'")
 
     o = _section(OutputSpec, root.get("output", {}), "output")
     output = OutputSpec(dtype=_choice(o.get("dtype", "half"), "output.dtype", ("half", "float")))
@@ -601,7 +620,11 @@ def _parse(data: Any) -> BakeSpec:
         strata=_int(sp.get("strata", sd.strata), "sh_prt.strata", lo=1, hi=128),
         bounce=bounce,
         seed=_int(sp.get("seed", sd.seed), "sh_prt.seed", lo=0),
+        specular=_num(sp.get("specular", sd.specular), "sh_prt.specular", lo=0.0, hi=1.0),
+        exponent=_num(sp.get("exponent", sd.exponent), "sh_prt.exponent", lo=0.0, hi=1e4),
     )
+    if sh_prt.specular > 0 and sh_prt.storage != "texture":
+        raise SpecError("sh_prt.specular", "the glossy layer (TP) needs texture storage")
     if method.name == "sh_prt" and keyframes.animation is not None:
         raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
                         "animation is set)")

@@ -70,6 +70,14 @@ DOCS: dict[str, str] = {
     "fit.denoise": "radius in texels (0–8) of the seam-aware filter applied to the "
                    "training lightmaps before the basis is fitted (0: off); the held-out "
                    "lightmaps the verdict is judged on are not filtered",
+    "fit.transfer": "`ridge` (linear, paper 4.3) · `mlp` (the ridge plus a learnt "
+                    "residual network trained on its leave-one-out errors; "
+                    "docs/bundle.md)",
+    "fit.mlp_width": "`mlp`: neurons per hidden layer, 1–256",
+    "fit.mlp_layers": "`mlp`: hidden layers (leaky ReLU), 1–8",
+    "fit.mlp_steps": "`mlp`: AdamW steps at most (the count is chosen on a seeded "
+                     "validation fifth of the training lights), 0–100000",
+    "fit.seed": "`mlp`: seed of the initial weights and the validation split",
     "keyframes.animation": "animation index or name to bake keyframes of; null: static",
     "keyframes.count": "keyframes drawn (stratified) when `times` is not given, 1–4096",
     "keyframes.times": "explicit keyframe times in seconds",
@@ -99,6 +107,12 @@ DOCS: dict[str, str] = {
     "sh_prt.bounce": "add one inter-reflection bounce computed from the stored shadowed "
                      "transfer (T⁰ + T¹)",
     "sh_prt.seed": "seed of the transfer rays",
+    "sh_prt.specular": "ρ_s of a glossy Phong layer on every material, 0–1 (0: diffuse "
+                       "only); > 0 stores visibility textures for the triple product (TP, "
+                       "texture storage only), drawn by `prtcore render`",
+    "sh_prt.exponent": "Phong exponent n of the glossy layer, 0–10000 (the lobe "
+                       "(n+1)/(2π)·cosⁿ about the mirror direction, band-limited to "
+                       "`bands`)",
     "material.subsurface": "the medium inside the material's closed mesh (below); null: "
                            "as the asset says (KHR_materials_volume, "
                            "KHR_materials_diffuse_transmission, KHR_materials_volume_scatter)",

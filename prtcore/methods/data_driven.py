@@ -2,7 +2,8 @@
 matrix from the direct light at the measurement points, and the error-vs-run-time table.
 
 Files: basis_XX.exr (4 planes per RGBA file), coverage.exr, transfer.bin and
-transfer_offset.bin, the points files, per-keyframe files for animated bakes. The runtime
+transfer_offset.bin (and the learnt residual's layers, transfer_learnt_*.bin, with
+``fit.transfer: "mlp"``), the points files, per-keyframe files for animated bakes. The runtime
 is :mod:`prtcore.runtime.cpu` (and the GLSL of :mod:`prtcore.runtime.gl`); its formula is
 written into the manifest's ``runtime`` section.
 """
@@ -17,14 +18,16 @@ from typing import Any
 import numpy as np
 
 from prtcore.core.errors import PrtError
-from prtcore.core.formula import RUNTIME_FORMULA
+from prtcore.core.formula import LEARNT_FORMULA, RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
+from prtcore.fit.mlp import learnt_options
 from prtcore.fit.model import TransferModel
 from prtcore.fit.transfer import fit_transfer, heldout_errors, reconstruct
 from prtcore.io.bundle import (
     basis_planes,
+    learnt_files,
     planes_layout,
     points_files,
     raw_file,
@@ -94,7 +97,9 @@ class DataDriven(Method):
         with timer.stage("fit"):
             n_table = max(TABLE_N)
             fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
-                      "gamma": spec.fit.gamma, "timer": timer}  # progress bars
+                      "gamma": spec.fit.gamma, "timer": timer,  # progress bars
+                      "transfer": spec.fit.transfer,
+                      "transfer_options": learnt_options(spec.fit)}
             if kfs is not None:  # one basis for all keyframes (paper 5.4)
                 fit_kw.update(groups=kfs.train, per_group=per_group)
             if spec.fit.basis == "auto":
@@ -159,6 +164,8 @@ class DataDriven(Method):
                       "offset[c, i]" + ("; leading axis: keyframe" if
                                         model.transfer.ndim == 4 else ""),
         }
+        if model.learnt is not None:
+            transfer["learnt"] = learnt_files(directory, model.learnt)
         save_light_file(inputs.hold, directory / "holdout_lights.json")
         K = len(inputs.train)
         span = direct_span(data.direct_points[:, :K])
@@ -179,6 +186,7 @@ class DataDriven(Method):
                                  "G, B",
                       "dtype": spec.output.dtype, "dilated": True},
             "fit": {"channels": model.channels, "gamma": model.gamma, "ridge": model.ridge,
+                    "transfer": diag.get("transfer", "ridge"),
                     "n_basis": model.n_basis, "n_method": diag.get("n_basis_method"),
                     "ridge_method": diag.get("ridge_method"),
                     "energy_kept": diag.get("energy_kept"), "warnings": diag.get("warnings"),
@@ -187,7 +195,8 @@ class DataDriven(Method):
             "points": pts,
             "keyframes": None if kfs is None else keyframe_files(directory, kfs,
                                                                  inputs.intake.scene),
-            "runtime": {"formula": RUNTIME_FORMULA},
+            "runtime": {"formula": RUNTIME_FORMULA} if model.learnt is None else
+            {"formula": RUNTIME_FORMULA, "learnt": LEARNT_FORMULA},
             "diagnostics": diag,
             "metrics": {"error_vs_runtime": table["rows"],
                         "transport_iterations": data.iterations,
