@@ -37,7 +37,11 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
 from prtcore.io.bundle import raw_file
 from prtcore.io.imageio import read_image, write_exr, write_png
-from prtcore.io.transfer_textures import read_transfer_textures, write_transfer_textures
+from prtcore.io.transfer_textures import (
+    VISIBILITY,
+    read_transfer_textures,
+    write_transfer_textures,
+)
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
@@ -47,6 +51,7 @@ from prtcore.transport.sh_transfer import (
     texel_lookup,
     vertex_lookup,
     vertex_samples,
+    visibility_transfer,
 )
 
 #: bytes per stored coefficient: float32 per vertex (a vertex attribute), half per texel
@@ -237,6 +242,8 @@ class ShPrtBake:
     preview: np.ndarray
     preview_image: np.ndarray
     spec: object
+    #: the glossy layer's visibility SH as an atlas (H, W, 1, L²) (``sh_prt.specular`` > 0)
+    visibility: np.ndarray | None = None
 
 
 @register
@@ -255,9 +262,14 @@ class ShPrtMethod(Method):
         with timer.stage("fit"):
             bake = bake_sh_prt(scene, tracer, spec.storage, spec.bands, spec.strata,
                                spec.seed, bounce=spec.bounce, texels=texels)
+            visibility = None
+            if spec.specular > 0:  # the glossy layer's T₀ for the triple product
+                vis = visibility_transfer(tracer, texel_samples(texels), spec.bands,
+                                          spec.strata, spec.seed)
+                visibility = texels.to_image(vis)[:, :, :-1][:, :, None, :]
         with timer.stage("report"):
             preview = sky_lightmap(scene, texels, bake)
-        return ShPrtBake(bake, preview, texels.to_image(preview), spec)
+        return ShPrtBake(bake, preview, texels.to_image(preview), spec, visibility)
 
     def write(self, directory: Path, inputs: BakeInputs, result: ShPrtBake
               ) -> tuple[dict, dict]:
@@ -273,6 +285,14 @@ class ShPrtMethod(Method):
             section["layout"] = ("sh_transfer_{R,G,B}_{k}.exr: R, G, B, A = coefficients "
                                  "4k..4k+3 of that colour channel, dilated")
             section["dtype"] = dtype
+            if result.visibility is not None:
+                section["glossy"] = {
+                    "model": "TP: specular · Σ_k (M_c V)_k z_k Y_k(r), M_c = Σ_i Γ_ijk l_ic, V "
+                             "the visibility SH, z the Phong lobe's Funk–Hecke kernel, r the "
+                             "mirror direction of the view about the shading normal",
+                    "specular": result.spec.specular, "exponent": result.spec.exponent,
+                    "files": write_transfer_textures(directory, result.visibility, dtype,
+                                                     VISIBILITY)}
         else:
             section["vertex_transfer"] = raw_file(directory / "sh_vertex_transfer.bin",
                                                   bake.transfer.coeffs.astype(np.float32))
