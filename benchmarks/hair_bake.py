@@ -11,10 +11,12 @@ machine's load average (the 2-core machine is shared: timings under load are upp
 bounds).
 
 ``--estimate-only`` stops after the memory estimate (no transport): for 140k strands,
-whose bake may not fit.
+whose bake may not fit. ``--path-tracer-texels N`` (instead of the dataset) times the
+fibre path tracer (prtcore.reference.fibres) on N random texels × 256 paths for one point
+light and prints the time per path and the per-texel relative noise it reaches.
 
 Usage: python benchmarks/hair_bake.py [--strands 10000] [--lights 128] [--rays 64]
-       [--estimate-only]
+       [--estimate-only] [--path-tracer-texels N]
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ def main() -> None:
     ap.add_argument("--lights", type=int, default=128)
     ap.add_argument("--rays", type=int, default=64)
     ap.add_argument("--estimate-only", action="store_true")
+    ap.add_argument("--path-tracer-texels", type=int, default=0)
     args = ap.parse_args()
     tmp = ROOT / "benchmarks" / "results" / f"hairball-{args.strands}.hair"
     tmp.parent.mkdir(parents=True, exist_ok=True)
@@ -76,7 +79,27 @@ def main() -> None:
     print(f"{args.strands} strands: {space.count} strand texels ({space.width}×{space.height}),"
           f" K = {args.lights} + 16: memory estimate {estimate / 2**30:.2f} GiB "
           f"(limit {limits.max_bake_bytes / 2**30:.0f} GiB)", flush=True)
-    if not args.estimate_only:
+    if args.path_tracer_texels:
+        from prtcore.core.scene import Light
+        from prtcore.reference.fibres import fibre_reference
+
+        tracer, mesh = hair_tracer(space)
+        tracer.occluded(space.position[:1], space.normal[:1])
+        light = [Light(type="point", color=np.ones(3), intensity=1.0,
+                       position=np.array([0.2, 0.15, 0.1]))]
+        sel = np.random.default_rng(0).choice(space.count, args.path_tracer_texels,
+                                              replace=False)
+        t0 = time.perf_counter()
+        a, b = fibre_reference(space, tracer, mesh, 0, light, sel, 256, seed=1)
+        dt = time.perf_counter() - t0
+        ref = (a + b) / 2
+        noise = float(np.sqrt(np.mean((a - b) ** 2) / 4 / np.mean(ref ** 2)))
+        row.update(path_seconds=dt / (len(sel) * 256), path_noise_256=noise,
+                   load_average=os.getloadavg()[0])
+        print(f"path tracer: {dt:.1f} s for {len(sel)} texels × 256 paths × 1 light = "
+              f"{1e6 * dt / (len(sel) * 256):.0f} µs per path; per-texel relative noise at "
+              f"256 paths {100 * noise:.1f} %; load {os.getloadavg()[0]:.1f}")
+    elif not args.estimate_only:
         b = intake.hair.bounds()
         train, hold = sample_configurations(spec.lights, b.mean(axis=0),
                                             float(np.linalg.norm(b[1] - b[0]) / 2), ())
@@ -95,7 +118,8 @@ def main() -> None:
               f"({', '.join(f'{k} {v:.1f} s' for k, v in timer.seconds.items())}); "
               f"{tracer.rays_traced / 1e6:.1f} M rays; {data.iterations} bounces; peak RSS "
               f"{peak_rss() / 2**30:.2f} GiB; load {os.getloadavg()[0]:.1f}")
-    out = ROOT / "benchmarks" / "results" / f"hair_bake_{args.strands}.json"
+    suffix = "_path_tracer" if args.path_tracer_texels else ""
+    out = ROOT / "benchmarks" / "results" / f"hair_bake_{args.strands}{suffix}.json"
     out.write_text(json.dumps(row, indent=1))
     print(f"wrote {out}")
 

@@ -14,7 +14,9 @@ Prints and writes (benchmarks/results/sh_prt.json):
   and by GL timer query; the GL renderer's name says whether it is a GPU or Mesa's
   software rasteriser;
 * the CPU cost of the glossy runtime per point: TP (triple product, then the Phong lobe)
-  and TPFL (the lobe only) at 5 bands.
+  and TPFL (the lobe only) at 5 bands;
+* the CPU cost of turning an environment per frame: ``sh.rotate`` of its (L², 3)
+  coefficients by a new rotation (the rotation matrix built each time).
 
 Usage: python benchmarks/sh_prt.py [--width 1920 --height 1080 --frames 5 --atlas 512]
 """
@@ -137,6 +139,16 @@ def main(argv: list[str] | None = None) -> int:
                                                  args.bands)))}
     print(f"glossy on the CPU (numpy, {n} points): TP {1e9 * tp:.0f} ns/point, TPFL "
           f"{1e9 * tpfl:.0f} ns/point")
+    from prtcore.emitters.environment import rotation_about_y
+
+    t0 = time.perf_counter()
+    reps = 200
+    for i in range(reps):
+        sh.rotate(light, rotation_about_y(360.0 * i / reps))
+    rot_ms = 1e3 * (time.perf_counter() - t0) / reps
+    result["rotate_ms_per_frame"] = {"bands": args.bands, "ms": rot_ms}
+    print(f"environment rotation per frame (sh.rotate, {args.bands} bands, matrix rebuilt): "
+          f"{rot_ms:.3f} ms")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.out}")

@@ -181,6 +181,9 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
     compare.json data.
     """
     opt = options or CompareOptions()
+    for name in ("spp", "bands", "strata", "lights", "width", "height"):
+        if int(getattr(opt, name)) < 1:
+            raise PrtError(f"compare: {name} must be ≥ 1, got {getattr(opt, name)!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     timer = StageTimer(quiet=quiet)
@@ -189,6 +192,13 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
         spec = floor_object.SPEC if spec is None else spec
         key_light = floor_object.key_light() if key_light is None else key_light
     bake_spec = spec if isinstance(spec, BakeSpec) else parse_spec(spec or {})
+    if opt.bands > 16:
+        raise PrtError(f"compare: bands must be ≤ 16 (the sh_prt spec's limit), got {opt.bands}")
+    if key_light is None and not (bake_spec.lights.holdout > 0 and any(
+            f.type == "directional" for f in bake_spec.lights.families)):
+        raise PrtError("compare: no held-out directional light (classic SH-PRT takes distant "
+                       "light only): give the spec a directional family in lights.families "
+                       "and lights.holdout > 0")
     camera = camera or default_camera(opt.width, opt.height)
 
     # 1. data-driven: the project's bake
@@ -231,6 +241,10 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
     lights: list[Light] = ([key_light] if key_light is not None else []) + [
         lt for lt in hold if lt.type == "directional"]
     lights = lights[:opt.lights]
+    if not lights:
+        raise PrtError("compare: no held-out directional light (classic SH-PRT takes distant "
+                       "light only): give the spec a directional family in lights.families "
+                       "and lights.holdout > 0")
 
     # camera hits, shared by every method
     origins, dirs = camera.primary_rays()

@@ -11,7 +11,7 @@ import pytest
 from prtcore.core.errors import AssetError, LimitExceeded, UnsupportedAsset
 from prtcore.core.hair import make_hair
 from prtcore.core.limits import IntakeLimits
-from prtcore.io.hair import is_hair_file, load_hair, read_hair, write_hair
+from prtcore.io.hair import is_hair_file, load_hair, read_hair, write_hair, write_usd_hair
 from prtcore.io.hair.yuksel import HEADER
 from prtcore.scenes.hair import hairball
 
@@ -210,3 +210,13 @@ def test_usd_unreadable_and_empty(tmp_path):
         load_hair(bad)
     with pytest.raises(AssetError, match="no BasisCurves"):
         load_hair(_usda(tmp_path, 'def Xform "x" {}', name="e.usda"))
+
+
+@pytest.mark.parametrize("suffix", [".usda", ".usdc"])
+def test_usd_round_trip(tmp_path, suffix):
+    h = hairball(strands=200, seed=5)
+    back = load_hair(write_usd_hair(tmp_path / f"ball{suffix}", h))
+    np.testing.assert_array_equal(back.offsets, h.offsets)
+    np.testing.assert_allclose(back.points, h.points, atol=1e-7)
+    np.testing.assert_allclose(back.thickness, h.thickness, rtol=1e-6)
+    np.testing.assert_allclose(back.color, h.color, rtol=1e-6)

@@ -73,9 +73,12 @@ from prtcore.transport.direct import direct_radiance
 
 #: rays per intersect call of the fibre gather
 FIBRE_BATCH = 1 << 18
-#: Memory of the fibre gather (bytes): per texel and gather ray (the (row, column) pairs
-#: before they are summed into CSR, and the CSR), and per ray in flight.
-MEM_PER_TEXEL_RAY = 24
+#: Memory of the fibre gather (bytes): per texel and gather ray (the ray origins, normals,
+#: axis points and azimuths of :meth:`StrandSpace.surface_samples`, 80; the (row, column,
+#: azimuth) triples before they are summed into CSR, and the CSR matrices, 24), and per
+#: ray in flight. With it the 10k-strand hairball bake at K = 144 is estimated at
+#: 2.6 GiB; benchmarks/hair_bake.py measured a 2.22 GiB peak.
+MEM_PER_TEXEL_RAY = 104
 MEM_PER_RAY_IN_FLIGHT = 200
 #: Memory of the fibre tubes per polyline segment (bytes): prtcore's float64 vertices,
 #: faces and face normals plus Embree's copies and BVH, measured at 10k strands × 16

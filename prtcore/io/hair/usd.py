@@ -211,3 +211,25 @@ def _per_vertex(file: str, where: str, raw, interpolation: str, counts: np.ndarr
                              range(channels)], axis=1))
         start += s + 1
     return np.concatenate(out)
+
+
+def write_usd_hair(path: str | Path, hair: Hair, prim: str = "/Hair") -> Path:
+    """Write ``hair`` as one linear ``BasisCurves`` prim (metres, +Y up; widths and
+    ``displayColor`` per vertex) to a ``.usda`` / ``.usdc`` / ``.usd`` file."""
+    Usd, UsdGeom = _pxr()
+    from pxr import Gf, Sdf, Vt
+
+    path = Path(path)
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    curves = UsdGeom.BasisCurves.Define(stage, Sdf.Path(prim))
+    curves.CreateTypeAttr(UsdGeom.Tokens.linear)
+    curves.CreateCurveVertexCountsAttr(Vt.IntArray([int(c) for c in np.diff(hair.offsets)]))
+    curves.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, p)) for p in hair.points]))
+    curves.CreateWidthsAttr(Vt.FloatArray([float(w) for w in hair.thickness]))
+    curves.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+    color = curves.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
+    color.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, c)) for c in hair.color]))
+    stage.GetRootLayer().Save()
+    return path
