@@ -220,3 +220,15 @@ def test_usd_round_trip(tmp_path, suffix):
     np.testing.assert_allclose(back.points, h.points, atol=1e-7)
     np.testing.assert_allclose(back.thickness, h.thickness, rtol=1e-6)
     np.testing.assert_allclose(back.color, h.color, rtol=1e-6)
+
+
+def test_usd_layers_that_compose_other_files_are_refused(tmp_path):
+    """USD would open a sublayer or reference from anywhere on disk: refused first."""
+    _usda(tmp_path, LINEAR, name="inner.usda")
+    outer = _usda(tmp_path, 'def "x" (references = @./inner.usda@) {}', name="outer.usda")
+    with pytest.raises(UnsupportedAsset, match=r"outer\.usda: the layer composes other files"):
+        load_hair(outer)
+    sub = tmp_path / "sub.usda"
+    sub.write_text('#usda 1.0\n(\n    subLayers = [@/etc/passwd@]\n)\n')
+    with pytest.raises(UnsupportedAsset, match="composes other files"):
+        load_hair(sub)

@@ -15,9 +15,13 @@ Transfer is shadowed (T⁰) and, with ``bounce``, one-bounce inter-reflected (T�
 poster's T₁ computed from the stored T₀ (interpolated from the vertices, or looked up in
 the dilated texture at the bounce's hit point).
 
-:func:`bake_sh_prt` is the library entry point (``prtcore compare`` uses it);
-:mod:`prtcore.io.transfer_textures` the file format, and :func:`memory_table` the poster's
-Table 1 for one asset.
+:func:`bake_sh_prt` is the library entry point; :class:`ShPrtMethod` the registered
+method (``"method": {"name": "sh_prt"}``, section ``sh_prt`` of the spec) that writes a
+bundle; :mod:`prtcore.io.transfer_textures` the file format; :func:`memory_table` the
+poster's Table 1 for one asset. Glossy Phong: :func:`glossy_tp` (the poster's TP: stored
+visibility × light by the triple product) and :func:`glossy_tpfl` (TPFL: stored L·V for a
+fixed light), with :func:`evaluate_vertex` / :func:`evaluate_texture` the CPU equivalents
+of the GL variants (:mod:`prtcore.runtime.sh_gl`).
 """
 
 from __future__ import annotations
