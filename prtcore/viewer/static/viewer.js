@@ -248,7 +248,7 @@ async function main() {
         for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
         peak = Math.max(peak, 1);
       }
-      view.u_gamma.value = 0;
+      view.u_gamma.value = -1;  // a basis element is signed: shown unclamped
       view.u_elementScale.value = elementScale(state.element);
     } else {
       weights.image.data.set(c.w);
