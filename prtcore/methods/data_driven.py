@@ -79,8 +79,9 @@ class DataDriven(Method):
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
             with timer.stage("denoise"):
-                I = _denoised(texels, I, spec.fit.denoise)
-                Ih = _denoised(texels, Ih, spec.fit.denoise)
+                W = smoothing_operator(texels, radius=spec.fit.denoise)  # built once
+                I = _denoised(texels, I, W)
+                Ih = _denoised(texels, Ih, W)
             reference += f", denoised (radius {spec.fit.denoise:g} texels)"
         holdout = (Dh, Ih) if len(inputs.hold) else None
         per_group = kfs is not None and kfs.transfer == "per_keyframe"
@@ -245,10 +246,10 @@ class DataDriven(Method):
                    directory / "report_atlas.png")
 
 
-def _denoised(texels, I, radius: float, block: int = 16) -> np.ndarray:
-    """The training lightmaps I (T, K, 3) through the seam-aware filter of ``radius``
-    texels (receivers/smoothing.py), ``block`` configurations at a time: (T, K, 3) float32."""
-    W = smoothing_operator(texels, radius=radius)
+def _denoised(texels, I, W, block: int = 16) -> np.ndarray:
+    """The lightmaps I (T, K, 3) through the seam-aware filter W
+    (:func:`prtcore.receivers.smoothing.smoothing_operator`), ``block`` configurations at a
+    time: (T, K, 3) float32."""
     out = np.empty(I.shape, dtype=np.float32)
     for k0 in range(0, I.shape[1], block):
         out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
