@@ -194,20 +194,30 @@ def child_bake(args) -> int:
 
     spec = make_spec(args.child_bake, args.lights, args.holdout, args.points,
                      gather_rays=args.gather_rays)
+    cpu_stage: dict[str, float] = {}
+    started: dict[str, float] = {}
+
+    def on_progress(stage: str, fraction: float) -> None:  # CPU seconds per stage
+        if fraction == 0.0 and stage not in started:
+            started[stage] = time.process_time()
+        elif fraction == 1.0 and stage in started:
+            cpu_stage[stage] = time.process_time() - started[stage]
+
     rays: list = []
     if args.record_calls:
         record_direct_rays(args.record_calls, rays)
     with tempfile.TemporaryDirectory() as tmp:
         t0, c0 = time.perf_counter(), time.process_time()
         out = bake(ROOT / "examples" / "cornell_box.glb", spec, Path(tmp) / "bundle",
-                   quiet=True, force=True)
+                   quiet=True, force=True, callback=on_progress)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         report = json.loads((out / "report.json").read_text())
         manifest = json.loads((out / "manifest.json").read_text())
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     tr = report["transport"]
     result = {"resolution": args.child_bake, "seconds": manifest["timings"], "total": wall,
-              "cpu_seconds": cpu, "peak_rss_bytes": peak, "texels": tr["texels"],
+              "cpu_seconds": cpu, "cpu_stage_seconds": cpu_stage, "peak_rss_bytes": peak,
+              "texels": tr["texels"],
               "rays": tr["rays"], "solve": {k: v for k, v in tr["solve"].items()
                                             if k != "blocks"},
               "table": [{k: r[k] for k in ("n", "heldout_rmse_mean", "projection_bound_mean")}
@@ -319,13 +329,24 @@ def report(result: dict, before: dict | None, args) -> None:
           f"{result['machine']['load_average_at_start'][0]:.1f} at start, "
           f"{result['machine']['load_average_at_end'][0]:.1f} at end "
           f"({result['machine']['cpus']} CPUs)")
-    print(f"  {'stage':<18s} {'after':>9s}" + (f" {'before':>9s} {'ratio':>6s}" if b else ""))
+    print(f"  {'stage':<18s} {'wall':>9s} {'CPU':>8s}" + (
+        f"   before: {'wall':>8s} {'CPU':>8s}  CPU ratio" if b else ""))
     rows = [*small["seconds"].items(), ("whole bake", small["total"])]
+
+    def cpu(run, name):
+        return run.get("cpu_seconds") if name == "whole bake" else \
+            run.get("cpu_stage_seconds", {}).get(name)
+
+    def fmt(v):
+        return f"{v:7.2f}s" if v is not None else f"{'—':>8s}"
+
     for name, sec in rows:
-        line = f"  {name:<18s} {sec:8.2f}s"
+        line = f"  {name:<18s} {sec:8.2f}s {fmt(cpu(small, name))}"
         if b:
             old = b["total"] if name == "whole bake" else b["seconds"].get(name)
-            line += (f" {old:8.2f}s {old / max(sec, 1e-9):5.1f}×" if old is not None else "")
+            c_new, c_old = cpu(small, name), cpu(b, name)
+            ratio = f"{c_old / c_new:8.1f}×" if c_new and c_old else ""
+            line += f"           {fmt(old)} {fmt(c_old)} {ratio}"
         print(line)
     print(f"  whole bake CPU time {small['cpu_seconds']:.1f} s (all threads); peak RSS "
           f"{small['peak_rss_bytes'] / 2**30:.2f} GiB")
