@@ -99,11 +99,22 @@ def reference_equivalence(args, spec, res_high_texels: int, log) -> dict:
             break
     log(f"reference equivalence at {args.low_resolution}²: {texels.count} texels, "
         f"{len(configs)} configurations, high-spp reference {args.ref_spp_high} spp …")
+    out = equal_accuracy(scene, texels, points, tracer, configs, spec.transport, args)
+    out["reference_seconds_one_configuration_at_full_resolution"] = \
+        out["spp_star"] * res_high_texels * out["seconds_per_path"]
+    return out
+
+
+def equal_accuracy(scene, texels, points, tracer: RayTracer, configs, transport, args
+                   ) -> dict:
+    """The fast transport's noise-corrected error against a high-spp reference, the
+    reference's error at ``args.ref_spp`` levels fitted as c/√spp, the spp at which it
+    equals the fast path's, and the reference's time per path (one configuration)."""
     t0 = time.perf_counter()
     hi, hi_err = reference_lightmaps(scene, texels, [[c] for c in configs],
                                      spp=args.ref_spp_high, seed=1, tracer=tracer)
     t_hi = time.perf_counter() - t0
-    ds = bake_dataset(scene, texels, points, configs, (), spec.transport, tracer=tracer)
+    ds = bake_dataset(scene, texels, points, configs, (), transport, tracer=tracer)
     fast_err = [rel_rmse(ds.indirect[:, k].astype(np.float64), hi[k], hi_err[k])
                 for k in range(len(configs))]
     fast_bias = [float(ds.indirect[:, k].mean() / hi[k].mean() - 1)
@@ -136,9 +147,19 @@ def reference_equivalence(args, spec, res_high_texels: int, log) -> dict:
         "reference_rel_rmse_by_spp": {str(k): v for k, v in levels.items()},
         "reference_c": c, "spp_at_equal_error": spp_equal, "spp_star": spp_star,
         "seconds_per_path": per_path,
-        "reference_seconds_one_configuration_at_full_resolution":
-            spp_star * res_high_texels * per_path,
     }
+
+
+def add_equal_accuracy_args(ap: argparse.ArgumentParser, ref_spp_high: int,
+                            ref_spp_timing: int) -> None:
+    """The options of :func:`equal_accuracy` (and --skip-reference)."""
+    ap.add_argument("--low-resolution", type=int, default=64)
+    ap.add_argument("--configs", type=int, default=3)
+    ap.add_argument("--ref-spp-high", type=int, default=ref_spp_high)
+    ap.add_argument("--ref-spp", type=lambda s: [int(x) for x in s.split(",")],
+                    default=[16, 64, 256])
+    ap.add_argument("--ref-spp-timing", type=int, default=ref_spp_timing)
+    ap.add_argument("--skip-reference", action="store_true")
 
 
 def record_direct_rays(calls: int, store: list) -> None:
@@ -266,13 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--record-calls", type=int, default=16,
                     help="occlusion queries of the direct-texels stage replayed through raw "
                          "embreex (two per light at 512²)")
-    ap.add_argument("--low-resolution", type=int, default=64)
-    ap.add_argument("--configs", type=int, default=3)
-    ap.add_argument("--ref-spp-high", type=int, default=4096)
-    ap.add_argument("--ref-spp", type=lambda s: [int(x) for x in s.split(",")],
-                    default=[16, 64, 256])
-    ap.add_argument("--ref-spp-timing", type=int, default=64)
-    ap.add_argument("--skip-reference", action="store_true")
+    add_equal_accuracy_args(ap, ref_spp_high=4096, ref_spp_timing=64)
     ap.add_argument("--before", type=Path, help="an earlier run's JSON: before/after columns")
     ap.add_argument("--child-bake", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" /

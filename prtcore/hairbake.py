@@ -26,20 +26,21 @@ from typing import Any
 
 import numpy as np
 
-from prtcore.core.errors import SpecError
+from prtcore.core.errors import LimitExceeded, SpecError
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
 from prtcore.core.spec import BakeSpec, spec_hash, spec_to_dict
 from prtcore.emitters.families import sample_configurations
 from prtcore.intake.hair import hair_scene
+from prtcore.intake.plan import fixed_counts
 from prtcore.intake.points import MeasurementPoints, place_measurement_points
 from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
 from prtcore.io.hair import load_hair, write_hair
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
-from prtcore.transport.fibre import hair_tracer
+from prtcore.transport.fibre import MEM_PER_FIBRE_SEGMENT, hair_tracer
 from prtcore.transport.hair import bake_hair_dataset
 
 METHOD = "data_driven"
@@ -83,6 +84,7 @@ def hair_spec(spec: BakeSpec) -> BakeSpec:
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
+    spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
@@ -110,12 +112,11 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                       limit_bytes: int) -> int:
     """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
     with the fibre operator, plus the first bounce's harmonics: two more (T, K, 3)
-    float32) against ``limit_bytes``; returns the estimate."""
-    from prtcore.core.errors import LimitExceeded
-
+    float32, plus the fibre tubes) against ``limit_bytes``; returns the estimate."""
     k = spec.lights.count + spec.lights.holdout
+    segments = space.hair.point_count - space.hair.strand_count
     est = estimate_bake_bytes(space.count, k, spec.transport, ("fibre",)) \
-        + 2 * space.count * k * 12
+        + 2 * space.count * k * 12 + segments * MEM_PER_FIBRE_SEGMENT
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",

@@ -24,8 +24,10 @@ from browser import launch, viewer_bundle, wait_ready
 from golden_images import check_golden
 from PIL import Image
 
+from prtcore import pipeline
 from prtcore.cli import main
 from prtcore.core.raytrace import RayTracer
+from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import light_from_dict
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
@@ -61,7 +63,7 @@ def viewer(bundle, browser):
     uncaught exceptions for the whole module."""
     log: list[str] = []
     with ViewerServer(bundle, quiet=True).start() as server:
-        page = browser.new_page(viewport={"width": 640, "height": 400})
+        page = browser.new_page(viewport={"width": 640, "height": 440})
         page.on("console", lambda m: m.type == "error" and log.append(f"console: {m.text}"))
         page.on("pageerror", lambda e: log.append(f"pageerror: {e}"))
         page.goto(server.url)
@@ -183,6 +185,28 @@ def test_every_mode_draws(viewer, mode):
     page.evaluate("o => prt.set(o)", {"mode": "full"})
 
 
+def test_light_form_relights(viewer):
+    """The light's form fields drive the light pass: doubling the intensity doubles x and u
+    (no gamma in this bundle), a pure red colour leaves no green or blue direct light, and
+    the reset button brings back the start light."""
+    page, _ = viewer
+    r1 = _set_light(page, LIGHT)
+    page.fill("#light-intensity", str(2 * LIGHT["intensity"]))
+    page.dispatch_event("#light-intensity", "change")
+    x1, x2 = np.asarray(r1["x"]), np.asarray(page.evaluate("prt.x"))
+    u1, u2 = np.asarray(r1["u"]), np.asarray(page.evaluate("prt.u"))
+    np.testing.assert_allclose(x2, 2 * x1, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(u2, 2 * u1, rtol=1e-5, atol=1e-9 * np.abs(u1).max())
+    page.fill("#light-color", "#ff0000")
+    page.dispatch_event("#light-color", "change")
+    x = np.asarray(page.evaluate("prt.x")).reshape(-1, 3)
+    assert x[:, 0].max() > 0 and not x[:, 1:].any()
+    page.click("#reset")
+    start = np.asarray(page.evaluate("prt.x"))
+    assert not np.allclose(start, x.ravel())
+    _set_light(page, LIGHT)
+
+
 def test_out_of_family_badge(viewer):
     """A light far outside the box: the badge names it, with the measure."""
     page, _ = viewer
@@ -212,6 +236,37 @@ def test_golden_viewer_cornell(viewer, bundle):
     check_golden("viewer_cornell", rgb8)
 
 
+def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, tmp_path):
+    """`prtcore view DIR --reference REF.exr --light L.json`: the page starts with the
+    reference's light, reports the indirect lightmap's relative RMS error against the
+    reference as numpy computes it from `prtcore relight` and the same EXR (to 1e-5), and
+    its heat-map mode draws. (The error includes the reference's Monte Carlo noise.)"""
+    (tmp_path / "light.json").write_text(json.dumps(LIGHT))
+    ref = tmp_path / "reference.exr"
+    assert main(["reference", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                 str(ref), "--spp", "16", "-q"]) == 0
+    want = read_image(ref)
+    _, relight_image = relit
+    cov = want[:, :, 3] > 0
+    err = np.sqrt(((relight_image[cov, :3] - want[cov, :3]) ** 2).sum()
+                  / (want[cov, :3] ** 2).sum())
+    errors: list[str] = []
+    with ViewerServer(bundle, quiet=True, reference=ref,
+                      reference_light=tmp_path / "light.json").start() as server:
+        page = browser.new_page()
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url)
+        wait_ready(page)
+        assert abs(page.evaluate("prt.referenceError") - err) <= 1e-5
+        assert "indirect vs path-traced reference" in page.text_content("#stats")
+        page.evaluate("o => prt.set(o)", {"mode": "error"})
+        img = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert(
+            "RGB"))
+        assert img.reshape(-1, 3).std(axis=0).max() > 5
+        page.close()
+    assert errors == []
+
+
 def test_no_webgl2_says_so(browser, bundle):
     """Without WebGL2 the page says so plainly, and throws nothing."""
     errors: list[str] = []
@@ -229,6 +284,73 @@ def test_no_webgl2_says_so(browser, bundle):
         assert "needs WebGL2" in page.text_content("#message")
         page.close()
     assert errors == []
+
+
+@pytest.fixture(scope="module")
+def keyframe_page(browser, tmp_path_factory):
+    """(page, bundle): a keyframe bundle (the bending column of tests/keyframe_assets.py, one
+    transfer per keyframe, half basis) in its own page of the module's browser."""
+    from keyframe_assets import bending_column_asset
+    from test_keyframes import KF_SPEC
+
+    d = tmp_path_factory.mktemp("keyframes")
+    spec = json.loads(json.dumps(KF_SPEC))
+    spec["keyframes"]["transfer"] = "per_keyframe"
+    spec["output"] = {"dtype": "half"}
+    bundle = pipeline.bake(bending_column_asset(d / "column.glb"), parse_spec(spec),
+                           d / "bundle", quiet=True)
+    log: list[str] = []
+    with ViewerServer(bundle, quiet=True).start() as server:
+        page = browser.new_page()
+        page.on("console", lambda m: m.type == "error" and log.append(m.text))
+        page.on("pageerror", lambda e: log.append(str(e)))
+        page.goto(server.url)
+        wait_ready(page)
+        yield page, bundle
+        page.close()
+    assert log == []
+
+
+def test_keyframe_time_slider_matches_relight_at_that_time(keyframe_page, tmp_path):
+    """The time slider poses the keyframe (vertices, clusters, points) and picks its
+    transfer: the indirect lightmap at keyframes 0 and 2 equals `prtcore relight --time` at
+    those keyframes' times (relative RMSE ≤ 1e-3), and the two keyframes differ. The light
+    is one at which no measurement point of either keyframe sits on a shadow-map edge (see
+    the next test for one that does)."""
+    page, bundle = keyframe_page
+    times = read_manifest(bundle)["keyframes"]["times"]
+    assert page.evaluate("prt.bundle.keyframes") == len(times) == 3
+    light = {"type": "point", "intensity": 2.0, "position": [0.9, 2.0, -0.5]}
+    (tmp_path / "light.json").write_text(json.dumps(light))
+    got = {}
+    for k in (0, 2):
+        page.evaluate("o => prt.set(o)", {"time": k})
+        _set_light(page, light)
+        assert main(["relight", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                     str(tmp_path / f"{k}.exr"), "--time", str(times[k])]) == 0
+        want = read_image(tmp_path / f"{k}.exr")
+        got[k] = np.asarray(page.evaluate("prt.atlas()"), np.float32).reshape(want.shape)
+        cov = want[:, :, 3] > 0
+        err = np.sqrt(((got[k][cov, :3] - want[cov, :3]) ** 2).mean()
+                      / (want[cov, :3] ** 2).mean())
+        assert err <= 1e-3, (k, err)
+    assert np.abs(got[0] - got[2]).max() > 1e-3 * np.abs(got[0]).max()
+
+
+def test_keyframe_direct_vector_is_the_gl_runtimes(keyframe_page):
+    """Where a measurement point sits on a shadow-map edge, shadow maps and the CPU
+    runtime's shadow rays disagree about it (here point 30 of keyframe 0: lit for the ray
+    tracer, shadowed for the maps); the page then agrees with the GL runtime of `prtcore
+    render` (same shadow-map algorithm, resolution 512), to 1e-5."""
+    from prtcore.runtime.gl import BundleRenderer
+
+    page, bundle = keyframe_page
+    light = {"type": "point", "intensity": 2.0, "position": [0.4, 1.8, 0.3]}
+    page.evaluate("o => prt.set(o)", {"time": 0})
+    x = np.asarray(_set_light(page, light)["x"]).reshape(-1, 3)
+    with BundleRenderer(bundle, shadow_resolution=512, time=0.0) as r:
+        want, _ = r.shade_points([light_from_dict(light)])
+    assert np.linalg.norm(x - want) <= 1e-5 * np.linalg.norm(want)
 
 
 def test_no_console_errors(viewer):

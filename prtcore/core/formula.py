@@ -18,3 +18,12 @@ RUNTIME_FORMULA = (
     "rgb element i channel c -> u_c,i*e_c; colour = sum_j plane_j * w_j; "
     "with gamma: colour = max(colour, 0)^gamma"
 )
+
+#: The clause a bundle with a learnt transfer (``fit.transfer: "mlp"``) adds
+#: (``manifest.runtime.learnt``); the network is ``manifest.transfer.learnt``
+#: (:mod:`prtcore.core.mlp`, ``prtcore.runtime.cpu.plane_weights``, ``learnt.glsl``).
+LEARNT_FORMULA = (
+    "before the plane weights: u_c += s * r_c, r = mlp(x'/s) with x'/s flattened "
+    "channel-major (index c*P + p; r = 0 when s = 0); mlp: h = leaky_relu(W_j h + b_j) "
+    "(slope) for every layer but the last, r = W_L h + b_L, r laid out c*(n-1) + i"
+)

@@ -230,10 +230,12 @@ def sky_lightmap(scene: Scene, texels: TexelSpace, result: ShPrtResult) -> np.nd
 
 @dataclass(frozen=True, eq=False)
 class ShPrtBake:
-    """The method's result: the SH-PRT bake and its preview lightmap (t, 3)."""
+    """The method's result: the SH-PRT bake, its preview lightmap (t, 3) at the covered
+    texels and the same as a dilated atlas image (H, W, 4), A = coverage."""
 
     bake: ShPrtResult
     preview: np.ndarray
+    preview_image: np.ndarray
     spec: object
 
 
@@ -255,7 +257,7 @@ class ShPrtMethod(Method):
                                spec.seed, bounce=spec.bounce, texels=texels)
         with timer.stage("report"):
             preview = sky_lightmap(scene, texels, bake)
-        return ShPrtBake(bake, preview, spec)
+        return ShPrtBake(bake, preview, texels.to_image(preview), spec)
 
     def write(self, directory: Path, inputs: BakeInputs, result: ShPrtBake
               ) -> tuple[dict, dict]:
@@ -275,8 +277,7 @@ class ShPrtMethod(Method):
             section["vertex_transfer"] = raw_file(directory / "sh_vertex_transfer.bin",
                                                   bake.transfer.coeffs.astype(np.float32))
             section["layout"] = "vertex_transfer[v, c, i]: vertex v of asset.glb, channel c"
-        img = texels.to_image(result.preview)
-        write_exr(directory / "coverage.exr", img[:, :, -1:], dtype="half",
+        write_exr(directory / "coverage.exr", result.preview_image[:, :, -1:], dtype="half",
                   channel_names=("Y",))
         memory = memory_table(len(inputs.intake.scene.positions), (texels.width,),
                               (bake.bands,))
@@ -305,14 +306,9 @@ class ShPrtMethod(Method):
         return result
 
     def plot(self, result: ShPrtBake, path: Path) -> None:
-        """report.png: the preview (uniform white sky) over the atlas, tone-mapped."""
-        b = result.bake
-        if b.storage == "texture":
-            rgb = np.einsum("hwcl,lc->hwc", b.image.astype(np.float64),
-                            _uniform_sky(b.bands))
-        else:
-            return  # vertex storage: the preview lives on the texels (report.json)
-        write_png(path, (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
+        """report.png: the preview (uniform white sky of radiance 1) over the atlas."""
+        rgb = np.clip(result.preview_image[:, :, :3], 0.0, 1.0)
+        write_png(path, (rgb ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
 
 
 def relight_bundle(bundle: Path, manifest: dict, lighting) -> np.ndarray:

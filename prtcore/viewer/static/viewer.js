@@ -3,14 +3,18 @@
 // Test hook: window.prt (ready, error, x, u, s, pixel(), atlas(), setLight(), setView(),
 // set()), used by tests/test_viewer.py.
 import * as THREE from 'three';
+import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { TransformControls } from 'three/addons/controls/TransformControls.js';
 import {
   LIGHTS_GLSL, LightPass, coefficients, familyResidual, loadBundle, normaliseLight,
+  poseKeyframe,
 } from './runtime.js';
 
 const MODES = { full: 0, direct: 1, indirect: 2, albedo: 3, element: 4, points: 0, checker: 6,
-                uv: 7 };
+                uv: 7, error: 8 };
+// Heat map: relative error |indirect - reference| / mean reference, red at this value.
+const ERROR_FULL_SCALE = 0.5;
 const TONEMAPS = { aces: 0, reinhard: 1, linear: 2 };
 const $ = (id) => document.getElementById(id);
 const prt = { ready: false, error: null, frames: 0 };
@@ -87,9 +91,19 @@ uniform sampler2D u_map;
 uniform int u_mode;          // MODES of viewer.js
 uniform float u_elementScale;
 uniform vec2 u_atlasSize;
+uniform highp sampler2D u_reference;  // path-traced indirect lightmap (mode 8)
+uniform float u_referenceScale;       // 1 / (mean reference radiance * full scale)
 in vec3 v_pos; in vec3 v_nrm; in vec2 v_uv0; in vec2 v_uv1;
 out vec4 f_color;
 void main() {
+  if (u_mode == 8) {  // per-texel error heat map: blue 0, green, red at full scale
+    vec3 ref = texture(u_reference, atlas_uv(v_uv1)).rgb;
+    float e = length(indirect_at(v_uv1) - ref) / sqrt(3.0) * u_referenceScale;
+    if (u_output == 0) { f_color = vec4(vec3(e), 1.0); return; }
+    float t = clamp(e, 0.0, 1.0);
+    f_color = vec4(srgb(vec3(smoothstep(0.5, 1.0, t), 1.0 - abs(2.0 * t - 1.0), 1.0 - smoothstep(0.0, 0.5, t))), 1.0);
+    return;
+  }
   if (u_mode == 7) { f_color = display(indirect_at(v_uv1)); return; }
   if (u_mode == 6) {  // texel density: one checker square per lightmap texel
     ivec2 t = ivec2(floor(atlas_uv(v_uv1) * u_atlasSize));
@@ -141,6 +155,41 @@ const POINTS_FS = `${HEADER}${BLEND_GLSL}
 in vec3 v_color; out vec4 f_color;
 void main() { vec2 d = gl_PointCoord - 0.5; if (dot(d, d) > 0.25) discard; f_color = display(v_color); }`;
 
+// A path-traced reference served with the bundle (prtcore view --reference): its indirect
+// lightmap (written top-down like the bundle's EXRs, so sampled like the basis), its light,
+// and its covered texels (A > 0) in image order with their mean radiance.
+async function loadReference(base, bundle) {
+  if (!base) return null;
+  const [texture, lights] = await Promise.all([
+    new EXRLoader().setDataType(THREE.FloatType).loadAsync(base + 'reference.exr'),
+    fetch(base + 'light.json').then((r) => { if (!r.ok) throw new Error(`${base}light.json: HTTP ${r.status}`); return r.json(); }),
+  ]);
+  const { width: W, height: H, data } = texture.image;
+  if (W !== bundle.W || H !== bundle.H) {
+    throw new Error(`reference.exr is ${W}×${H}, the atlas ${bundle.W}×${bundle.H}`);
+  }
+  texture.minFilter = texture.magFilter = THREE.NearestFilter;
+  const image = new Float32Array(4 * W * H);  // EXRLoader rows are bottom-up
+  for (let r = 0; r < H; r++) image.set(data.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+  let sum = 0, n = 0;
+  for (let i = 0; i < W * H; i++) {
+    if (image[4 * i + 3] > 0) { sum += (image[4 * i] + image[4 * i + 1] + image[4 * i + 2]) / 3; n++; }
+  }
+  return { texture, image, light: lights.lights ? lights.lights[0] : lights, mean: n ? sum / n : 1 };
+}
+
+// Relative RMS error of an indirect lightmap (H, W, 4; row 0 at the top) against the
+// reference over the reference's covered texels.
+function relativeError(atlas, reference) {
+  let num = 0, den = 0;
+  const ref = reference.image;
+  for (let i = 0; i < ref.length; i += 4) {
+    if (!(ref[i + 3] > 0)) continue;
+    for (let c = 0; c < 3; c++) { num += (atlas[i + c] - ref[i + c]) ** 2; den += ref[i + c] ** 2; }
+  }
+  return den > 0 ? Math.sqrt(num / den) : 0;
+}
+
 async function main() {
   const canvas = $('view');
   const gl = canvas.getContext('webgl2');
@@ -161,6 +210,9 @@ async function main() {
   renderer.autoClear = true;
   const bundle = await loadBundle(document.body.dataset.bundle);
   const m = bundle.manifest;
+  const reference = await loadReference(document.body.dataset.reference, bundle);
+  if (!reference) $('mode').querySelector('option[value=error]').remove();
+  poseKeyframe(bundle, 0);  // keyframe bundles: the first keyframe (as relight without --time)
   const pass = new LightPass(renderer, bundle);
   const weights = new THREE.DataTexture(new Float32Array(4 * bundle.planes), bundle.planes, 1,
                                         THREE.RGBAFormat, THREE.FloatType);
@@ -171,6 +223,8 @@ async function main() {
     u_flipV: { value: bundle.flipV ? 1 : 0 }, u_output: { value: 1 },
     u_exposure: { value: 0 }, u_tonemap: { value: 0 }, u_mode: { value: 0 },
     u_elementScale: { value: 1 }, u_eye: { value: new THREE.Vector3() },
+    u_reference: { value: reference ? reference.texture : null },
+    u_referenceScale: { value: reference ? 1 / (reference.mean * ERROR_FULL_SCALE) : 1 },
     u_atlasSize: { value: new THREE.Vector2(bundle.W, bundle.H) },
   };
   const defines = { N_LAYERS: bundle.layers };
@@ -197,14 +251,19 @@ async function main() {
     meshes.push(mesh);
   }
   // measurement points as dots, coloured by their direct light, lifted off the surface
-  const P = bundle.P, pp = new Float32Array(3 * P);
-  for (let p = 0; p < P; p++) {
-    for (let c = 0; c < 3; c++) {
-      pp[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
-    }
-  }
+  const P = bundle.P;
   const dotsGeometry = new THREE.BufferGeometry();
-  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(pp, 3));
+  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
+  function placeDots() {
+    const pp = dotsGeometry.attributes.position;
+    for (let p = 0; p < P; p++) {
+      for (let c = 0; c < 3; c++) {
+        pp.array[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
+      }
+    }
+    pp.needsUpdate = true;
+  }
+  placeDots();
   dotsGeometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
   const dots = new THREE.Points(dotsGeometry, new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3, defines, uniforms: view, vertexShader: POINTS_VS,
@@ -242,6 +301,19 @@ async function main() {
   atlasMesh.frustumCulled = false;
   atlasScene.add(atlasMesh);
 
+  // The indirect lightmap (H, W, 4) float32, row 0 at the top, A = coverage.
+  function readAtlas() {
+    renderer.setRenderTarget(atlasTarget);
+    renderer.render(atlasScene, uvCamera);
+    renderer.setRenderTarget(null);
+    const W = bundle.W, H = bundle.H, raw = new Float32Array(4 * W * H), out = new Float32Array(4 * W * H);
+    renderer.readRenderTargetPixels(atlasTarget, 0, 0, W, H, raw);
+    for (let r = 0; r < H; r++) {  // read-back rows come bottom first
+      out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+    }
+    return out;
+  }
+
   // camera and controls
   const camera = new THREE.PerspectiveCamera(40, 1, 1e-3 * bundle.radius, 20 * bundle.radius);
   const controls = new OrbitControls(camera, canvas);
@@ -255,7 +327,7 @@ async function main() {
   }
   // the light: a gizmo whose position and -Z axis are the light's
   const trainedTypes = [...new Set((m.spec?.lights?.families ?? []).map((f) => f.type))];
-  const start = bundle.holdoutLights[0] ?? { type: trainedTypes[0] ?? 'point', intensity: 1,
+  const start = reference?.light ?? bundle.holdoutLights[0] ?? { type: trainedTypes[0] ?? 'point', intensity: 1,
     position: [bundle.center.x, bundle.center.y + bundle.radius, bundle.center.z] };
   const lightObj = new THREE.Object3D();
   const marker = new THREE.Mesh(new THREE.SphereGeometry(0.03 * bundle.radius, 12, 8),
@@ -273,7 +345,7 @@ async function main() {
   gizmo.addEventListener('change', () => requestRender());
   controls.addEventListener('change', () => requestRender());
 
-  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0 };
+  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0, keyframe: 0 };
   let x = null;
 
   function placeGizmo(light) {
@@ -285,16 +357,19 @@ async function main() {
     lightObj.updateMatrixWorld(true);
     arrow.visible = light.type !== 'point';
   }
-  function lightFromGizmo() {
+  // The current light as a light-file object, placed where the gizmo is.
+  function lightDict() {
     const l = state.light;
     const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
-    applyLight({ type: l.type, color: state.color, intensity: state.intensity,
-      position: lightObj.position.toArray(), direction: dir.toArray(), range: l.range || undefined,
-      spot: state.spot }, false);
+    const pos = l.type === 'directional' ? l.position.toArray() : lightObj.position.toArray();
+    return { type: l.type, color: state.color, intensity: state.intensity, position: pos,
+      direction: dir.toArray(), range: l.range || undefined, spot: state.spot };
   }
+  function lightFromGizmo() { applyLight(lightDict(), false); }
   // Set the light: shadow maps, cluster pass, coefficients, badge; then a frame.
   function applyLight(dict, moveGizmo = true) {
     const light = normaliseLight(dict);
+    state.atReference = dict === reference?.light;
     state.light = light;
     state.color = dict.color ?? [1, 1, 1];
     state.intensity = dict.intensity ?? 1;
@@ -309,8 +384,11 @@ async function main() {
     colours.needsUpdate = true;
     if (moveGizmo) placeGizmo(light);
     badge(light);
+    if (reference) {
+      prt.referenceError = relativeError(readAtlas(), reference);
+    }
     $('light-type').value = light.type;
-    $('light-intensity').value = String(state.intensity);
+    $('light-intensity').value = String(+Number(state.intensity).toPrecision(4));
     $('light-color').value = '#' + new THREE.Color().setRGB(...state.color).getHexString();
     requestRender();
   }
@@ -396,12 +474,18 @@ async function main() {
     $('stats').textContent = `${bundle.P} points, ${bundle.clusterCount} supersamples, ` +
       `${state.basis}/${bundle.nBasis} basis elements\nlight pass ${prt.lightMs.toFixed(1)} ms, ` +
       `frame ${prt.frameMs.toFixed(1)} ms` +
-      (prt.familyResidual === null ? '' : `\nout-of-family measure ${(100 * prt.familyResidual).toFixed(1)} %`);
+      (prt.familyResidual === null ? '' : `\nout-of-family measure ${(100 * prt.familyResidual).toFixed(1)} %`) +
+      (reference ? `\nindirect vs path-traced reference: ${(100 * prt.referenceError).toFixed(1)} % ` +
+        (state.atReference ? '(its light)' : '(the light has moved: the heat map compares with the reference light\'s)') : '');
   }
 
   // controls
   const basis = $('basis');
   basis.max = String(bundle.nBasis);
+  if (bundle.keyframes) {  // keyframe bundles: a time slider over the keyframes
+    $('time-row').hidden = false;
+    $('time').max = String(bundle.keyframes.count - 1);
+  }
   basis.value = String(bundle.nBasis);
   $('element').max = String(bundle.nBasis - 1);
   const sync = () => {
@@ -413,21 +497,39 @@ async function main() {
     $('basis-out').textContent = basis.value;
     $('exposure-out').textContent = `${Number($('exposure').value) >= 0 ? '+' : ''}${$('exposure').value} EV`;
     gizmo.setMode($('gizmo').value);
+    const k = Number($('time').value) | 0;
+    if (bundle.keyframes) {
+      $('time-out').textContent = `${bundle.keyframes.times[k].toFixed(2)} s (${k + 1}/${bundle.keyframes.count})`;
+    }
+    if (bundle.keyframes && k !== state.keyframe) {  // pose, then the light pass again
+      state.keyframe = k;
+      poseKeyframe(bundle, k);
+      pass.updateClusters();
+      placeDots();
+      if (state.light) { applyLight(lightDict(), false); return; }
+    }
     updateCoefficients();
     requestRender();
   };
-  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo']) {
+  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo', 'time']) {
     $(id).addEventListener('input', sync);
   }
-  const relightFromForm = () => {
-    const c = new THREE.Color($('light-color').value);
-    const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
-    const type = $('light-type').value;
-    applyLight({ type, color: [c.r, c.g, c.b], intensity: Number($('light-intensity').value),
-      position: lightObj.position.toArray(), direction: dir.toArray(),
-      spot: type === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined },
-    false);
-    arrow.visible = type !== 'point';
+  // A field of the light's form changed: only that property of the light changes (the
+  // colour picker holds 8-bit sRGB; it is read only when it is the field that changed).
+  const relightFromForm = (e) => {
+    const d = lightDict(), v = e.target.value;
+    if (e.target.id === 'light-color') {
+      const c = new THREE.Color(v);
+      d.color = [c.r, c.g, c.b];
+    } else if (e.target.id === 'light-intensity') {
+      d.intensity = Number(v);
+    } else {
+      d.type = v;
+      d.position = lightObj.position.toArray();
+      d.spot = v === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined;
+    }
+    applyLight(d, false);
+    arrow.visible = d.type !== 'point';
   };
   for (const id of ['light-type', 'light-color', 'light-intensity']) {
     $(id).addEventListener('change', relightFromForm);
@@ -440,7 +542,7 @@ async function main() {
     type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: true });
   Object.assign(prt, {
     bundle: { P: bundle.P, nB: bundle.nB, nBasis: bundle.nBasis, W: bundle.W, H: bundle.H,
-              flipV: bundle.flipV },
+              flipV: bundle.flipV, keyframes: bundle.keyframes ? bundle.keyframes.count : 0 },
     setLight(dict) { applyLight(dict); renderNow(); return { x: prt.x, u: prt.u, s: prt.s }; },
     setView({ position, target, up = [0, 1, 0], fov_y_deg = 40 }) {
       camera.position.set(...position);
@@ -468,17 +570,7 @@ async function main() {
       return Array.from(out);
     },
     // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
-    atlas() {
-      renderer.setRenderTarget(atlasTarget);
-      renderer.render(atlasScene, uvCamera);
-      renderer.setRenderTarget(null);
-      const W = bundle.W, H = bundle.H, raw = new Float32Array(4 * W * H), out = new Array(4 * W * H);
-      renderer.readRenderTargetPixels(atlasTarget, 0, 0, W, H, raw);
-      for (let r = 0; r < H; r++) {  // read-back rows come bottom first
-        for (let i = 0; i < 4 * W; i++) out[4 * W * (H - 1 - r) + i] = raw[4 * W * r + i];
-      }
-      return out;
-    },
+    atlas() { return Array.from(readAtlas()); },
   });
 
   sync();
