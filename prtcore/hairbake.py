@@ -10,7 +10,9 @@ manifest's ``strands`` section, its image size to ``atlas``), the transport
 as baked, written by :func:`prtcore.io.hair.write_hair`).
 
 Not yet: a mesh baked together with the hair, keyframes, the path-traced validation
-(``validate.reference_spp``), ``measurement_points.placement`` other than the hull, and
+inside the bake (``validate.reference_spp``; ``prtcore report BUNDLE --reference-spp N``
+validates a hair bundle against :mod:`prtcore.reference.fibres`),
+``measurement_points.placement`` other than the hull, and
 ``fit.denoise`` (the seam-aware filter is for surfaces; strand texels are fitted as
 traced).
 """
@@ -78,9 +80,9 @@ def hair_spec(spec: BakeSpec) -> BakeSpec:
     if spec.keyframes.animation is not None:
         raise SpecError("keyframes.animation", "hair bakes are static (no keyframes yet)")
     if spec.validate.reference_spp > 0:
-        raise SpecError("validate.reference_spp", "the path-traced validation of hair "
-                        "bakes is not available yet (benchmarks/hair_accuracy.py checks "
-                        "the fibre transport against prtcore.reference.fibres)")
+        raise SpecError("validate.reference_spp", "a hair bake does not validate itself "
+                        "against the path tracer yet; run `prtcore report BUNDLE "
+                        "--reference-spp N` on its bundle")
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")

@@ -258,8 +258,8 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
 def intake_points(points: PointsSpec, sizing: Sizing) -> PointsSpec:
     """What the intake places: the plan's candidates when points are chosen after
     transport (blue noise on the surface for "qdeim"), else the P points themselves."""
-    placement = "surface" if sizing.placement == "qdeim" else sizing.placement
-    return dataclasses.replace(points, placement=placement, count=sizing.candidates)
+    return dataclasses.replace(points, placement=sizing.candidate_placement,
+                               count=sizing.candidates)
 
 
 def _select_points(intake: IntakeResult, data, n_train: int, timer: StageTimer):

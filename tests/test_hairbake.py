@@ -15,6 +15,7 @@ from prtcore.io.hair import read_hair, write_hair
 from prtcore.io.imageio import read_image
 from prtcore.pipeline import bake
 from prtcore.scenes.hair import tangle
+from prtcore.validate import validate_bundle
 
 SPEC = {"hair": {"texels_per_strand": 4, "albedo": [0.8, 0.6, 0.4]},
         "measurement_points": {"count": 32, "supersample": 2},
@@ -99,3 +100,11 @@ def test_render_draws_the_strands(bundle, light, tmp_path):
     np.testing.assert_allclose(images["full"][:, :, :3],
                                images["direct"][:, :, :3] + images["indirect"][:, :, :3],
                                rtol=1e-5, atol=1e-7)
+
+
+def test_report_validates_a_hair_bundle_against_the_fibre_path_tracer(bundle):
+    _, out = bundle
+    v = validate_bundle(out, spp=16, count=1)
+    assert v["reference"] == "path tracer, 16 spp" and v["lights"] == 1
+    row = next(r for r in v["rows"] if r["n"] == 8)
+    assert 0 < row["rmse_mean"] < 1 and row["rmse_noise_corrected_mean"] <= row["rmse_mean"]

@@ -16,7 +16,13 @@ from scenes import tiny_spec
 
 from prtcore import pipeline
 from prtcore.core.errors import PrtError, SpecError
-from prtcore.core.mlp import Mlp, forward, transfer_residual, transfer_rows
+from prtcore.core.mlp import (
+    Mlp,
+    forward,
+    positional_encoding,
+    transfer_residual,
+    transfer_rows,
+)
 from prtcore.core.spec import parse_spec
 from prtcore.fit.mlp import split
 from prtcore.fit.transfer import coefficients, fit_transfer, reconstruct64
@@ -88,6 +94,16 @@ def test_transfer_residual_layout_and_zero_light():
     assert not transfer_residual(net, np.zeros((P, 3))).any()
     sub = net.select_outputs(transfer_rows(nb, 2))
     np.testing.assert_allclose(transfer_residual(sub, x), (W @ xhat).reshape(3, nb)[:, :2])
+
+
+def test_positional_encoding_blocks():
+    """v, then sin(2^k π v) for k < F, then cos(2^k π v), each block as wide as v."""
+    v = np.array([[0.25, -0.5, 0.1]])
+    got = positional_encoding(v, 2)
+    want = [*v[0], *np.sin(np.pi * v[0]), *np.sin(2 * np.pi * v[0]),
+            *np.cos(np.pi * v[0]), *np.cos(2 * np.pi * v[0])]
+    np.testing.assert_allclose(got[0], want, rtol=1e-15)
+    assert positional_encoding(v, 0).shape == (1, 3)
 
 
 # ---------------------------------------------------------------------------------------

@@ -93,6 +93,19 @@ def forward(net: Mlp, x: np.ndarray) -> np.ndarray:
     return np.tanh(h) if net.output == "tanh" else h
 
 
+def positional_encoding(v: np.ndarray, frequencies: int) -> np.ndarray:
+    """(..., d) → (..., d·(1 + 2F)) float64: v, then sin(2^k π v) for k < F, then
+    cos(2^k π v) for k < F (each block d wide, k ascending) — the encoding the learnt SH
+    network reads its position and normal through (thesis 4.1.2)."""
+    v = np.asarray(v, dtype=np.float64)
+    if frequencies == 0:
+        return v
+    arg = v[..., None, :] * (np.pi * 2.0 ** np.arange(frequencies))[:, None]  # (..., F, d)
+    shape = (*v.shape[:-1], frequencies * v.shape[-1])
+    return np.concatenate([v, np.sin(arg).reshape(shape), np.cos(arg).reshape(shape)],
+                          axis=-1)
+
+
 def transfer_rows(n_b_all: int, n_b: int) -> np.ndarray:
     """Output rows ``[c][i]`` of a learnt transfer with n_b_all rows per channel that the
     first n_b elements use: (3 n_b,) intp."""

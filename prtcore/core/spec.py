@@ -205,6 +205,10 @@ class ShPrtSpec:
     strata: int = 16
     bounce: bool = True
     seed: int = 5
+    #: > 0: a glossy Phong layer (TP, texture storage): ρ_s of every material
+    specular: float = 0.0
+    #: its Phong exponent n
+    exponent: float = 8.0
 
 
 @dataclass(frozen=True)
@@ -616,7 +620,11 @@ def _parse(data: Any) -> BakeSpec:
         strata=_int(sp.get("strata", sd.strata), "sh_prt.strata", lo=1, hi=128),
         bounce=bounce,
         seed=_int(sp.get("seed", sd.seed), "sh_prt.seed", lo=0),
+        specular=_num(sp.get("specular", sd.specular), "sh_prt.specular", lo=0.0, hi=1.0),
+        exponent=_num(sp.get("exponent", sd.exponent), "sh_prt.exponent", lo=0.0, hi=1e4),
     )
+    if sh_prt.specular > 0 and sh_prt.storage != "texture":
+        raise SpecError("sh_prt.specular", "the glossy layer (TP) needs texture storage")
     if method.name == "sh_prt" and keyframes.animation is not None:
         raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
                         "animation is set)")

@@ -107,6 +107,12 @@ DOCS: dict[str, str] = {
     "sh_prt.bounce": "add one inter-reflection bounce computed from the stored shadowed "
                      "transfer (T⁰ + T¹)",
     "sh_prt.seed": "seed of the transfer rays",
+    "sh_prt.specular": "ρ_s of a glossy Phong layer on every material, 0–1 (0: diffuse "
+                       "only); > 0 stores visibility textures for the triple product (TP, "
+                       "texture storage only), drawn by `prtcore render`",
+    "sh_prt.exponent": "Phong exponent n of the glossy layer, 0–10000 (the lobe "
+                       "(n+1)/(2π)·cosⁿ about the mirror direction, band-limited to "
+                       "`bands`)",
     "material.subsurface": "the medium inside the material's closed mesh (below); null: "
                            "as the asset says (KHR_materials_volume, "
                            "KHR_materials_diffuse_transmission, KHR_materials_volume_scatter)",

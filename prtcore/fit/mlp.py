@@ -14,16 +14,17 @@ training configuration k the basis coefficients minus the ridge fitted without k
 in-sample residuals would not do: with P ≳ K the ridge nearly interpolates its training
 set and leaves the network nothing that generalises.
 
-**Training** (JAX + optax, float64, full batch, CPU; deterministic: same data + options →
-the same weights bit for bit on one machine). A seeded fifth of the configurations (at
-least :data:`MIN_VALIDATION`) is held back; AdamW runs up to ``steps`` steps on the rest
-and the step count with the lowest validation error is kept. Then the network is trained
-again from the same initial weights on all configurations for that many steps. When the
-count is 0 (no step helped: the LOO residuals are not predictable from x'/s with this
-data) no network ships; the model is the ridge's, with a warning. Inputs are centred and
-scaled, targets scaled, and both are folded into the first and last layer, so the shipped
-network reads x'/s and writes coefficients directly. The last layer starts at zero: step
-0 is exactly the ridge.
+**Training** (:func:`prtcore.fit.train.train_network`: JAX + optax, float64, full batch,
+CPU; deterministic: same data + options → the same weights bit for bit on one machine).
+A seeded fifth of the configurations (at least :data:`MIN_VALIDATION`) is held back;
+AdamW runs up to ``steps`` steps on the rest and the step count with the lowest
+validation error is kept. Then the network is trained again from the same initial
+weights on all configurations for that many steps. When the count is 0 (no step helped:
+the LOO residuals are not predictable from x'/s with this data) no network ships; the
+model is the ridge's, with a warning. Inputs are centred and scaled, targets scaled, and
+both are folded into the first and last layer, so the shipped network reads x'/s and
+writes coefficients directly. The last layer starts at zero: step 0 is exactly the
+ridge.
 
 Options (``fit.mlp_*`` in the spec, :data:`DEFAULTS`): ``width`` neurons per hidden layer,
 ``layers`` hidden layers, ``steps`` AdamW steps at most, ``seed``.
@@ -31,7 +32,6 @@ Options (``fit.mlp_*`` in the spec, :data:`DEFAULTS`): ``width`` neurons per hid
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -40,12 +40,12 @@ import numpy as np
 
 from prtcore.core.errors import PrtError
 from prtcore.core.mlp import LEAKY_SLOPE, Mlp, forward
-from prtcore.core.progress import bar
 from prtcore.core.spec import FitSpec
 from prtcore.fit.basis import SnapshotBasis
 from prtcore.fit.normalise import Normalised
 from prtcore.fit.regressor import TransferFit, TransferRegressor, register
 from prtcore.fit.ridge import RidgeRegressor, direct_svd, loo_residuals
+from prtcore.fit.train import train_network
 
 #: the options and their defaults (spec: fit.mlp_width, fit.mlp_layers, fit.mlp_steps,
 #: fit.seed)
@@ -55,11 +55,6 @@ VALIDATION_SHARE = 0.2
 #: fewest validation configurations; with fewer than twice as many configurations in
 #: all, the network is trained for ``steps`` steps without a validation choice
 MIN_VALIDATION = 4
-#: AdamW learning rate and decoupled weight decay
-LEARNING_RATE = 1e-3
-WEIGHT_DECAY = 1e-4
-#: the validation error is read every this many steps
-CHECK_EVERY = 10
 
 
 def mlp_options(options: Mapping[str, Any] | None) -> dict[str, int]:
@@ -150,15 +145,16 @@ def train_residual(X: np.ndarray, Y: np.ndarray, opts: Mapping[str, int]
     steps = opts["steps"]
     t0 = time.perf_counter()
     if len(val_idx):
-        _, curve = _train(X[fit_idx], Y[fit_idx], widths, steps, opts["seed"],
-                          (X[val_idx], Y[val_idx]), "mlp transfer (validation)")
+        _, curve = train_network(X[fit_idx], Y[fit_idx], widths, steps, opts["seed"],
+                                 val=(X[val_idx], Y[val_idx]),
+                                 desc="mlp transfer (validation)")
         best = int(np.argmin(curve[:, 1]))
         best_step = int(curve[best, 0])
         val_ridge, val_best = float(curve[0, 1]), float(curve[best, 1])
     else:
         curve, best_step, val_ridge, val_best = None, steps, None, None
-    net = None if best_step == 0 else _train(X, Y, widths, best_step, opts["seed"], None,
-                                             "mlp transfer")[0]
+    net = None if best_step == 0 else train_network(X, Y, widths, best_step, opts["seed"],
+                                                    desc="mlp transfer")[0]
     y_ss = float(np.sum(Y**2))
     fitted = np.zeros_like(Y) if net is None else forward(net, X)
     diag = {
@@ -174,77 +170,3 @@ def train_residual(X: np.ndarray, Y: np.ndarray, opts: Mapping[str, int]
         "seconds": time.perf_counter() - t0,
     }
     return net, diag
-
-
-def _train(X: np.ndarray, Y: np.ndarray, widths: tuple[int, ...], steps: int, seed: int,
-           val: tuple[np.ndarray, np.ndarray] | None, desc: str
-           ) -> tuple[Mlp, np.ndarray]:
-    """AdamW for ``steps`` full-batch steps from the seeded initial weights. Returns the
-    network (standardisation folded in) and, with ``val``, the validation curve
-    (checks, 2) float64 of (step, mean squared error), step 0 first."""
-    import jax
-    import jax.numpy as jnp
-    import optax
-
-    with jax.enable_x64(True):
-        mu = X.mean(axis=0)
-        sigma = float(np.sqrt(np.mean((X - mu) ** 2))) or 1.0
-        tau = float(np.sqrt(np.mean(Y**2))) or 1.0
-        xs, ys = jnp.asarray((X - mu) / sigma), jnp.asarray(Y / tau)
-        sizes = (X.shape[1], *widths, Y.shape[1])
-        keys = jax.random.split(jax.random.PRNGKey(seed), len(sizes) - 1)
-        params = []
-        for j, (n_in, n_out) in enumerate(itertools.pairwise(sizes)):
-            last = j == len(sizes) - 2
-            w = jnp.zeros((n_out, n_in)) if last else \
-                jax.random.normal(keys[j], (n_out, n_in), jnp.float64) * np.sqrt(2.0 / n_in)
-            params.append((w, jnp.zeros(n_out)))
-
-        def apply(p, x):
-            h = x
-            for j, (w, c) in enumerate(p):
-                h = h @ w.T + c
-                if j < len(p) - 1:
-                    h = jnp.where(h >= 0.0, h, LEAKY_SLOPE * h)
-            return h
-
-        @jax.jit
-        def loss(p, x, y):
-            return jnp.mean((apply(p, x) - y) ** 2)
-
-        opt = optax.adamw(LEARNING_RATE, weight_decay=WEIGHT_DECAY)
-
-        @jax.jit
-        def run(p, state, n):
-            def body(_, carry):
-                p, state = carry
-                g = jax.grad(loss)(p, xs, ys)
-                upd, state = opt.update(g, state, p)
-                return optax.apply_updates(p, upd), state
-            return jax.lax.fori_loop(0, n, body, (p, state))
-
-        state = opt.init(params)
-        curve = []
-        if val is not None:
-            xv, yv = jnp.asarray((val[0] - mu) / sigma), jnp.asarray(val[1] / tau)
-            curve.append((0, float(loss(params, xv, yv)) * tau**2))
-        done = 0
-        chunks = -(-steps // CHECK_EVERY)
-        progress = bar(range(chunks), desc, total=chunks)
-        for _ in progress:
-            n = min(CHECK_EVERY, steps - done)
-            params, state = run(params, state, n)
-            done += n
-            if val is not None:
-                curve.append((done, float(loss(params, xv, yv)) * tau**2))
-            if not getattr(progress, "disable", True):  # a bar is drawn: loss on it
-                shown = f"val {curve[-1][1]:.3g}" if val is not None else \
-                    f"loss {float(loss(params, xs, ys)) * tau**2:.3g}"
-                progress.set_postfix_str(shown, refresh=False)
-        weights = [np.asarray(w, np.float64) for w, _ in params]
-        biases = [np.asarray(c, np.float64) for _, c in params]
-    # fold the standardisation: first layer reads x, last layer writes y
-    biases[0] = biases[0] - weights[0] @ mu / sigma
-    weights[0] = weights[0] / sigma
-    weights[-1], biases[-1] = weights[-1] * tau, biases[-1] * tau
-    return Mlp(tuple(weights), tuple(biases), LEAKY_SLOPE, "linear"), np.asarray(curve)

@@ -15,9 +15,13 @@ Transfer is shadowed (T⁰) and, with ``bounce``, one-bounce inter-reflected (T�
 poster's T₁ computed from the stored T₀ (interpolated from the vertices, or looked up in
 the dilated texture at the bounce's hit point).
 
-:func:`bake_sh_prt` is the library entry point (``prtcore compare`` uses it);
-:mod:`prtcore.io.transfer_textures` the file format, and :func:`memory_table` the poster's
-Table 1 for one asset.
+:func:`bake_sh_prt` is the library entry point; :class:`ShPrtMethod` the registered
+method (``"method": {"name": "sh_prt"}``, section ``sh_prt`` of the spec) that writes a
+bundle; :mod:`prtcore.io.transfer_textures` the file format; :func:`memory_table` the
+poster's Table 1 for one asset. Glossy Phong: :func:`glossy_tp` (the poster's TP: stored
+visibility × light by the triple product) and :func:`glossy_tpfl` (TPFL: stored L·V for a
+fixed light), with :func:`evaluate_vertex` / :func:`evaluate_texture` the CPU equivalents
+of the GL variants (:mod:`prtcore.runtime.sh_gl`).
 """
 
 from __future__ import annotations
@@ -37,7 +41,11 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
 from prtcore.io.bundle import raw_file
 from prtcore.io.imageio import read_image, write_exr, write_png
-from prtcore.io.transfer_textures import read_transfer_textures, write_transfer_textures
+from prtcore.io.transfer_textures import (
+    VISIBILITY,
+    read_transfer_textures,
+    write_transfer_textures,
+)
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
@@ -47,6 +55,7 @@ from prtcore.transport.sh_transfer import (
     texel_lookup,
     vertex_lookup,
     vertex_samples,
+    visibility_transfer,
 )
 
 #: bytes per stored coefficient: float32 per vertex (a vertex attribute), half per texel
@@ -237,6 +246,8 @@ class ShPrtBake:
     preview: np.ndarray
     preview_image: np.ndarray
     spec: object
+    #: the glossy layer's visibility SH as an atlas (H, W, 1, L²) (``sh_prt.specular`` > 0)
+    visibility: np.ndarray | None = None
 
 
 @register
@@ -255,9 +266,14 @@ class ShPrtMethod(Method):
         with timer.stage("fit"):
             bake = bake_sh_prt(scene, tracer, spec.storage, spec.bands, spec.strata,
                                spec.seed, bounce=spec.bounce, texels=texels)
+            visibility = None
+            if spec.specular > 0:  # the glossy layer's T₀ for the triple product
+                vis = visibility_transfer(tracer, texel_samples(texels), spec.bands,
+                                          spec.strata, spec.seed)
+                visibility = texels.to_image(vis)[:, :, :-1][:, :, None, :]
         with timer.stage("report"):
             preview = sky_lightmap(scene, texels, bake)
-        return ShPrtBake(bake, preview, texels.to_image(preview), spec)
+        return ShPrtBake(bake, preview, texels.to_image(preview), spec, visibility)
 
     def write(self, directory: Path, inputs: BakeInputs, result: ShPrtBake
               ) -> tuple[dict, dict]:
@@ -273,6 +289,14 @@ class ShPrtMethod(Method):
             section["layout"] = ("sh_transfer_{R,G,B}_{k}.exr: R, G, B, A = coefficients "
                                  "4k..4k+3 of that colour channel, dilated")
             section["dtype"] = dtype
+            if result.visibility is not None:
+                section["glossy"] = {
+                    "model": "TP: specular · Σ_k (M_c V)_k z_k Y_k(r), M_c = Σ_i Γ_ijk l_ic, V "
+                             "the visibility SH, z the Phong lobe's Funk–Hecke kernel, r the "
+                             "mirror direction of the view about the shading normal",
+                    "specular": result.spec.specular, "exponent": result.spec.exponent,
+                    "files": write_transfer_textures(directory, result.visibility, dtype,
+                                                     VISIBILITY)}
         else:
             section["vertex_transfer"] = raw_file(directory / "sh_vertex_transfer.bin",
                                                   bake.transfer.coeffs.astype(np.float32))

@@ -1,15 +1,18 @@
 // The prtcore viewer page: orbit a bake, drag its light, look at the terms of the runtime.
-// Rendering is on demand (a frame after each change); runtime.js does the PRT runtime.
-// Test hook: window.prt (ready, error, x, u, s, pixel(), atlas(), setLight(), setView(),
-// set()), used by tests/test_viewer.py.
+// Rendering is on demand (a frame after each change). runtime.js is the PRT runtime (the
+// engine integration), shaders.js the page's GLSL, reference.js the heat map's reference.
+// Test hook: window.prt (ready, error, x, u, s, familyResidual, referenceError, badge,
+// pixel(), image(), atlas(), setLight(), setView(), set()), used by tests/test_viewer.py.
 import * as THREE from 'three';
-import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { TransformControls } from 'three/addons/controls/TransformControls.js';
+import { loadReference, relativeError } from './reference.js';
 import {
-  LIGHTS_GLSL, LightPass, coefficients, familyResidual, loadBundle, normaliseLight,
-  poseKeyframe,
+  LightPass, coefficients, familyResidual, loadBundle, normaliseLight, poseKeyframe,
 } from './runtime.js';
+import {
+  ATLAS_FS, ATLAS_VS, POINTS_FS, POINTS_VS, SURFACE_FS, SURFACE_VS,
+} from './shaders.js';
 
 const MODES = { full: 0, direct: 1, indirect: 2, albedo: 3, element: 4, points: 0, checker: 6,
                 uv: 7, error: 8 };
@@ -25,169 +28,6 @@ function fail(text) {
   const m = $('message');
   m.textContent = text;
   m.className = 'error';
-}
-
-const HEADER = 'precision highp float;\nprecision highp int;\nprecision highp sampler2DArray;\n';
-
-// The basis blend (prtcore/runtime/shaders/blend.glsl) with the bundle's row order, and the
-// display transform.
-const BLEND_GLSL = `
-uniform highp sampler2DArray u_basis;
-uniform highp sampler2D u_weights;  // (planes, 1) RGBA32F: the RGB weight of every plane
-uniform int u_planes;
-uniform float u_gamma;              // 0: none
-uniform int u_flipV;
-uniform int u_output;               // 0: linear radiance (read-back), 1: display
-uniform float u_exposure;
-uniform int u_tonemap;
-vec2 atlas_uv(vec2 uv1) { return vec2(uv1.x, u_flipV == 1 ? 1.0 - uv1.y : uv1.y); }
-vec3 indirect_at(vec2 uv1) {
-  vec2 t = atlas_uv(uv1);
-  vec3 c = vec3(0.0);
-  for (int f = 0; f < N_LAYERS; ++f) {
-    vec4 p = texture(u_basis, vec3(t, float(f)));
-    for (int k = 0; k < 4; ++k) {
-      int j = 4 * f + k;
-      if (j < u_planes) c += p[k] * texelFetch(u_weights, ivec2(j, 0), 0).rgb;
-    }
-  }
-  if (u_gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(u_gamma));
-  return c;
-}
-vec3 srgb(vec3 c) {
-  c = clamp(c, 0.0, 1.0);
-  return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
-}
-vec4 display(vec3 c) {
-  if (u_output == 0) return vec4(c, 1.0);
-  c *= exp2(u_exposure);
-  if (u_tonemap == 0) c = c * (2.51 * c + 0.03) / (c * (2.43 * c + 0.59) + 0.14);
-  else if (u_tonemap == 1) c = c / (1.0 + c);
-  return vec4(srgb(c), 1.0);
-}
-`;
-
-const SURFACE_VS = `${HEADER}
-uniform mat4 modelMatrix; uniform mat4 viewMatrix; uniform mat4 projectionMatrix;
-uniform int u_mode;
-in vec3 position; in vec3 normal; in vec2 uv; in vec2 uv1;
-out vec3 v_pos; out vec3 v_nrm; out vec2 v_uv0; out vec2 v_uv1;
-void main() {
-  vec4 wp = modelMatrix * vec4(position, 1.0);
-  v_pos = wp.xyz; v_nrm = mat3(modelMatrix) * normal; v_uv0 = uv; v_uv1 = uv1;
-  // UV layout: the mesh drawn at TEXCOORD_1, the image's top row at the top
-  gl_Position = u_mode == 7 ? vec4(uv1.x * 2.0 - 1.0, 1.0 - uv1.y * 2.0, 0.0, 1.0)
-                            : projectionMatrix * viewMatrix * wp;
-}`;
-
-// prtcore/runtime/shaders/camera_fs.glsl plus the viewer's modes.
-const SURFACE_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}
-uniform vec3 u_eye;
-uniform vec3 u_baseColor;
-uniform int u_hasMap;
-uniform int u_mapChannel;
-uniform mat3 u_mapTransform;
-uniform sampler2D u_map;
-uniform int u_mode;          // MODES of viewer.js
-uniform float u_elementScale;
-uniform vec2 u_atlasSize;
-uniform highp sampler2D u_reference;  // path-traced indirect lightmap (mode 8)
-uniform float u_referenceScale;       // 1 / (mean reference radiance * full scale)
-in vec3 v_pos; in vec3 v_nrm; in vec2 v_uv0; in vec2 v_uv1;
-out vec4 f_color;
-void main() {
-  if (u_mode == 8) {  // per-texel error heat map: blue 0, green, red at full scale
-    vec3 ref = texture(u_reference, atlas_uv(v_uv1)).rgb;
-    float e = length(indirect_at(v_uv1) - ref) / sqrt(3.0) * u_referenceScale;
-    if (u_output == 0) { f_color = vec4(vec3(e), 1.0); return; }
-    float t = clamp(e, 0.0, 1.0);
-    f_color = vec4(srgb(vec3(smoothstep(0.5, 1.0, t), 1.0 - abs(2.0 * t - 1.0), 1.0 - smoothstep(0.0, 0.5, t))), 1.0);
-    return;
-  }
-  if (u_mode == 7) { f_color = display(indirect_at(v_uv1)); return; }
-  if (u_mode == 6) {  // texel density: one checker square per lightmap texel
-    ivec2 t = ivec2(floor(atlas_uv(v_uv1) * u_atlasSize));
-    f_color = vec4(vec3(((t.x + t.y) & 1) == 0 ? 0.85 : 0.35), 1.0);
-    return;
-  }
-  if (!gl_FrontFacing) { f_color = vec4(0.0, 0.0, 0.0, 1.0); return; }  // inside geometry
-  vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-  if (dot(ng, u_eye - v_pos) < 0.0) ng = -ng;
-  vec3 n = normalize(v_nrm);
-  if (!(dot(n, ng) > 0.0)) n = ng;  // prtcore.core.geometry.shading_normals
-  vec3 albedo = u_baseColor;
-  if (u_hasMap != 0) {
-    vec2 uv = u_mapChannel == 1 ? v_uv1 : v_uv0;
-    albedo *= texture(u_map, (u_mapTransform * vec3(uv, 1.0)).xy).rgb;
-  }
-  albedo = clamp(albedo, 0.0, 0.99);
-  if (u_mode == 3) { f_color = u_output == 0 ? vec4(albedo, 1.0) : vec4(srgb(albedo), 1.0); return; }
-  if (u_mode == 4) {  // one basis element, signed: positive as is, negative in blue
-    vec3 v = indirect_at(v_uv1) * u_elementScale;
-    float neg = max(-(v.r + v.g + v.b) / 3.0, 0.0);
-    f_color = u_output == 0 ? vec4(indirect_at(v_uv1), 1.0)
-                            : vec4(srgb(max(v, 0.0) + vec3(0.0, 0.0, neg)), 1.0);
-    return;
-  }
-  vec3 col = vec3(0.0);
-  if (u_mode != 2) col += albedo / PI * irradiance(v_pos, n, ng);
-  if (u_mode != 1) col += indirect_at(v_uv1);
-  f_color = display(col);
-}`;
-
-// The indirect lightmap at atlas size (prtcore/runtime/shaders/atlas_fs.glsl): texel (x, y),
-// y from the top row, at TEXCOORD_1 ((x+0.5)/W, (y+0.5)/H); A = coverage.
-const ATLAS_FS = `${HEADER}${BLEND_GLSL}
-uniform sampler2D u_coverage;
-uniform vec2 u_atlasSize;
-out vec4 f_color;
-void main() {
-  vec2 t = vec2(floor(gl_FragCoord.x), u_atlasSize.y - 1.0 - floor(gl_FragCoord.y));
-  vec2 uv1 = (t + 0.5) / u_atlasSize;
-  f_color = vec4(indirect_at(uv1), texture(u_coverage, atlas_uv(uv1)).r);
-}`;
-
-const POINTS_VS = `${HEADER}
-uniform mat4 modelViewMatrix; uniform mat4 projectionMatrix;
-in vec3 position; in vec3 color; out vec3 v_color;
-void main() { v_color = color; gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); gl_PointSize = 5.0; }`;
-const POINTS_FS = `${HEADER}${BLEND_GLSL}
-in vec3 v_color; out vec4 f_color;
-void main() { vec2 d = gl_PointCoord - 0.5; if (dot(d, d) > 0.25) discard; f_color = display(v_color); }`;
-
-// A path-traced reference served with the bundle (prtcore view --reference): its indirect
-// lightmap (written top-down like the bundle's EXRs, so sampled like the basis), its light,
-// and its covered texels (A > 0) in image order with their mean radiance.
-async function loadReference(base, bundle) {
-  if (!base) return null;
-  const [texture, lights] = await Promise.all([
-    new EXRLoader().setDataType(THREE.FloatType).loadAsync(base + 'reference.exr'),
-    fetch(base + 'light.json').then((r) => { if (!r.ok) throw new Error(`${base}light.json: HTTP ${r.status}`); return r.json(); }),
-  ]);
-  const { width: W, height: H, data } = texture.image;
-  if (W !== bundle.W || H !== bundle.H) {
-    throw new Error(`reference.exr is ${W}×${H}, the atlas ${bundle.W}×${bundle.H}`);
-  }
-  texture.minFilter = texture.magFilter = THREE.NearestFilter;
-  const image = new Float32Array(4 * W * H);  // EXRLoader rows are bottom-up
-  for (let r = 0; r < H; r++) image.set(data.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
-  let sum = 0, n = 0;
-  for (let i = 0; i < W * H; i++) {
-    if (image[4 * i + 3] > 0) { sum += (image[4 * i] + image[4 * i + 1] + image[4 * i + 2]) / 3; n++; }
-  }
-  return { texture, image, light: lights.lights ? lights.lights[0] : lights, mean: n ? sum / n : 1 };
-}
-
-// Relative RMS error of an indirect lightmap (H, W, 4; row 0 at the top) against the
-// reference over the reference's covered texels.
-function relativeError(atlas, reference) {
-  let num = 0, den = 0;
-  const ref = reference.image;
-  for (let i = 0; i < ref.length; i += 4) {
-    if (!(ref[i + 3] > 0)) continue;
-    for (let c = 0; c < 3; c++) { num += (atlas[i + c] - ref[i + c]) ** 2; den += ref[i + c] ** 2; }
-  }
-  return den > 0 ? Math.sqrt(num / den) : 0;
 }
 
 async function main() {
@@ -296,7 +136,7 @@ async function main() {
   const atlasMesh = new THREE.Mesh(tri, new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3, defines, depthTest: false,
     uniforms: { ...view, u_output: { value: 0 }, u_coverage: { value: bundle.coverage } },
-    vertexShader: `${HEADER}in vec3 position; void main() { gl_Position = vec4(position, 1.0); }`,
+    vertexShader: ATLAS_VS,
     fragmentShader: ATLAS_FS }));
   atlasMesh.frustumCulled = false;
   atlasScene.add(atlasMesh);
@@ -408,7 +248,7 @@ async function main() {
         for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
         peak = Math.max(peak, 1);
       }
-      view.u_gamma.value = 0;
+      view.u_gamma.value = -1;  // a basis element is signed: shown unclamped
       view.u_elementScale.value = elementScale(state.element);
     } else {
       weights.image.data.set(c.w);
@@ -461,7 +301,7 @@ async function main() {
     gizmo.getHelper().visible = output === 1;
     lightObj.visible = output === 1;
     renderer.setRenderTarget(target);
-    renderer.setClearColor(0x000000, 1);
+    renderer.setClearColor(0x000000, output === 1 ? 1 : 0);  // read-back: A = 0 off the asset
     if (state.mode === 'uv') renderer.render(uvScene, uvCamera);
     else renderer.render(scene, camera);
     renderer.setRenderTarget(null);
@@ -569,9 +409,31 @@ async function main() {
       renderer.readRenderTargetPixels(readTarget, px, canvas.height - 1 - py, 1, 1, out);
       return Array.from(out);
     },
+    // the canvas in `mode` as linear float RGBA (H, W, 4), row 0 at the top, A = 0 where
+    // no surface is seen: base64 of the little-endian float32 bytes (a quarter million
+    // numbers travel faster so than as JSON)
+    image(mode) {
+      const keep = state.mode;
+      state.mode = mode;
+      draw(readTarget, 0);
+      state.mode = keep;
+      const W = canvas.width, H = canvas.height, raw = new Float32Array(4 * W * H);
+      renderer.readRenderTargetPixels(readTarget, 0, 0, W, H, raw);
+      const out = new Float32Array(4 * W * H);
+      for (let r = 0; r < H; r++) out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+      const bytes = new Uint8Array(out.buffer);
+      let text = '';
+      for (let i = 0; i < bytes.length; i += 0x8000) {
+        text += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+      }
+      return btoa(text);
+    },
     // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
     atlas() { return Array.from(readAtlas()); },
   });
+
+  // the current light as a light-file object (where the gizmo has put it)
+  Object.defineProperty(prt, 'light', { get: () => (state.light ? lightDict() : null) });
 
   sync();
   applyLight(start);
