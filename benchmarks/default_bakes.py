@@ -4,6 +4,9 @@ ratio, the verdict and the bake time; writes benchmarks/results/default_bakes.js
 
     .venv/bin/python benchmarks/default_bakes.py [--scenes cornell,open_room,...]
         [--reference-spp N]   # judge against the path tracer, noise removed (slow)
+        [--baseline]          # also bake with the fixed sizes used before automatic
+                              # sizing (P = 256 blue noise, K = 128), same run: time ratio
+        [--resolution R]      # atlas resolution (default: the spec's default)
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default=None)
     ap.add_argument("--reference-spp", type=int, default=0)
+    ap.add_argument("--baseline", action="store_true")
+    ap.add_argument("--resolution", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                         "default_bakes.json"))
     args = ap.parse_args()
@@ -56,29 +61,46 @@ def main() -> int:
     if args.scenes:
         todo = {k: v for k, v in todo.items() if k in args.scenes.split(",")}
     rows = []
-    print(f"{'scene':<16s} {'P':>4s} {'K':>4s} {'n':>3s} {'error':>7s} {'bound':>7s} "
-          f"{'ratio':>6s} {'verdict':>8s} {'time s':>7s}")
+    print(f"{'scene':<16s} {'sizes':<9s} {'P':>4s} {'K':>4s} {'n':>3s} {'error':>7s} "
+          f"{'bound':>7s} {'ratio':>6s} {'verdict':>8s} {'time s':>7s}")
+    kinds = {"auto": {}}
+    if args.baseline:
+        kinds["fixed"] = {"measurement_points": {"count": 256, "placement": "surface"},
+                          "lights_count": 128}
     for name, (asset, families) in todo.items():
-        spec = {"lights": {"families": families}}
-        if args.reference_spp:
-            spec["validate"] = {"reference_spp": args.reference_spp}
-        t0 = time.perf_counter()
-        out = bake(asset, parse_spec(spec), tmp / name, quiet=True)
-        seconds = time.perf_counter() - t0
-        m = read_manifest(out)
-        v = m["verdict"]
-        row = {"scene": name, "P": m["points"]["count"], "K": m["fit"]["configurations"],
-               "n": v["n"], "error": v["error"], "bound": v["bound"], "ratio": v["ratio"],
-               "verdict": v["status"], "against": v["against"], "seconds": seconds,
-               "causes": v["causes"]}
-        rows.append(row)
+        for kind, extra in kinds.items():
+            spec = {"lights": {"families": families}}
+            if "lights_count" in extra:
+                spec["lights"]["count"] = extra["lights_count"]
+            if "measurement_points" in extra:
+                spec["measurement_points"] = extra["measurement_points"]
+            if args.resolution:
+                spec["atlas"] = {"resolution": args.resolution}
+            if args.reference_spp:
+                spec["validate"] = {"reference_spp": args.reference_spp}
+            t0 = time.perf_counter()
+            out = bake(asset, parse_spec(spec), tmp / f"{name}-{kind}", quiet=True)
+            seconds = time.perf_counter() - t0
+            m = read_manifest(out)
+            v = m["verdict"]
+            row = {"scene": name, "sizes": kind, "P": m["points"]["count"],
+                   "K": m["fit"]["configurations"], "n": v["n"], "error": v["error"],
+                   "bound": v["bound"], "ratio": v["ratio"], "verdict": v["status"],
+                   "against": v["against"], "seconds": seconds, "causes": v["causes"],
+                   "sizing": m.get("sizing", {}).get("reason"),
+                   "stage_seconds": m.get("timings")}
+            rows.append(row)
 
-        def pct(x):
-            return "—" if x is None else f"{100 * x:.1f}%"
-        print(f"{name:<16s} {row['P']:>4d} {row['K']:>4d} {row['n']:>3d} "
-              f"{pct(row['error']):>7s} {pct(row['bound']):>7s} "
-              f"{row['ratio'] if row['ratio'] is None else round(row['ratio'], 2)!s:>6s} "
-              f"{row['verdict']:>8s} {seconds:>7.1f}", flush=True)
+            def pct(x):
+                return "—" if x is None else f"{100 * x:.1f}%"
+            print(f"{name:<16s} {kind:<9s} {row['P']:>4d} {row['K']:>4d} {row['n']:>3d} "
+                  f"{pct(row['error']):>7s} {pct(row['bound']):>7s} "
+                  f"{row['ratio'] if row['ratio'] is None else round(row['ratio'], 2)!s:>6s} "
+                  f"{row['verdict']:>8s} {seconds:>7.1f}", flush=True)
+        if args.baseline:
+            a, f = rows[-2]["seconds"], rows[-1]["seconds"]
+            print(f"  {name}: automatic sizing takes {a / f:.2f}× the fixed sizes' time",
+                  flush=True)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
     print(f"wrote {args.out}")

@@ -67,7 +67,12 @@ from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import PointsSpec, parse_spec  # noqa: E402
 from prtcore.emitters.families import sample_configurations  # noqa: E402
 from prtcore.fit.model import relative_rmse  # noqa: E402
-from prtcore.fit.transfer import fit_transfer, projection_bound, reconstruct  # noqa: E402
+from prtcore.fit.transfer import (  # noqa: E402
+    coefficients,
+    fit_transfer,
+    projection_bound,
+    reconstruct,
+)
 from prtcore.intake.points import place_measurement_points  # noqa: E402
 from prtcore.intake.sensors import concat_points, restrict_points, select_sensors  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
@@ -175,8 +180,11 @@ def training_coefficients(D: np.ndarray, I: np.ndarray, basis: int) -> np.ndarra
     return out
 
 
-def evaluate(D: np.ndarray, I: np.ndarray, k: int, k_max: int, n: int) -> dict:
+def evaluate(D: np.ndarray, I: np.ndarray, k: int, k_max: int, n: int,
+             transfer: str = "ridge", transfer_options: dict | None = None) -> dict:
     """Fit on the first k training lights; held-out error and bound at n elements.
+
+    transfer, transfer_options : the transfer regressor and its options (fit_transfer's).
 
     Per held-out light h: e_h = relative_rmse(reconstruction, reference) and b_h its
     projection bound; the table's error and bound are their means (as the bake's report).
@@ -184,7 +192,8 @@ def evaluate(D: np.ndarray, I: np.ndarray, k: int, k_max: int, n: int) -> dict:
     not dominate): sqrt(Σ‖error_h‖² / Σ‖reference_h‖²), the same for the bound.
     """
     t0 = time.perf_counter()
-    model = fit_transfer(D[:, :k], I[:, :k], basis=n, ridge="auto", channels="mono")
+    model = fit_transfer(D[:, :k], I[:, :k], basis=n, ridge="auto", channels="mono",
+                         transfer=transfer, transfer_options=transfer_options)
     t1 = time.perf_counter()
     errs, bounds, skipped = [], [], 0
     sse = bse = ref_ss = 0.0
@@ -212,7 +221,21 @@ def evaluate(D: np.ndarray, I: np.ndarray, k: int, k_max: int, n: int) -> dict:
             "heldout_used": len(errs), "heldout_skipped": skipped,
             "ridge": model.ridge, "used": model.diagnostics.used,
             "direct_condition": model.diagnostics.direct_condition[1],
-            "fit_seconds": t1 - t0, "eval_seconds": time.perf_counter() - t1}
+            "fit_seconds": t1 - t0, "eval_seconds": time.perf_counter() - t1,
+            "transfer": transfer, "coefficients_us": coefficients_us(model, D[:, k_max]),
+            "learnt": model.diagnostics.learnt}
+
+
+def coefficients_us(model, x: np.ndarray, repeat: int = 200) -> float:
+    """Median µs of the runtime's coefficients (s, u) for one direct vector x (P, 3): the
+    per-frame CPU cost that depends on the transfer regressor."""
+    x = np.asarray(x, dtype=np.float64)
+    ts = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        coefficients(model, x)
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)) * 1e6
 
 
 def run_scene(sd: SceneData, args, ks: list[int], log) -> list[dict]:
@@ -275,8 +298,9 @@ def format_row(r: dict) -> str:
             f"{r['seconds']:>6.2f}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def scene_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options that choose the scenes, their lights and their transport (shared with
+    benchmarks/transfer_regressors.py)."""
 
     def ints(s: str) -> list[int]:
         return [int(x) for x in s.split(",")]
@@ -290,19 +314,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--holdout", type=int, default=32)
     ap.add_argument("--pillar-clearance", type=float, default=0.05,
                     help="open room: how far (m) the lights stay from the pillar")
-    ap.add_argument("--candidates", type=int, default=2048,
-                    help="N dense blue-noise candidates the selection chooses from")
     ap.add_argument("--supersample", type=int, default=4)
     ap.add_argument("--gather-rays", type=int, default=64)
-    ap.add_argument("--placements", default="blue,random,qdeim,qdeim-all,goal")
     ap.add_argument("--threads", type=int, default=int(os.environ.get("PRT_THREADS", 2)))
-    ap.add_argument("--out", type=Path, default=RESULTS / "fidelity.json")
-    args = ap.parse_args(argv)
-    args.placements = args.placements.split(",")
+
+
+def scene_names(ap: argparse.ArgumentParser, args) -> list[str]:
+    """The --scenes list, unknown names refused."""
     names = args.scenes.split(",")
     unknown = set(names) - set(SCENES)
     if unknown:
         ap.error(f"unknown scenes {sorted(unknown)}; known: {list(SCENES)}")
+    return names
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    scene_arguments(ap)
+    ap.add_argument("--candidates", type=int, default=2048,
+                    help="N dense blue-noise candidates the selection chooses from")
+    ap.add_argument("--placements", default="blue,random,qdeim,qdeim-all,goal")
+    ap.add_argument("--out", type=Path, default=RESULTS / "fidelity.json")
+    args = ap.parse_args(argv)
+    args.placements = args.placements.split(",")
+    names = scene_names(ap, args)
 
     def log(msg: str) -> None:
         print(msg, flush=True)

@@ -219,6 +219,19 @@ def _cmd_render(args: argparse.Namespace) -> int:
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
+    from prtcore.io.bundle import read_manifest
+
+    if "strands" in read_manifest(Path(args.bundle)):  # hair: ray traced on the CPU
+        from prtcore.reference.camera import load_camera
+        from prtcore.runtime.gl import write_render
+        from prtcore.runtime.strands import render_strands
+
+        image = render_strands(args.bundle, load_light_file(args.light),
+                               load_camera(args.camera), n=args.basis, mode=mode)
+        write_render(args.out, image, args.exposure)
+        print(f"rendered: {args.out} ({image.shape[1]}×{image.shape[0]}, {mode}) on the "
+              "CPU (hair: fibre tubes ray traced, strand texture sampled)")
+        return 0
 
     _, data, scene, _ = _posed_runtime("render", Path(args.bundle), args.time)
     lights = load_light_file(args.light)
@@ -235,7 +248,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_view(args: argparse.Namespace) -> int:
     from prtcore.viewer.server import ViewerServer
 
-    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet)
+    server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet,
+                          reference=args.reference, reference_light=args.light)
     print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)
     if not args.no_browser:
         import webbrowser
@@ -394,6 +408,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--port", type=int, default=8019, help="port (0: any free port)")
     sp.add_argument("--no-browser", action="store_true",
                     help="print the URL only; do not open a browser")
+    sp.add_argument("--reference", default=None,
+                    help="a path-traced indirect lightmap of the bundle (`prtcore reference "
+                         "DIR --light L --out REF.exr`): the page's error heat map")
+    sp.add_argument("--light", default=None, help="with --reference: the light file it was "
+                                                  "traced for (the page starts with it)")
     common(sp)
     sp.set_defaults(func=_cmd_view)
 

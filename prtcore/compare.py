@@ -22,14 +22,20 @@ Errors: per region, the RMS over pixels of the RGB-mean squared difference, with
 reference's noise removed (corrected err² = raw err² − mean stderr²), relative to the
 reference's RMS over all visible pixels. Regions: ``all`` (visible pixels), ``floor``, and
 ``shadow`` — the floor pixels the light does not reach directly (behind the object).
-Times are wall-clock seconds on this machine's CPU; storage is the bytes of what each
-method stores for the asset besides the mesh.
+All three are baked by :func:`prtcore.pipeline.bake` (SH-PRT with ``method.name =
+"sh_prt"``, the same spec otherwise, so the same mesh and lightmap layout — checked) and
+evaluated from their bundles. Bake times are wall-clock seconds of each whole bake on this
+machine; storage is the bytes of each bundle besides the mesh and the run reports; runtime
+cost is the CPU time of the runtime formula per light, and the GL frame time (wall clock,
+the renderer named: Mesa's llvmpipe where there is no GPU).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import statistics
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -37,22 +43,24 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.errors import PrtError
 from prtcore.core.materials import CLAMP_TO_EDGE, sample_texture
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Texture
-from prtcore.core.spec import BakeSpec, parse_spec
+from prtcore.core.spec import BakeSpec, MethodSpec, ShPrtSpec, parse_spec
 from prtcore.emitters.environment import light_sh
 from prtcore.emitters.families import sample_configurations
-from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.io.bundle import load_raw, load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
 from prtcore.io.imageio import write_exr, write_png
-from prtcore.methods.sh_prt import bake_sh_prt, evaluate_texture, evaluate_vertex
+from prtcore.io.transfer_textures import read_transfer_textures
+from prtcore.methods.sh_prt import evaluate_texture, evaluate_vertex
 from prtcore.pipeline import RUN_FILES, bake
-from prtcore.receivers.texels import build_texel_space
 from prtcore.reference.camera import Camera, reference_image
 from prtcore.runtime.cpu import relight
 from prtcore.scenes import floor_object
+from prtcore.transport.sh_transfer import ShTransfer
 
 METHODS = ("data_driven", "sh_vertex", "sh_texture")
 LABELS = {"reference": "path tracer", "data_driven": "data-driven PRT",
@@ -134,6 +142,33 @@ def _strip(images: dict[str, np.ndarray], ref: np.ndarray, alpha: np.ndarray, pa
     write_png(path, np.concatenate([r1, np.full((4, r1.shape[1], 3), 255, np.uint8), r2]))
 
 
+def _gl_frames(bundle: Path, sh_bundles: dict[str, Path], lights: Sequence[Light],
+               camera: Camera, bands: int, frames: int = 3) -> dict:
+    """Median wall-clock milliseconds of a GL frame per method after a warm-up frame (the
+    data-driven frame is all its passes: shadow maps, points, coefficients, camera), and
+    the GL renderer's name; None where no OpenGL context can be created."""
+    from prtcore.runtime.gl import BundleRenderer
+    from prtcore.runtime.glcontext import renderer_label
+    from prtcore.runtime.sh_gl import ShPrtRenderer
+
+    out: dict = {"frame_ms": {m: None for m in METHODS}, "renderer": None}
+    try:
+        with BundleRenderer(bundle) as r:
+            times = [sum(r.render([lights[0]], camera).wall_milliseconds.values())
+                     for _ in range(frames + 1)]
+            out["frame_ms"]["data_driven"] = statistics.median(times[1:])
+            out["renderer"] = renderer_label(r.ctx)
+        lsh = light_sh(lights[0], bands)
+        for m, b in sh_bundles.items():
+            with ShPrtRenderer(b) as r:
+                times = [sum(r.render(lsh, camera).wall_milliseconds.values())
+                         for _ in range(frames + 1)]
+                out["frame_ms"][m] = statistics.median(times[1:])
+    except PrtError as e:
+        out["renderer"] = f"none ({e})"
+    return out
+
+
 def compare(out: str | Path, *, asset: str | Path | None = None,
             spec: BakeSpec | dict | None = None,
             options: CompareOptions | None = None, camera: Camera | None = None,
@@ -146,6 +181,9 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
     compare.json data.
     """
     opt = options or CompareOptions()
+    for name in ("spp", "bands", "strata", "lights", "width", "height"):
+        if int(getattr(opt, name)) < 1:
+            raise PrtError(f"compare: {name} must be ≥ 1, got {getattr(opt, name)!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     timer = StageTimer(quiet=quiet)
@@ -154,6 +192,13 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
         spec = floor_object.SPEC if spec is None else spec
         key_light = floor_object.key_light() if key_light is None else key_light
     bake_spec = spec if isinstance(spec, BakeSpec) else parse_spec(spec or {})
+    if opt.bands > 16:
+        raise PrtError(f"compare: bands must be ≤ 16 (the sh_prt spec's limit), got {opt.bands}")
+    if key_light is None and not (bake_spec.lights.holdout > 0 and any(
+            f.type == "directional" for f in bake_spec.lights.families)):
+        raise PrtError("compare: no held-out directional light (classic SH-PRT takes distant "
+                       "light only): give the spec a directional family in lights.families "
+                       "and lights.holdout > 0")
     camera = camera or default_camera(opt.width, opt.height)
 
     # 1. data-driven: the project's bake
@@ -165,25 +210,41 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
     scene = load_asset(bundle / manifest["asset"]["file"])
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     atlas = manifest["atlas"]
-    with timer.stage("texels"):
-        texels = build_texel_space(scene, atlas["width"], atlas["height"],
-                                   padding=atlas["padding"])
 
-    # 2. classic SH-PRT, per vertex and per texel, on the bundle's scene
-    with timer.stage("sh_prt"):
-        vert = bake_sh_prt(scene, tracer, "vertex", opt.bands, opt.strata, opt.seed)
-        tex = bake_sh_prt(scene, tracer, "texture", opt.bands, opt.strata, opt.seed,
-                          texels=texels)
-    seconds["sh_vertex"], seconds["sh_texture"] = vert.seconds, tex.seconds
-    storage = {"data_driven": _bundle_bytes(bundle, manifest),
-               "sh_vertex": vert.storage_bytes, "sh_texture": tex.storage_bytes}
+    # 2. classic SH-PRT per vertex and transfer textures: the same bake, method sh_prt
+    sh_bundles = {}
+    for m, storage in (("sh_vertex", "vertex"), ("sh_texture", "texture")):
+        sh_spec = dataclasses.replace(
+            bake_spec, method=MethodSpec(name="sh_prt"),
+            sh_prt=ShPrtSpec(storage=storage, bands=opt.bands, strata=opt.strata,
+                             seed=opt.seed))
+        t = time.perf_counter()
+        sh_bundles[m] = bake(asset, sh_spec, out / m, quiet=quiet, force=True)
+        seconds[m] = time.perf_counter() - t
+    manifests = {"data_driven": manifest,
+                 **{m: read_manifest(b) for m, b in sh_bundles.items()}}
+    glb = {m: mf["checksums"][mf["asset"]["file"]]["sha256"] for m, mf in manifests.items()}
+    if len(set(glb.values())) != 1:
+        raise PrtError(f"compare: the bakes' assets differ ({glb}); the methods must share "
+                       "one mesh and one lightmap layout")
+    sec = manifests["sh_vertex"]["sh_prt"]
+    vert = ShTransfer(load_raw(sh_bundles["sh_vertex"], sec["vertex_transfer"])
+                      .astype(np.float64), sec["kind"], opt.bands, 0)
+    tex_image = read_transfer_textures(sh_bundles["sh_texture"], opt.bands)
+    storage = {m: _bundle_bytes(b, manifests[m])
+               for m, b in (("data_driven", bundle), *sh_bundles.items())}
 
     # 3. held-out lights: the key light, then the bake's own held-out lights
-    _, hold = sample_configurations(bake_spec.lights, scene.center, scene.radius,
-                                    scene.lights)
+    # the held-out stream does not depend on the training count (which may be "auto")
+    _, hold = sample_configurations(dataclasses.replace(bake_spec.lights, count=0),
+                                    scene.center, scene.radius, scene.lights)
     lights: list[Light] = ([key_light] if key_light is not None else []) + [
         lt for lt in hold if lt.type == "directional"]
     lights = lights[:opt.lights]
+    if not lights:
+        raise PrtError("compare: no held-out directional light (classic SH-PRT takes distant "
+                       "light only): give the spec a directional family in lights.families "
+                       "and lights.holdout > 0")
 
     # camera hits, shared by every method
     origins, dirs = camera.primary_rays()
@@ -206,16 +267,16 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
         noise2 = (ref.stderr.reshape(-1, 3) ** 2).mean(axis=1)
         lsh = light_sh(light, opt.bands)
         lm, t_dd = _timed(lambda light=light: relight(data, [light], tracer))
-        _, t_v = _timed(lambda lsh=lsh: vert.transfer.radiance(lsh))
-        _, t_t = _timed(lambda lsh=lsh: tex.transfer.radiance(lsh))
+        _, t_v = _timed(lambda lsh=lsh: vert.radiance(lsh))
+        _, t_t = _timed(lambda lsh=lsh: np.einsum("hwcl,lc->hwc", tex_image, lsh))
         runtime["data_driven"] += t_dd / len(lights)
         runtime["sh_vertex"] += t_v / len(lights)
         runtime["sh_texture"] += t_t / len(lights)
         images = {m: np.zeros((h * w, 3)) for m in METHODS}
         images["data_driven"][sel] = (ref.direct.reshape(-1, 3)[sel]
                                       + _bilinear(lm[..., :3], uv1))
-        images["sh_vertex"][sel] = evaluate_vertex(scene, vert.transfer, tri, bary, lsh)
-        images["sh_texture"][sel] = evaluate_texture(tex.image, uv1, lsh)
+        images["sh_vertex"][sel] = evaluate_vertex(scene, vert, tri, bary, lsh)
+        images["sh_texture"][sel] = evaluate_texture(tex_image, uv1, lsh)
         visible = ref.alpha.reshape(-1) > 0
         shadow = floor & (ref.direct.reshape(-1, 3).sum(axis=1) <= 0)
         masks = {"all": visible, "floor": floor & visible, "shadow": shadow & visible}
@@ -239,10 +300,12 @@ def compare(out: str | Path, *, asset: str | Path | None = None,
 
     mean_err = {m: {r: float(np.nanmean([p["errors"][m][r] for p in per_light]))
                     for r in REGIONS} for m in METHODS}
+    gl = _gl_frames(bundle, sh_bundles, lights, camera, opt.bands)
     result = {
         "scene": str(asset), "options": opt.__dict__, "lights": len(lights),
         "errors": mean_err, "per_light": per_light, "bake_seconds": seconds,
         "storage_bytes": storage, "runtime_seconds_per_light": runtime,
+        "gl_frame_ms": gl["frame_ms"], "gl_renderer": gl["renderer"],
         "vertices": len(scene.positions), "triangles": int(scene.triangle_count),
         "atlas": [atlas["width"], atlas["height"]],
         "strip": "compare_strip.png (top: path tracer, data-driven PRT, per-vertex SH-PRT, "
@@ -261,14 +324,17 @@ def format_compare(result: dict) -> str:
              f"{result['options']['bands']}",
              "relative RMS error vs path tracer (noise removed)",
              f"{'method':<20}{'all':>8}{'floor':>8}{'shadow':>8}{'bake s':>9}"
-             f"{'storage KiB':>13}{'CPU ms/light':>14}"]
+             f"{'storage KiB':>13}{'CPU ms/light':>14}{'GL ms/frame':>13}"]
     for m in METHODS:
         e = result["errors"][m]
         lines.append(f"{LABELS[m]:<20}{e['all']:>8.3f}{e['floor']:>8.3f}{e['shadow']:>8.3f}"
                      f"{result['bake_seconds'][m]:>9.1f}"
                      f"{result['storage_bytes'][m] / 1024:>13.1f}"
-                     f"{1000 * result['runtime_seconds_per_light'][m]:>14.2f}")
+                     f"{1000 * result['runtime_seconds_per_light'][m]:>14.2f}"
+                     + (f"{gl:>13.2f}" if (gl := result["gl_frame_ms"][m]) is not None
+                        else f"{'-':>13}"))
     lines.append("shadow = floor pixels the light does not reach directly (behind the object)")
+    lines.append(f"GL: {result['gl_renderer']}, camera frame of the first light (wall clock)")
     return "\n".join(lines)
 
 

@@ -10,7 +10,9 @@ manifest's ``strands`` section, its image size to ``atlas``), the transport
 as baked, written by :func:`prtcore.io.hair.write_hair`).
 
 Not yet: a mesh baked together with the hair, keyframes, the path-traced validation
-(``validate.reference_spp``), ``measurement_points.placement`` other than the hull, and
+inside the bake (``validate.reference_spp``; ``prtcore report BUNDLE --reference-spp N``
+validates a hair bundle against :mod:`prtcore.reference.fibres`),
+``measurement_points.placement`` other than the hull, and
 ``fit.denoise`` (the seam-aware filter is for surfaces; strand texels are fitted as
 traced).
 """
@@ -26,20 +28,21 @@ from typing import Any
 
 import numpy as np
 
-from prtcore.core.errors import SpecError
+from prtcore.core.errors import LimitExceeded, SpecError
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
 from prtcore.core.spec import BakeSpec, spec_hash, spec_to_dict
 from prtcore.emitters.families import sample_configurations
 from prtcore.intake.hair import hair_scene
+from prtcore.intake.plan import fixed_counts
 from prtcore.intake.points import MeasurementPoints, place_measurement_points
 from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
 from prtcore.io.hair import load_hair, write_hair
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
-from prtcore.transport.fibre import hair_tracer
+from prtcore.transport.fibre import MEM_PER_FIBRE_SEGMENT, hair_tracer
 from prtcore.transport.hair import bake_hair_dataset
 
 METHOD = "data_driven"
@@ -77,12 +80,13 @@ def hair_spec(spec: BakeSpec) -> BakeSpec:
     if spec.keyframes.animation is not None:
         raise SpecError("keyframes.animation", "hair bakes are static (no keyframes yet)")
     if spec.validate.reference_spp > 0:
-        raise SpecError("validate.reference_spp", "the path-traced validation of hair "
-                        "bakes is not available yet (benchmarks/hair_accuracy.py checks "
-                        "the fibre transport against prtcore.reference.fibres)")
+        raise SpecError("validate.reference_spp", "a hair bake does not validate itself "
+                        "against the path tracer yet; run `prtcore report BUNDLE "
+                        "--reference-spp N` on its bundle")
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
+    spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
@@ -110,12 +114,11 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                       limit_bytes: int) -> int:
     """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
     with the fibre operator, plus the first bounce's harmonics: two more (T, K, 3)
-    float32) against ``limit_bytes``; returns the estimate."""
-    from prtcore.core.errors import LimitExceeded
-
+    float32, plus the fibre tubes) against ``limit_bytes``; returns the estimate."""
     k = spec.lights.count + spec.lights.holdout
+    segments = space.hair.point_count - space.hair.strand_count
     est = estimate_bake_bytes(space.count, k, spec.transport, ("fibre",)) \
-        + 2 * space.count * k * 12
+        + 2 * space.count * k * 12 + segments * MEM_PER_FIBRE_SEGMENT
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",

@@ -10,12 +10,11 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from prtcore.core.errors import SpecError
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
 from prtcore.core.scene import Scene
 from prtcore.core.spec import BakeSpec, PointsSpec
-from prtcore.intake.plan import Plan
+from prtcore.intake.plan import Plan, Sizing
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
 from prtcore.io.imageio import EXR_ROW_ORDER
@@ -84,7 +83,8 @@ def run_intake(asset: str | Path, spec: BakeSpec, *, quiet: bool = False,
         texels = build_texel_space(scene, spec.atlas.resolution, spec.atlas.resolution,
                                    padding=spec.atlas.padding)
     with timer.stage("points"):
-        points = place_measurement_points(scene, candidate_spec(spec.measurement_points))
+        points = place_measurement_points(scene, intake_points(spec.measurement_points,
+                                                               plan.sizing))
     return IntakeResult(source=str(asset), spec=spec, plan=plan, scene=scene, prepare=report,
                         texels=texels, points=points, seconds=dict(timer.seconds))
 
@@ -117,7 +117,13 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.io.gltf.export import write_glb
     from prtcore.io.hair import is_hair_file
     from prtcore.methods.base import BakeInputs, method
-    from prtcore.transport.dataset import bake_dataset, check_bake_memory, operators_for
+    from prtcore.sizing import size_bake
+    from prtcore.transport.dataset import (
+        check_bake_memory,
+        light_configurations,
+        open_transport,
+        operators_for,
+    )
 
     if is_hair_file(asset):  # strands instead of a lightmap (docs/hair.md)
         from prtcore.hairbake import bake_hair
@@ -134,29 +140,40 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     timer = StageTimer(quiet=quiet, callback=callback)
     intake = run_intake(asset, spec, timer=timer, limits=limits)
     scene, texels, points = intake.scene, intake.texels, intake.points
-    check_bake_memory(asset, texels, spec, (limits or IntakeLimits.from_env()).max_bake_bytes,
-                      operators_for(scene))
+    sizing = intake.plan.sizing
+    limit_bytes = (limits or IntakeLimits.from_env()).max_bake_bytes
+    check_bake_memory(asset, texels, spec, limit_bytes, operators_for(scene),
+                      training=sizing.lights_start)
 
-    with timer.stage("lights"):
-        train, hold = sample_configurations(spec.lights, scene.center, scene.radius,
-                                            scene.lights)
+    with timer.stage("lights"):  # a prefix-stable draw: sizing may take more of the pool
+        pool, hold = sample_configurations(
+            dataclasses.replace(spec.lights, count=sizing.lights_max), scene.center,
+            scene.radius, scene.lights)
+        train = pool[:sizing.lights_start]
     m = method(spec.method.name)
     kfs, data = None, None
+    record = indirect = None
     if m.needs_dataset:
         kfs = _keyframe_set(intake, len(train), len(hold), timer)
-        if kfs is not None and spec.measurement_points.placement == "qdeim":
-            raise SpecError("measurement_points.placement", "'qdeim' is not available for "
-                            "keyframe bakes yet (use 'surface')")
         if kfs is None:
-            data = bake_dataset(scene, texels, points, train, hold, spec.transport, timer)
+            transport = open_transport(scene, texels, points, spec.transport, timer)
+            data = light_configurations(transport, (*train, *hold), len(train), timer)
+            if sizing.automatic:
+                sized = size_bake(spec, sizing, transport, data, pool, len(hold),
+                                  limit_bytes, timer)
+                intake = dataclasses.replace(intake, points=sized.points)
+                data, train, indirect = sized.data, sized.train, sized.indirect
+                record = sized.to_dict(sizing)
+                if not quiet:
+                    print(f"sizing: {sized.stop}")
+            elif sizing.select:
+                intake, data = _select_points(intake, data, len(train), timer)
         else:
             from prtcore.keyframes.pose import bake_keyframe_dataset
 
             data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
-        if spec.measurement_points.placement == "qdeim":
-            intake, data = _select_points(intake, data, len(train), timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
-                        data=data)
+                        data=data, indirect=indirect, sizing=record)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:
@@ -186,6 +203,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             "prepare": _jsonable(intake.prepare.__dict__),
             "timings": dict(timer.seconds),
         }
+        if record is not None:
+            run["sizing"] = record
         return manifest_base(method=m.name, **common, **sections, **run,
                              run_files=list(RUN_FILES))
 
@@ -236,12 +255,11 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
     (out / "report.txt").write_text(m.summary(result, seconds) + "\n", encoding="utf-8")
 
 
-def candidate_spec(points: PointsSpec) -> PointsSpec:
-    """The intake's placement: for "qdeim", the blue-noise candidates it chooses from."""
-    if points.placement != "qdeim":
-        return points
-    return dataclasses.replace(points, placement="surface",
-                               count=points.candidates or 8 * points.count)
+def intake_points(points: PointsSpec, sizing: Sizing) -> PointsSpec:
+    """What the intake places: the plan's candidates when points are chosen after
+    transport (blue noise on the surface for "qdeim"), else the P points themselves."""
+    return dataclasses.replace(points, placement=sizing.candidate_placement,
+                               count=sizing.candidates)
 
 
 def _select_points(intake: IntakeResult, data, n_train: int, timer: StageTimer):
@@ -252,7 +270,8 @@ def _select_points(intake: IntakeResult, data, n_train: int, timer: StageTimer):
 
     mp = intake.spec.measurement_points
     with timer.stage("select points"):
-        sel = select_sensors(data.direct_points[:, :n_train], min(mp.count, intake.points.count),
+        p = intake.plan.sizing.points[0]
+        sel = select_sensors(data.direct_points[:, :n_train], min(p, intake.points.count),
                              positions=intake.points.position, seed=mp.seed)
         points = restrict_points(intake.points, sel.indices)
         data = dataclasses.replace(data, direct_points=data.direct_points[sel.indices])

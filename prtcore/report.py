@@ -3,7 +3,8 @@
 For n ∈ {4, 8, 16, 32, 64} (≤ what the fit allows): relative RMSE of the held-out
 configurations against their reference, the projection bound (the reference projected
 onto the basis: the best any transfer could do with n elements), the CPU cost of the
-coefficients (u = M·x, µs) and of the basis blend at atlas size (ms), and storage.
+coefficients (u = M·x, plus the learnt residual of an "mlp" transfer; µs) and of the
+basis blend at atlas size (ms), and storage.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.mlp import transfer_residual, transfer_rows
 from prtcore.fit.model import TransferModel
 from prtcore.fit.transfer import heldout_errors
 
@@ -44,8 +46,10 @@ def truncate(model: TransferModel, n: int) -> TransferModel:
                 w for w in diag.warnings if not w.startswith("basis count ")) + (
                 (f"basis count {n} capped at {model.n_basis}: the indirect data has rank "
                  f"{diag.indirect_rank} after mean subtraction",) if capped else ()))
+    learnt = None if model.learnt is None else model.learnt.select_outputs(
+        transfer_rows(model.basis.shape[1], min(nb, model.basis.shape[1])))
     return dataclasses.replace(model, basis=model.basis[:, :nb], transfer=model.transfer[
-        ..., :nb, :], offset=model.offset[..., :nb], diagnostics=diag)
+        ..., :nb, :], offset=model.offset[..., :nb], diagnostics=diag, learnt=learnt)
 
 
 def _time(fn, repeat: int) -> float:
@@ -58,35 +62,26 @@ def _time(fn, repeat: int) -> float:
     return float(np.median(ts))
 
 
-def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
-                     holdout_indirect: np.ndarray, atlas_pixels: int,
-                     planes_bytes_per_element: float, reference: str,
-                     groups: np.ndarray | None = None) -> dict:
-    """The table.
+def heldout_metrics(model: TransferModel, holdout_direct: np.ndarray,
+                    holdout_indirect: np.ndarray, ns: list[int],
+                    groups: np.ndarray | None = None) -> list[dict[str, float | None]]:
+    """The accuracy columns of the table for each n of ``ns`` (the verdict's inputs; also
+    what automatic sizing judges a (P, K) by, prtcore/sizing.py).
 
-    holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3) reference indirect radiance.
-    atlas_pixels : W·H (the blend runs over the whole atlas, as in a fragment shader).
-    groups : (H,) keyframe of each held-out configuration (per-keyframe transfers only).
+    holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3); groups : (H,) keyframe of
+    each held-out configuration (per-keyframe transfers only). Configurations without
+    direct light at the points are left out; those without indirect light count only in
+    the global and absolute errors. Per n: the per-light relative RMSE (mean, max) and
+    projection bound (mean, max), both pooled over the lights (√(Σ‖rec − ref‖² / Σ‖ref‖²),
+    each light weighing the indirect light it holds), the error relative to the RMS of
+    *all* held-out lightmaps (mean, max), the absolute RMSE (radiance units) and the
+    fraction of texels reconstructed negative.
     """
-    ns = [n for n in TABLE_N if n <= model.n_basis]
-    if model.n_basis not in ns:
-        ns.append(model.n_basis)
-    ns = sorted(ns)
     H = holdout_direct.shape[1]
-    rows = []
-    rng = np.random.default_rng(0)
-    # configurations without direct light at the measurement points (or without indirect
-    # light) have no relative error: skipped, and listed so that the skip is visible
-    skipped = []
+    T = holdout_indirect.shape[0]
     lit = np.array([np.linalg.norm(holdout_direct[:, h, :]) > 0 for h in range(H)], bool)
-    for h in range(H):
-        if not lit[h]:
-            skipped.append({"index": h, "reason": "zero direct"})
-        elif not np.linalg.norm(holdout_indirect[:, h, :]) > 0:
-            skipped.append({"index": h, "reason": "zero indirect"})
     # every size's reconstructions and projections in one pass over the texels
     # (fit/transfer.py heldout_errors), not one pass per light and size
-    T = holdout_indirect.shape[0]
     use = np.flatnonzero(lit)
     err = heldout_errors(model, holdout_direct[:, use], holdout_indirect[:, use], ns,
                          None if groups is None else np.asarray(groups)[use])
@@ -98,12 +93,8 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
                     for h in np.flatnonzero(~lit)]
     global_norm = float(np.sqrt(np.mean(ref_ss))) if H else 0.0
     has_ref = err.ref_ss > 0
-    # the blend timing's image, allocated once at the largest size (a product's speed does
-    # not depend on the values)
-    px = min(atlas_pixels, BLEND_TIMING_PIXELS)
-    planes_max = 3 + (max(ns) - 1) * (1 if model.channels == "mono" else 3)
-    img_all = np.full(px * planes_max, 0.5, dtype=np.float32)
-    for i, n in enumerate(ns):
+    out = []
+    for i in range(len(ns)):
         diff = np.sqrt(err.sse[i])
         errs = diff[has_ref] / np.sqrt(err.ref_ss[has_ref])
         bounds = np.sqrt(err.bound_sse[i][has_ref] / err.ref_ss[has_ref])
@@ -113,21 +104,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         # pooled: Σ‖rec − ref‖², Σ (bound·‖ref‖)², Σ‖ref‖²
         pooled = (float(err.sse[i][has_ref].sum()), float(err.bound_sse[i][has_ref].sum()),
                   float(err.ref_ss[has_ref].sum()))
-        M = model.transfer[..., : n - 1, :]
-        M = M if M.ndim == 3 else M[0]
-        x32 = rng.random((M.shape[-1],)).astype(np.float32)
-        u_s = _time(lambda M=M, x32=x32: [M[c] @ x32 for c in range(3)], 200)
-        planes = 3 + (n - 1) * (1 if model.channels == "mono" else 3)
-        # timed on at most BLEND_TIMING_PIXELS pixels and scaled to the atlas (linear in
-        # pixels): a 4096² atlas of 64 elements would otherwise allocate 9 GB here
-        img = img_all[:px * planes].reshape(px, planes)
-        w = rng.random((planes, 3)).astype(np.float32)
-        blend_s = _time(lambda img=img, w=w: img @ w, 5) * (atlas_pixels / px)
-        files = -(-planes // 4)
-        storage = int(files * 4 * planes_bytes_per_element + M.size * 4 * (
-            1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
-        rows.append({
-            "n": n,
+        out.append({
             "heldout_rmse_mean": float(np.mean(errs)) if errs.size else None,
             "heldout_rmse_max": float(np.max(errs)) if errs.size else None,
             "projection_bound_mean": float(np.mean(bounds)) if bounds.size else None,
@@ -145,6 +122,70 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
             # radiance units (linear RGB, per texel and channel)
             "heldout_abs_rmse_mean": float(np.mean(abs_rmse)) if abs_rmse.size else None,
             "negative_texel_fraction": float(np.mean(negative)) if negative.size else None,
+        })
+    return out
+
+
+def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
+                     holdout_indirect: np.ndarray, atlas_pixels: int,
+                     planes_bytes_per_element: float, reference: str,
+                     groups: np.ndarray | None = None, shipped: int | None = None) -> dict:
+    """The table.
+
+    holdout_direct : (P, H, 3), holdout_indirect : (T, H, 3) reference indirect radiance.
+    atlas_pixels : W·H (the blend runs over the whole atlas, as in a fragment shader).
+    groups : (H,) keyframe of each held-out configuration (per-keyframe transfers only).
+    shipped : the n that ships, given a row too (≤ model.n_basis; the verdict's row)
+    """
+    ns = [n for n in TABLE_N if n <= model.n_basis]
+    for extra in (model.n_basis, shipped):
+        if extra is not None and extra not in ns:
+            ns.append(extra)
+    ns = sorted(ns)
+    H = holdout_direct.shape[1]
+    rows = []
+    rng = np.random.default_rng(0)
+    # configurations without direct light at the measurement points (or without indirect
+    # light) have no relative error: skipped, and listed so that the skip is visible
+    skipped = []
+    for h in range(H):
+        if not np.linalg.norm(holdout_direct[:, h, :]) > 0:
+            skipped.append({"index": h, "reason": "zero direct"})
+        elif not np.linalg.norm(holdout_indirect[:, h, :]) > 0:
+            skipped.append({"index": h, "reason": "zero indirect"})
+    accuracy = heldout_metrics(model, holdout_direct, holdout_indirect, ns, groups)
+    # the blend timing's image, allocated once at the largest size (a product's speed does
+    # not depend on the values)
+    px = min(atlas_pixels, BLEND_TIMING_PIXELS)
+    planes_max = 3 + (max(ns) - 1) * (1 if model.channels == "mono" else 3)
+    img_all = np.full(px * planes_max, 0.5, dtype=np.float32)
+    for i, n in enumerate(ns):
+        M = model.transfer[..., : n - 1, :]
+        M = M if M.ndim == 3 else M[0]
+        x32 = rng.random((M.shape[-1],)).astype(np.float32)
+        net = None if model.learnt is None else model.learnt.select_outputs(
+            transfer_rows(model.basis.shape[1], n - 1))
+        if net is None:
+            u_s = _time(lambda M=M, x32=x32: [M[c] @ x32 for c in range(3)], 200)
+        else:  # the learnt residual is part of the coefficients' cost
+            x3 = np.random.default_rng(1).random((M.shape[-1], 3))
+            u_s = _time(lambda M=M, x32=x32, net=net, x3=x3: (
+                [M[c] @ x32 for c in range(3)], transfer_residual(net, x3)), 200)
+        planes = 3 + (n - 1) * (1 if model.channels == "mono" else 3)
+        # timed on at most BLEND_TIMING_PIXELS pixels and scaled to the atlas (linear in
+        # pixels): a 4096² atlas of 64 elements would otherwise allocate 9 GB here
+        img = img_all[:px * planes].reshape(px, planes)
+        w = rng.random((planes, 3)).astype(np.float32)
+        blend_s = _time(lambda img=img, w=w: img @ w, 5) * (atlas_pixels / px)
+        files = -(-planes // 4)
+        storage = int(files * 4 * planes_bytes_per_element + M.size * 4 * (
+            1 if model.transfer.ndim == 3 else model.transfer.shape[0]))
+        if net is not None:
+            storage += 4 * sum(w.size + c.size for w, c in zip(net.weights, net.biases,
+                                                               strict=True))
+        rows.append({
+            "n": n,
+            **accuracy[i],
             "cpu_coefficients_us": u_s * 1e6,
             "cpu_blend_ms": blend_s * 1e3,
             "textures": files,

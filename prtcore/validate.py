@@ -46,9 +46,15 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     data = load_runtime(bundle, m)
     source = Path(light_file) if light_file else bundle / m["validation"]["holdout_lights"]
     lights = load_light_file(source)[:count]
-    scene, texels = texel_space_for(bundle, timer=timer)
     kf = m.get("keyframes")
-    if kf:
+    if "strands" in m:  # a hair bundle: the fibre path tracer over the strand texels
+        if time is not None:
+            from prtcore.core.errors import PrtError
+            raise PrtError(f"{bundle}: time {time:g}: the bundle was baked without keyframes")
+        texels, tracer, ref, err = _hair_references(bundle, m, lights, spp, seed, timer)
+        posed = [(data, tracer, None)] * len(lights)
+    elif kf:
+        scene, texels = texel_space_for(bundle, timer=timer)
         from prtcore.keyframes.pose import nearest_keyframe
 
         k0 = 0 if time is None else nearest_keyframe(kf["times"], time)
@@ -60,6 +66,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
         if time is not None:
             from prtcore.core.errors import PrtError
             raise PrtError(f"{bundle}: time {time:g}: the bundle was baked without keyframes")
+        scene, texels = texel_space_for(bundle, timer=timer)
         tracer = RayTracer(scene.positions, scene.faces, scene.radius)
         ref, err = reference_lightmaps(scene, texels, [[lt] for lt in lights], spp, seed=seed,
                                        tracer=tracer, timer=timer)
@@ -98,6 +105,32 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
             "light_source": "held-out" if light_file is None else str(light_file),
             "seed": seed, "reference_noise_mean": float(np.mean(noise)) if noise else None,
             "rows": rows, "per_light": per_light}
+
+
+def _hair_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
+                     timer: StageTimer):
+    """References of a hair bundle: every strand texel's indirect light for each light by
+    the diffuse-fibre path tracer (:func:`prtcore.reference.fibres.fibre_reference`,
+    ``spp`` paths per texel in two independent halves). Returns the strand space, the
+    tracer of its fibre tubes, and ``ref`` (L, T, 3) with per-texel standard errors
+    ``err`` (L, T, 3) (|a − b| / 2: its square is an unbiased estimate of the variance)."""
+    from prtcore.io.hair import read_hair
+    from prtcore.receivers.strands import build_strand_space
+    from prtcore.reference.fibres import fibre_reference
+    from prtcore.transport.fibre import hair_tracer
+
+    with timer.stage("reference"):
+        hair = read_hair(bundle / manifest["asset"]["file"])
+        space = build_strand_space(hair, int(manifest["strands"]["texels_per_strand"]))
+        tracer, mesh = hair_tracer(space)
+        ref = np.zeros((len(lights), space.count, 3))
+        err = np.zeros((len(lights), space.count, 3))
+        every = np.arange(space.count)
+        for h, light in enumerate(lights):
+            a, b = fibre_reference(space, tracer, mesh, 0, [light], every, spp,
+                                   seed=seed + h)
+            ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
+    return space, tracer, ref, err
 
 
 def _posed_references(bundle: Path, manifest: dict, data, scene, texels, lights, keys,

@@ -68,9 +68,11 @@ def inside_sphere(subdivisions: int = 2, radius: float = 1.0
                                                                         keepdims=True)
 
 
-def bake_sh_prt_bundle(tmp_path, storage: str, *, bounce: bool = True):
-    """An sh_prt bundle (``storage`` "texture" or "vertex", 3 bands, 16 rays per sample) of
-    the project's floor-and-object scene at a 32² atlas, baked through the CLI."""
+def bake_sh_prt_bundle(tmp_path, storage: str, *, bounce: bool = True,
+                       specular: float = 0.0):
+    """An sh_prt bundle (``storage`` "texture" or "vertex", 3 bands, 16 rays per sample;
+    ``specular`` > 0: a glossy layer, exponent 8) of the project's floor-and-object scene at
+    a 32² atlas, baked through the CLI."""
     import json
 
     from prtcore.cli import main
@@ -79,7 +81,8 @@ def bake_sh_prt_bundle(tmp_path, storage: str, *, bounce: bool = True):
     asset = floor_object.write_floor_object(tmp_path / "fo.glb")
     spec = dict(floor_object.SPEC, atlas={"resolution": 32, "padding": 2},
                 method={"name": "sh_prt"},
-                sh_prt={"storage": storage, "bands": 3, "strata": 4, "bounce": bounce},
+                sh_prt={"storage": storage, "bands": 3, "strata": 4, "bounce": bounce,
+                        "specular": specular, "exponent": 8.0},
                 output={"dtype": "float"})
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     out = tmp_path / f"b_{storage}"

@@ -118,7 +118,7 @@ def test_failed_bake_leaves_nothing(tmp_path, monkeypatch):
     def boom(*args, **kwargs):
         raise PrtError("transport exploded")
 
-    monkeypatch.setattr(prtcore.transport.dataset, "bake_dataset", boom)
+    monkeypatch.setattr(prtcore.transport.dataset, "light_configurations", boom)
     out = tmp_path / "b"
     with pytest.raises(PrtError, match="exploded"):
         pipeline.bake(CORNELL, parse_spec(TINY_SPEC), out, quiet=True)

@@ -43,6 +43,15 @@ def test_compare_refuses_a_spec_without_an_asset(tmp_path, capsys):
     assert "--spec needs an asset" in capsys.readouterr().err
 
 
+def test_compare_refuses_a_spec_without_directional_lights(tmp_path, capsys):
+    asset = floor_object.write_floor_object(tmp_path / "fo.glb")
+    (tmp_path / "s.json").write_text(json.dumps({"lights": {"families": [{"type": "spot"}]}}))
+    assert main(["compare", str(asset), "--out", str(tmp_path / "o"), "--spec",
+                 str(tmp_path / "s.json")]) == 2
+    assert "no held-out directional light" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "data_driven").exists()  # refused before any bake
+
+
 @pytest.mark.slow
 def test_compare_ordering_on_the_project_scene(tmp_path):
     """The issue's claims, on the default scene and settings: data-driven PRT has the

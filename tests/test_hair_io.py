@@ -11,7 +11,7 @@ import pytest
 from prtcore.core.errors import AssetError, LimitExceeded, UnsupportedAsset
 from prtcore.core.hair import make_hair
 from prtcore.core.limits import IntakeLimits
-from prtcore.io.hair import is_hair_file, load_hair, read_hair, write_hair
+from prtcore.io.hair import is_hair_file, load_hair, read_hair, write_hair, write_usd_hair
 from prtcore.io.hair.yuksel import HEADER
 from prtcore.scenes.hair import hairball
 
@@ -210,3 +210,25 @@ def test_usd_unreadable_and_empty(tmp_path):
         load_hair(bad)
     with pytest.raises(AssetError, match="no BasisCurves"):
         load_hair(_usda(tmp_path, 'def Xform "x" {}', name="e.usda"))
+
+
+@pytest.mark.parametrize("suffix", [".usda", ".usdc"])
+def test_usd_round_trip(tmp_path, suffix):
+    h = hairball(strands=200, seed=5)
+    back = load_hair(write_usd_hair(tmp_path / f"ball{suffix}", h))
+    np.testing.assert_array_equal(back.offsets, h.offsets)
+    np.testing.assert_allclose(back.points, h.points, atol=1e-7)
+    np.testing.assert_allclose(back.thickness, h.thickness, rtol=1e-6)
+    np.testing.assert_allclose(back.color, h.color, rtol=1e-6)
+
+
+def test_usd_layers_that_compose_other_files_are_refused(tmp_path):
+    """USD would open a sublayer or reference from anywhere on disk: refused first."""
+    _usda(tmp_path, LINEAR, name="inner.usda")
+    outer = _usda(tmp_path, 'def "x" (references = @./inner.usda@) {}', name="outer.usda")
+    with pytest.raises(UnsupportedAsset, match=r"outer\.usda: the layer composes other files"):
+        load_hair(outer)
+    sub = tmp_path / "sub.usda"
+    sub.write_text('#usda 1.0\n(\n    subLayers = [@/etc/passwd@]\n)\n')
+    with pytest.raises(UnsupportedAsset, match="composes other files"):
+        load_hair(sub)

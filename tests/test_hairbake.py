@@ -15,6 +15,7 @@ from prtcore.io.hair import read_hair, write_hair
 from prtcore.io.imageio import read_image
 from prtcore.pipeline import bake
 from prtcore.scenes.hair import tangle
+from prtcore.validate import validate_bundle
 
 SPEC = {"hair": {"texels_per_strand": 4, "albedo": [0.8, 0.6, 0.4]},
         "measurement_points": {"count": 32, "supersample": 2},
@@ -51,11 +52,17 @@ def test_hair_bundle_states_its_strand_layout(bundle):
     assert m["verdict"]["status"] == "pass" and m["verdict"]["ratio"] <= 1.25
 
 
-def test_relight_writes_the_strand_texture(bundle, tmp_path):
+@pytest.fixture
+def light(tmp_path):
+    """A point light beside the tangle, as a light file."""
+    path = tmp_path / "light.json"
+    path.write_text(json.dumps({"type": "point", "position": [0.06, 0.04, 0.02],
+                                "intensity": 0.05, "color": [1, 1, 1]}))
+    return path
+
+
+def test_relight_writes_the_strand_texture(bundle, light, tmp_path):
     _, out = bundle
-    light = tmp_path / "light.json"
-    light.write_text(json.dumps({"type": "point", "position": [0.06, 0.04, 0.02],
-                                 "intensity": 0.05, "color": [1, 1, 1]}))
     exr = tmp_path / "relit.exr"
     assert cli_main(["relight", str(out), "--light", str(light), "--out", str(exr)]) == 0
     img = read_image(exr)
@@ -73,3 +80,31 @@ def test_hair_bake_refuses_what_it_cannot_do_by_key(tmp_path, key, value):
     asset = write_hair(tmp_path / "t.hair", tangle(20))
     with pytest.raises(SpecError, match=key):
         bake(asset, parse_spec({**SPEC, key: value}), tmp_path / "out", quiet=True)
+
+
+def test_render_draws_the_strands(bundle, light, tmp_path):
+    _, out = bundle
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"position": [0, 0.02, 0.12], "target": [0, 0, 0],
+                               "fov_y_deg": 40, "width": 48, "height": 48}))
+    images = {}
+    for mode, flag in (("full", []), ("indirect", ["--indirect-only"]),
+                       ("direct", ["--no-indirect"])):
+        exr = tmp_path / f"{mode}.exr"
+        assert cli_main(["render", str(out), "--light", str(light), "--camera", str(cam),
+                         "--out", str(exr), *flag]) == 0
+        images[mode] = read_image(exr)
+    seen = images["full"][:, :, 3] > 0.5
+    assert 0.05 < seen.mean() < 0.9  # fibres of the ball, not the whole frame
+    assert images["indirect"][seen, :3].mean() > 0 and images["direct"][seen, :3].mean() > 0
+    np.testing.assert_allclose(images["full"][:, :, :3],
+                               images["direct"][:, :, :3] + images["indirect"][:, :, :3],
+                               rtol=1e-5, atol=1e-7)
+
+
+def test_report_validates_a_hair_bundle_against_the_fibre_path_tracer(bundle):
+    _, out = bundle
+    v = validate_bundle(out, spp=16, count=1)
+    assert v["reference"] == "path tracer, 16 spp" and v["lights"] == 1
+    row = next(r for r in v["rows"] if r["n"] == 8)
+    assert 0 < row["rmse_mean"] < 1 and row["rmse_noise_corrected_mean"] <= row["rmse_mean"]

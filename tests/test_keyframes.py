@@ -79,8 +79,12 @@ def shared_bundle(column, tmp_path_factory) -> Path:
     """Baked through the command line."""
     d = tmp_path_factory.mktemp("shared")
     (d / "spec.json").write_text(json.dumps(_spec()))
+    # a deliberately tiny bake (24 lights, 32 points): it tests the keyframe mechanics,
+    # and its verdict is judged at the shipped n = 6 (not in the report's n list) and
+    # fails (underdetermined transfer), so the mechanics run with --allow-poor
     assert main(["bake", str(column), "--spec", str(d / "spec.json"), "--out",
-                 str(d / "bundle"), "-q"]) == 0
+                 str(d / "bundle"), "-q", "--allow-poor"]) == 0
+    assert read_manifest(d / "bundle")["verdict"]["status"] in ("pass", "fail")
     return d / "bundle"
 
 
@@ -501,7 +505,7 @@ def test_milk_truck_bakes_through_the_cli(shared_assets, tmp_path, capsys):
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     out = tmp_path / "truck"
     assert main(["bake", str(shared_assets / "CesiumMilkTruck.glb"), "--spec",
-                 str(tmp_path / "spec.json"), "--out", str(out), "-q"]) == 0
+                 str(tmp_path / "spec.json"), "--out", str(out), "-q", "--allow-poor"]) == 0
     m = read_manifest(out)
     jsonschema.validate(m, SCHEMA)
     assert m["keyframes"]["count"] == 3 and m["transfer"]["matrix"]["shape"][0] == 3

@@ -59,12 +59,17 @@ def test_box_without_uv1_plan_text():
                  "uv        generate — TEXCOORD_1 missing",
                  "keyframes skip — asset has no animation",
                  "texels    run — 512×512 atlas, padding 4",
-                 "points    run — 256 measurement points, surface, supersample 8",
+                 "sizing    run — auto: P ∈ {128, 256, 512, 1024}, K from 128 up to 512 "
+                 "until the held-out error is within 1.25× the projection bound "
+                 "(transport budget 300 s)",
+                 "points    run — 512 blue-noise candidates (2P as P grows), P chosen "
+                 "after transport (qdeim), supersample 8",
+                 "lights    run — 128–512 lights + 16 held out, 1 family (spot)",
                  "validate  run — 16 held-out lights against the reference"):
         assert line in text.splitlines(), (line, text)
     names = [ln.split()[0] for ln in text.splitlines()]
-    assert names == ["repair", "remesh", "uv", "keyframes", "texels", "points", "lights",
-                     "transport", "fit", "export", "validate"]
+    assert names == ["repair", "remesh", "uv", "keyframes", "sizing", "texels", "points",
+                     "lights", "transport", "fit", "export", "validate"]
     for ln in text.splitlines():  # "name␣…␣action — reason", names padded to 9 columns
         assert re.match(r"^[a-z]+ *\S+ — \S", ln) and ln[9] == " "
 

@@ -62,7 +62,9 @@ def test_fast_fibre_transport_matches_its_own_model_without_bias(solved):
     and solve are unbiased (what is left is the gather's per-texel noise)."""
     sel, const, _, _, avg = solved
     err = noise_corrected_error(const[sel].astype(float), *avg)
-    assert abs(err["bias"]) < 0.04, err
+    # 3 % (what benchmarks/hair_accuracy.py measures with 300 texels × 1024 paths) plus
+    # three standard errors of this small sample's estimate
+    assert abs(err["bias"]) < 0.03 + 3 * err["bias_se"], err
 
 
 def test_harmonic_first_bounce_removes_most_of_the_radial_bias(solved):
@@ -72,5 +74,6 @@ def test_harmonic_first_bounce_removes_most_of_the_radial_bias(solved):
     sel, const, harm, ref, _ = solved
     e_const = noise_corrected_error(const[sel].astype(float), *ref)
     e_harm = noise_corrected_error(harm[sel].astype(float), *ref)
-    assert e_const["bias"] > 0.06, e_const
-    assert abs(e_harm["bias"]) < 0.07 and e_harm["bias"] < e_const["bias"] / 2, e_harm
+    assert e_const["bias"] > 2 * e_const["bias_se"], e_const
+    assert abs(e_harm["bias"]) < 0.03 + 3 * e_harm["bias_se"], e_harm
+    assert e_harm["bias"] < e_const["bias"] - 0.04, (e_const, e_harm)

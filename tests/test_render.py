@@ -37,6 +37,7 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import light_from_dict, load_light_file
 from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
+from prtcore.io.bundle import read_manifest
 from prtcore.io.imageio import read_image, write_png
 from prtcore.reference.camera import Camera, CameraFileError, camera_from_dict, load_camera
 from prtcore.report import format_table, merge_gpu_columns
@@ -236,6 +237,41 @@ def test_gpu_coefficients_rgb_and_gamma(variant):
     _coefficient_check(variant, _light("spot_front"))
 
 
+@pytest.fixture(scope="module")
+def learnt(gl_ctx, tmp_path_factory):
+    """The renderer of a bundle with a learnt transfer (fit.transfer "mlp", issue 18)."""
+    spec = json.loads(json.dumps(TINY_SPEC))
+    spec["fit"].update({"transfer": "mlp", "mlp_steps": 60, "mlp_width": 24,
+                        "mlp_layers": 2})
+    spec["lights"].update(count=7)  # too few for a validation split: the network ships
+    bundle = _bake(tmp_path_factory, CORNELL, spec, "cornell_mlp")
+    # the equality must hold for any network, not only the trained one: seeded random
+    # weights of the same shapes
+    rng = np.random.default_rng(18)
+    for layer in read_manifest(bundle)["transfer"]["learnt"]["layers"]:
+        for part in ("weight", "bias"):
+            desc = layer[part]
+            values = rng.standard_normal(desc["shape"]) / np.sqrt(desc["shape"][-1])
+            (bundle / desc["file"]).write_bytes(values.astype("<f4").tobytes())
+    with BundleRenderer(bundle, ctx=gl_ctx) as r:
+        yield r
+
+
+def test_gpu_learnt_transfer_is_the_cpu_one(learnt):
+    """The GLSL network (learnt.glsl in the coefficients pass) against the numpy one
+    (runtime.plane_weights) for the GPU's own x: equal to 1e-4 of the largest weight, for
+    1, 3 and all elements and two lights; the learnt part is a large part of it."""
+    for name in ("point_center", "spot_front"):
+        lights = _light(name)
+        x, _ = learnt.shade_points(lights)
+        plain = plane_weights(dataclasses.replace(learnt.data, learnt=None), x)
+        for n in (1, 3, learnt.n_basis):
+            w = learnt.plane_weights(lights, n)
+            ref = plane_weights(learnt.data, x, n)
+            assert np.abs(w - ref).max() <= 1e-4 * np.abs(ref).max(), (name, n)
+        assert np.abs(ref - plain).max() > 0.1 * np.abs(ref).max()
+
+
 def _cpu_lightmap(r: BundleRenderer, lights, n=None) -> np.ndarray:
     """The CPU blend for the GPU's own x (isolates blending from shading)."""
     x, _ = r.shade_points(lights)
@@ -316,7 +352,14 @@ def test_indirect_view_is_the_cpu_lightmap_through_the_uvs(cornell, cornell_trac
     def rel_rms(a, b):
         return np.sqrt(((a - b) ** 2).mean() / (b ** 2).mean())
 
-    same_x = bilinear(_cpu_lightmap(cornell, lights), res.uv1)[front]
+    # the GPU filters the planes, then clamps the blend at 0 (runtime formula): compare
+    # with the CPU's blend before its clamp, filtered alike, then clamped
+    x, _ = cornell.shade_points(lights)
+    assert cornell.data.gamma is None
+    h, w, q = cornell.data.planes.shape
+    unclamped = (cornell.data.planes.reshape(-1, q).astype(np.float64)
+                 @ plane_weights(cornell.data, x, None)).reshape(h, w, 3)
+    same_x = np.maximum(bilinear(unclamped, res.uv1), 0.0)[front]
     assert np.abs(got - same_x).max() <= 0.005 * np.abs(same_x).max()
     assert rel_rms(got, same_x) <= 0.002
     # with the CPU's own shading (shadow rays instead of shadow maps): within 2%

@@ -96,6 +96,7 @@ def test_sh_prt_bake_relights_with_an_environment_file(tmp_path, storage, capsys
                          "manifest.schema.json").read_text())
     jsonschema.validate(m, schema)
     assert m["method"] == "sh_prt" and m["sh_prt"]["storage"] == storage
+    assert (out / "report.png").is_file() and (out / "coverage.exr").is_file()
     assert m["sh_prt"]["kind"] == "interreflected" and "verdict: not judged" in \
         m["verdict"]["line"]
     sky = sky_environment(np.array([0.3, 0.8, 0.2]), 16)

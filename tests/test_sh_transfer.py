@@ -147,6 +147,36 @@ def test_glossy_tp_and_tpfl_match_path_traced_phong_at_the_same_band_limit(setup
     assert err_tp < 0.12 * mean
 
 
+def test_glossy_one_bounce_texture_matches_path_traced_phong_with_a_bounce(setup):
+    """The poster's T₁ (section 2.1) for the fixed light: SH of the radiance arriving from
+    the surfaces the rays hit, their outgoing radiance read from the stored T₀ texture.
+    TPFL with T₀ + T₁ against Phong path-traced with one bounce (the lobe at the same band
+    limit)."""
+    scene, tx, tracer, samples, env = setup
+    exponent, spec = 8.0, np.full((tx.count, 3), 0.5)
+    view = np.array([2.3, 2.0, 3.1]) - tx.position
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    r = sh_prt.reflect(view, tx.normal)
+    light = env.sh_coefficients(BANDS)
+    fixed = st.fixed_light_transfer(tracer, samples, env.radiance, BANDS, 16, seed=1)
+    t0 = st.shadowed_transfer(scene, tracer, samples, BANDS, 16, seed=3)
+    image = tx.to_image(t0.coeffs.reshape(tx.count, -1))[..., :-1].reshape(
+        tx.height, tx.width, 3, BANDS * BANDS)
+    look = st.texel_lookup(scene, image)
+    bounce = st.fixed_light_bounce_transfer(
+        tracer, samples, lambda tri, bary: np.einsum("hcl,lc->hc", look(tri, bary), light),
+        BANDS, 16, seed=1)
+    ref = reference_phong(tracer, env, tx.position, tx.geometric_normal, r, spec, exponent,
+                          2048, seed=2, lobe_bands=BANDS, scene=scene)
+    err0, noise = _corrected_rms(sh_prt.glossy_tpfl(fixed, r, exponent, spec), ref)
+    err1, _ = _corrected_rms(sh_prt.glossy_tpfl(fixed + bounce, r, exponent, spec), ref)
+    mean = float(ref.mean.mean())
+    print(f"\nglossy with one bounce: TPFL T0+T1 corrected rms {err1:.4f}, T0 alone "
+          f"{err0:.4f} (noise {noise:.4f}); mean {mean:.3f}")
+    assert err1 < 0.4 * err0
+    assert err1 < 0.1 * mean
+
+
 def test_vertex_samples_and_lookup(setup):
     scene, _, tracer, _, _ = setup
     vs = st.vertex_samples(scene)

@@ -121,3 +121,18 @@ def test_hits_map_to_the_texel_of_their_arc_length(kind):
     strand = np.repeat([0, 1], len(z))
     expect = strand * 4 + np.minimum(np.floor(np.tile(z, 2) / 0.5), 3).astype(int)
     np.testing.assert_array_equal(texel, expect)
+
+
+def test_degenerate_strands_give_finite_texels_and_tubes():
+    """Real files hold repeated points and zero-length strands: no NaN may come out."""
+    strands = [np.repeat([[0.0, 0, 0]], 4, axis=0),  # zero length
+               np.array([[1.0, 0, 0], [1, 1, 0], [1, 1, 0], [1, 2, 0]]),  # repeated point
+               np.array([[2.0, 0, 0], [2, 0, 1]])]  # one segment
+    s = build_strand_space(make_hair(strands, 0.01), 3)
+    for a in (s.position, s.tangent, s.normal, s.footprint):
+        assert np.isfinite(a).all()
+    origin, normal, _, phi = s.surface_samples(4, seed=0)
+    assert np.isfinite(origin).all() and np.isfinite(normal).all() and np.isfinite(phi).all()
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=2), 1.0)
+    mesh = fibre_tubes(s.hair)
+    assert np.isfinite(mesh.positions).all()

@@ -13,6 +13,7 @@ install command, never a skip.
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import os
@@ -24,8 +25,10 @@ from browser import launch, viewer_bundle, wait_ready
 from golden_images import check_golden
 from PIL import Image
 
+from prtcore import pipeline
 from prtcore.cli import main
 from prtcore.core.raytrace import RayTracer
+from prtcore.core.spec import parse_spec
 from prtcore.emitters.lightfile import light_from_dict
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
@@ -61,7 +64,7 @@ def viewer(bundle, browser):
     uncaught exceptions for the whole module."""
     log: list[str] = []
     with ViewerServer(bundle, quiet=True).start() as server:
-        page = browser.new_page(viewport={"width": 640, "height": 400})
+        page = browser.new_page(viewport={"width": 640, "height": 440})
         page.on("console", lambda m: m.type == "error" and log.append(f"console: {m.text}"))
         page.on("pageerror", lambda e: log.append(f"pageerror: {e}"))
         page.goto(server.url)
@@ -164,6 +167,36 @@ def test_camera_pixel_is_direct_plus_indirect(viewer):
     assert 0 < albedo.max() <= 0.99
 
 
+def test_direct_view_matches_ray_traced_direct(viewer, bundle):
+    """The canvas in direct mode (float read-back) against the camera-space reference's
+    direct term for the same camera file (prtcore.reference.camera: a ray per pixel centre,
+    shadow rays): the same pixels see the asset (≤ 0.5 % differ: silhouettes), ≤ 1 % of the
+    pixels differ by more than 1e-3 of the peak (shadow-map edges: whole pixels lit on one
+    side and shadowed on the other) and the others agree to 1e-3 relative RMSE (measured:
+    0.12 % off, 3.1e-4: float32 interpolated positions against float64 hits). Checks the
+    camera, pixel-centre and row conventions, the light formulas and the shadow lookups of
+    the camera pass."""
+    from prtcore.reference.camera import camera_from_dict, reference_image
+
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    _set_light(page, LIGHT)
+    img = np.frombuffer(base64.b64decode(page.evaluate("prt.image('direct')")), "<f4"
+                        ).reshape(256, 256, 4)
+    ref = reference_image(load_asset(bundle / "asset.glb"), [light_from_dict(LIGHT)],
+                          camera_from_dict(CAMERA), spp=1, max_depth=1)  # direct is used
+    seen, drawn = ref.alpha > 0, img[:, :, 3] > 0
+    assert (seen != drawn).mean() <= 0.005
+    both = seen & drawn
+    got, want = img[:, :, :3][both], ref.direct[both]
+    off = (np.abs(got - want) > 1e-3 * want.max()).any(axis=1)
+    print(f"direct view: {off.mean():.3%} of the pixels off; relative RMSE "
+          f"{np.sqrt(((got - want) ** 2).mean() / (want ** 2).mean()):.2e}, without them "
+          f"{np.sqrt(((got - want)[~off] ** 2).mean() / (want[~off] ** 2).mean()):.2e}")
+    assert off.mean() <= 0.01
+    assert np.sqrt(((got - want)[~off] ** 2).mean() / (want[~off] ** 2).mean()) <= 1e-3
+
+
 @pytest.mark.parametrize("mode", ["full", "direct", "indirect", "albedo", "element", "points",
                                   "checker", "uv"])
 def test_every_mode_draws(viewer, mode):
@@ -181,6 +214,67 @@ def test_every_mode_draws(viewer, mode):
         page.evaluate("o => prt.set(o)", {"basis": page.evaluate("prt.bundle.nBasis")})
         assert np.any(_set_light(page, LIGHT)["u"])
     page.evaluate("o => prt.set(o)", {"mode": "full"})
+
+
+def test_light_form_relights(viewer):
+    """The light's form fields drive the light pass: doubling the intensity doubles x and u
+    (no gamma in this bundle), a pure red colour leaves no green or blue direct light, and
+    the reset button brings back the start light."""
+    page, _ = viewer
+    r1 = _set_light(page, LIGHT)
+    page.fill("#light-intensity", str(2 * LIGHT["intensity"]))
+    page.dispatch_event("#light-intensity", "change")
+    x1, x2 = np.asarray(r1["x"]), np.asarray(page.evaluate("prt.x"))
+    u1, u2 = np.asarray(r1["u"]), np.asarray(page.evaluate("prt.u"))
+    np.testing.assert_allclose(x2, 2 * x1, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(u2, 2 * u1, rtol=1e-5, atol=1e-9 * np.abs(u1).max())
+    page.fill("#light-color", "#ff0000")
+    page.dispatch_event("#light-color", "change")
+    x = np.asarray(page.evaluate("prt.x")).reshape(-1, 3)
+    assert x[:, 0].max() > 0 and not x[:, 1:].any()
+    page.click("#reset")
+    start = np.asarray(page.evaluate("prt.x"))
+    assert not np.allclose(start, x.ravel())
+    _set_light(page, LIGHT)
+
+
+def test_dragging_the_gizmo_moves_the_light(viewer):
+    """A mouse drag from the light's centre on the canvas grabs the gizmo (for this camera,
+    looking down −z, its Z arrow covers the centre), moves the light and relights; a drag
+    elsewhere orbits the camera and leaves the light where it is."""
+    from prtcore.reference.camera import camera_from_dict
+
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    _set_light(page, LIGHT)
+    cam = camera_from_dict(CAMERA)
+    clip = cam.clip_from_view(0.1, 10.0) @ cam.view_from_world() @ np.append(LIGHT["position"], 1)
+    box = page.locator("#view").bounding_box()
+    sx = box["x"] + (clip[0] / clip[3] + 1) / 2 * box["width"]
+    sy = box["y"] + (1 - clip[1] / clip[3]) / 2 * box["height"]
+    x0 = np.asarray(page.evaluate("prt.x"))
+    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
+    page.wait_for_timeout(50)
+    page.mouse.down()
+    for k in range(1, 6):
+        page.mouse.move(sx + 6 * k, sy)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+    moved = page.evaluate("prt.light")["position"]
+    assert np.linalg.norm(np.subtract(moved, LIGHT["position"])) > 0.05
+    assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
+    before = page.locator("#view").screenshot()
+    page.mouse.move(box["x"] + 20, box["y"] + 230)  # the floor's corner, away from the gizmo
+    page.wait_for_timeout(50)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 60, box["y"] + 230)
+    page.wait_for_timeout(30)
+    page.mouse.up()
+    page.wait_for_timeout(100)  # the orbit's frame is drawn on the next animation frame
+    assert page.evaluate("prt.light")["position"] == moved
+    assert page.locator("#view").screenshot() != before
+    _set_light(page, LIGHT)
+    page.evaluate("v => prt.setView(v)", CAMERA)
 
 
 def test_out_of_family_badge(viewer):
@@ -212,6 +306,55 @@ def test_golden_viewer_cornell(viewer, bundle):
     check_golden("viewer_cornell", rgb8)
 
 
+def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, tmp_path):
+    """`prtcore view DIR --reference REF.exr --light L.json`: the page starts with the
+    reference's light, reports the indirect lightmap's relative RMS error against the
+    reference as numpy computes it from `prtcore relight` and the same EXR (to 1e-5), and
+    its heat-map mode draws. (The error includes the reference's Monte Carlo noise.)"""
+    (tmp_path / "light.json").write_text(json.dumps(LIGHT))
+    ref = tmp_path / "reference.exr"
+    assert main(["reference", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                 str(ref), "--spp", "16", "-q"]) == 0
+    want = read_image(ref)
+    _, relight_image = relit
+    cov = want[:, :, 3] > 0
+    err = np.sqrt(((relight_image[cov, :3] - want[cov, :3]) ** 2).sum()
+                  / (want[cov, :3] ** 2).sum())
+    errors: list[str] = []
+    with ViewerServer(bundle, quiet=True, reference=ref,
+                      reference_light=tmp_path / "light.json").start() as server:
+        page = browser.new_page()
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url)
+        wait_ready(page)
+        assert abs(page.evaluate("prt.referenceError") - err) <= 1e-5
+        assert "indirect vs path-traced reference" in page.text_content("#stats")
+        page.evaluate("o => prt.set(o)", {"mode": "error"})
+        img = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert(
+            "RGB"))
+        assert img.reshape(-1, 3).std(axis=0).max() > 5
+        page.close()
+    assert errors == []
+
+
+@pytest.mark.parametrize(("manifest", "says"), [
+    ({"method": "sh_prt"}, "this viewer shows data-driven bundles"),
+    ({"method": "data_driven", "strands": {"texels_per_strand": 10}},
+     "hair bundles (strand textures) are not shown"),
+])
+def test_other_bundles_are_refused_plainly(browser, tmp_path, manifest, says):
+    """Bundles the viewer cannot show (SH-PRT, hair) get one line saying so, not a loader
+    error (only their manifest is read)."""
+    (tmp_path / "manifest.json").write_text(json.dumps(
+        {"schema": "prtcore.bundle", "version": 1, **manifest}))
+    with ViewerServer(tmp_path, quiet=True).start() as server:
+        page = browser.new_page()
+        page.goto(server.url)
+        page.wait_for_function("window.prt && window.prt.error", timeout=30_000)
+        assert says in page.text_content("#message")
+        page.close()
+
+
 def test_no_webgl2_says_so(browser, bundle):
     """Without WebGL2 the page says so plainly, and throws nothing."""
     errors: list[str] = []
@@ -229,6 +372,73 @@ def test_no_webgl2_says_so(browser, bundle):
         assert "needs WebGL2" in page.text_content("#message")
         page.close()
     assert errors == []
+
+
+@pytest.fixture(scope="module")
+def keyframe_page(browser, tmp_path_factory):
+    """(page, bundle): a keyframe bundle (the bending column of tests/keyframe_assets.py, one
+    transfer per keyframe, half basis) in its own page of the module's browser."""
+    from keyframe_assets import bending_column_asset
+    from test_keyframes import KF_SPEC
+
+    d = tmp_path_factory.mktemp("keyframes")
+    spec = json.loads(json.dumps(KF_SPEC))
+    spec["keyframes"]["transfer"] = "per_keyframe"
+    spec["output"] = {"dtype": "half"}
+    bundle = pipeline.bake(bending_column_asset(d / "column.glb"), parse_spec(spec),
+                           d / "bundle", quiet=True)
+    log: list[str] = []
+    with ViewerServer(bundle, quiet=True).start() as server:
+        page = browser.new_page()
+        page.on("console", lambda m: m.type == "error" and log.append(m.text))
+        page.on("pageerror", lambda e: log.append(str(e)))
+        page.goto(server.url)
+        wait_ready(page)
+        yield page, bundle
+        page.close()
+    assert log == []
+
+
+def test_keyframe_time_slider_matches_relight_at_that_time(keyframe_page, tmp_path):
+    """The time slider poses the keyframe (vertices, clusters, points) and picks its
+    transfer: the indirect lightmap at keyframes 0 and 2 equals `prtcore relight --time` at
+    those keyframes' times (relative RMSE ≤ 1e-3), and the two keyframes differ. The light
+    is one at which no measurement point of either keyframe sits on a shadow-map edge (see
+    the next test for one that does)."""
+    page, bundle = keyframe_page
+    times = read_manifest(bundle)["keyframes"]["times"]
+    assert page.evaluate("prt.bundle.keyframes") == len(times) == 3
+    light = {"type": "point", "intensity": 2.0, "position": [0.9, 2.0, -0.5]}
+    (tmp_path / "light.json").write_text(json.dumps(light))
+    got = {}
+    for k in (0, 2):
+        page.evaluate("o => prt.set(o)", {"time": k})
+        _set_light(page, light)
+        assert main(["relight", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                     str(tmp_path / f"{k}.exr"), "--time", str(times[k])]) == 0
+        want = read_image(tmp_path / f"{k}.exr")
+        got[k] = np.asarray(page.evaluate("prt.atlas()"), np.float32).reshape(want.shape)
+        cov = want[:, :, 3] > 0
+        err = np.sqrt(((got[k][cov, :3] - want[cov, :3]) ** 2).mean()
+                      / (want[cov, :3] ** 2).mean())
+        assert err <= 1e-3, (k, err)
+    assert np.abs(got[0] - got[2]).max() > 1e-3 * np.abs(got[0]).max()
+
+
+def test_keyframe_direct_vector_is_the_gl_runtimes(keyframe_page):
+    """Where a measurement point sits on a shadow-map edge, shadow maps and the CPU
+    runtime's shadow rays disagree about it (here point 30 of keyframe 0: lit for the ray
+    tracer, shadowed for the maps); the page then agrees with the GL runtime of `prtcore
+    render` (same shadow-map algorithm, resolution 512), to 1e-5."""
+    from prtcore.runtime.gl import BundleRenderer
+
+    page, bundle = keyframe_page
+    light = {"type": "point", "intensity": 2.0, "position": [0.4, 1.8, 0.3]}
+    page.evaluate("o => prt.set(o)", {"time": 0})
+    x = np.asarray(_set_light(page, light)["x"]).reshape(-1, 3)
+    with BundleRenderer(bundle, shadow_resolution=512, time=0.0) as r:
+        want, _ = r.shade_points([light_from_dict(light)])
+    assert np.linalg.norm(x - want) <= 1e-5 * np.linalg.norm(want)
 
 
 def test_no_console_errors(viewer):

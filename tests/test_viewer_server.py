@@ -107,6 +107,25 @@ def test_server_serves_the_page_the_viewer_and_the_bundle(fake_bundle):
             assert _get(s.url + bad)[0] == 404, bad
 
 
+def test_server_serves_a_reference_only_when_given(fake_bundle, tmp_path):
+    (tmp_path / "ref.exr").write_bytes(b"exr")
+    (tmp_path / "l.json").write_text("{}")
+    with ViewerServer(fake_bundle, quiet=True).start() as s:
+        assert b'data-reference=""' in _get(s.url)[2]
+        assert _get(s.url + "reference/reference.exr")[0] == 404
+    with ViewerServer(fake_bundle, quiet=True, reference=tmp_path / "ref.exr",
+                      reference_light=tmp_path / "l.json").start() as s:
+        assert b'data-reference="./reference/"' in _get(s.url)[2]
+        assert _get(s.url + "reference/reference.exr")[2] == b"exr"
+        assert _get(s.url + "reference/light.json")[0] == 200
+        assert _get(s.url + "reference/other")[0] == 404
+    with pytest.raises(PrtError, match="go together"):
+        ViewerServer(fake_bundle, reference=tmp_path / "ref.exr")
+    with pytest.raises(PrtError, match="no such file"):
+        ViewerServer(fake_bundle, reference=tmp_path / "nope.exr",
+                     reference_light=tmp_path / "l.json")
+
+
 def test_server_refuses_a_non_bundle(tmp_path):
     with pytest.raises(PrtError, match="not a bundle"):
         ViewerServer(tmp_path)

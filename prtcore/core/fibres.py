@@ -149,3 +149,21 @@ def outside_offset(hair: Hair, sides: int = DEFAULT_SIDES) -> np.ndarray:
     """(p,) float64: the radius at each point from which rays leave the fibre — the tube's
     circumradius plus a relative margin of 1e-3."""
     return hair.thickness / 2 * circumradius_scale(sides) * (1 + 1e-3)
+
+
+def cylinder_normal(tangent: np.ndarray, direction: np.ndarray, impact: np.ndarray
+                    ) -> np.ndarray:
+    """(n, 3) unit normals of a round fibre hit by rays along ``direction`` (n, 3) at
+    impact parameter ``impact`` (n,) in [−1, 1] (signed offset from the axis in radii,
+    across the ray), ``tangent`` (n, 3) the fibre's unit axis.
+
+    The tubes are an occlusion proxy whose mean projected width is the cylinder's; where
+    a ray hits them, shading uses the cylinder's normal for a uniformly random impact
+    parameter — the distribution of normals a round fibre presents to that ray — not the
+    flat face's, which would bias light reflected back toward the ray."""
+    d = direction - np.einsum("ij,ij->i", direction, tangent)[:, None] * tangent
+    ln = np.linalg.norm(d, axis=1, keepdims=True)
+    d = np.where(ln > 1e-12, d / np.maximum(ln, 1e-300), orthonormal_frame(tangent)[0])
+    side = np.cross(tangent, d)
+    h = np.clip(impact, -1.0, 1.0)[:, None]
+    return -np.sqrt(1.0 - h * h) * d + h * side

@@ -15,6 +15,15 @@ RUNTIME_FORMULA = (
     "x' = sign(x)|x|^(1/gamma) (identity without gamma); s = ||x'|| (Frobenius); "
     "u_c = transfer[c] @ x'_c + s * offset[c] (c = R, G, B); "
     "plane weights: mean plane of channel c -> s*e_c, mono element i -> (u_R,i, u_G,i, u_B,i), "
-    "rgb element i channel c -> u_c,i*e_c; colour = sum_j plane_j * w_j; "
-    "with gamma: colour = max(colour, 0)^gamma"
+    "rgb element i channel c -> u_c,i*e_c; colour = max(sum_j plane_j * w_j, 0) "
+    "(negative light is clamped); with gamma: colour = colour^gamma"
+)
+
+#: The clause a bundle with a learnt transfer (``fit.transfer: "mlp"``) adds
+#: (``manifest.runtime.learnt``); the network is ``manifest.transfer.learnt``
+#: (:mod:`prtcore.core.mlp`, ``prtcore.runtime.cpu.plane_weights``, ``learnt.glsl``).
+LEARNT_FORMULA = (
+    "before the plane weights: u_c += s * r_c, r = mlp(x'/s) with x'/s flattened "
+    "channel-major (index c*P + p; r = 0 when s = 0); mlp: h = leaky_relu(W_j h + b_j) "
+    "(slope) for every layer but the last, r = W_L h + b_L, r laid out c*(n-1) + i"
 )

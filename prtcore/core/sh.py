@@ -47,6 +47,12 @@ def band_of(bands: int) -> np.ndarray:
     return np.repeat(np.arange(_check_bands(bands)), 2 * np.arange(bands) + 1)
 
 
+def normalisation(bands: int) -> np.ndarray:
+    """(L, L) float64 read-only table of K_l^m = sqrt((2l+1)/(4π) (l−m)!/(l+m)!) for
+    0 ≤ m ≤ l < L (0 above): the basis' normalisation (a GPU evaluator reads it)."""
+    return _normalisation(_check_bands(bands))
+
+
 @cache
 def _normalisation(bands: int) -> np.ndarray:
     """(L, L) float64: K_l^m = sqrt((2l+1)/(4π) (l−m)!/(l+m)!) for 0 ≤ m ≤ l (0 above)."""

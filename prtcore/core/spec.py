@@ -42,11 +42,14 @@ class PrepareSpec:
 
 @dataclass(frozen=True)
 class PointsSpec:
-    count: int = 256
-    placement: str = "surface"  # "surface" | "hull" | "qdeim"
+    #: P, or "auto": the bake chooses P from the data (prtcore/sizing.py)
+    count: int | str = "auto"
+    #: "auto": "qdeim" when the bake chooses P (count "auto", static), else "surface"
+    placement: str = "auto"  # "auto" | "surface" | "hull" | "qdeim"
     supersample: int = 8
     seed: int = 1
-    #: "qdeim": blue-noise candidates to choose the points from (0: 8 × count)
+    #: blue-noise candidates the points are chosen from ("qdeim", or count "auto")
+    #: (0: 8 × count, or 2 × sizing.max_points when count is "auto")
     candidates: int = 0
 
 
@@ -69,7 +72,8 @@ class LightFamily:
 
 @dataclass(frozen=True)
 class LightsSpec:
-    count: int = 128
+    #: K, or "auto": start at sizing.lights_start and grow while the verdict needs it
+    count: int | str = "auto"
     holdout: int = 16
     seed: int = 2
     families: tuple[LightFamily, ...] = (
@@ -96,13 +100,23 @@ class TransportSpec:
 
 @dataclass(frozen=True)
 class FitSpec:
-    basis: int | str = 16  # int or "auto"
+    #: n, or "auto" (the smallest n within 1 % of the best held-out error). Not the default:
+    #: n is the runtime's budget (blend cost and storage grow with it), and "auto" runs to
+    #: the rank on smooth scenes (n = 45–64 on the Cornell example)
+    basis: int | str = 16
     ridge: float | str = "auto"  # float ≥ 0 or "auto"
     channels: str = "mono"  # "mono" | "rgb"
     gamma: float | None = None
     #: radius in texels of the seam-aware filter applied to the training lightmaps before
     #: the basis is fitted (0: off); keeps the gather's per-texel noise out of the basis
     denoise: float = 1.5
+    #: the transfer regressor: "ridge" | "mlp" (ridge + a learnt residual, issue 18)
+    transfer: str = "ridge"
+    mlp_width: int = 64
+    mlp_layers: int = 2
+    mlp_steps: int = 2000
+    #: seed of the learnt transfer's initial weights and validation split
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -129,6 +143,20 @@ class ValidateSpec:
     #: and judge their noise-corrected error instead of the fast transport's
     reference_spp: int = 0
     reference_lights: int = 4
+
+
+@dataclass(frozen=True)
+class SizingSpec:
+    """The budget of automatic sizing (``"auto"`` counts; prtcore/sizing.py)."""
+
+    #: largest P tried (P doubles from 128)
+    max_points: int = 1024
+    #: K of the first transport pass, and the most it may grow to (K doubles)
+    lights_start: int = 128
+    max_lights: int = 512
+    #: growing K stops when the next transport pass would end past this many seconds of
+    #: the bake's transport (0: no time limit; the memory limit always holds)
+    max_seconds: float = 300.0
 
 
 @dataclass(frozen=True)
@@ -177,6 +205,10 @@ class ShPrtSpec:
     strata: int = 16
     bounce: bool = True
     seed: int = 5
+    #: > 0: a glossy Phong layer (TP, texture storage): ρ_s of every material
+    specular: float = 0.0
+    #: its Phong exponent n
+    exponent: float = 8.0
 
 
 @dataclass(frozen=True)
@@ -206,6 +238,7 @@ class BakeSpec:
     keyframes: KeyframesSpec = KeyframesSpec()
     output: OutputSpec = OutputSpec()
     validate: ValidateSpec = ValidateSpec()
+    sizing: SizingSpec = SizingSpec()
     method: MethodSpec = MethodSpec()
     sh_prt: ShPrtSpec = ShPrtSpec()
     hair: HairSpec = HairSpec()
@@ -232,6 +265,10 @@ def _int(v: Any, key: str, lo: int | None = None, hi: int | None = None) -> int:
     if hi is not None and v > hi:
         raise SpecError(key, f"must be ≤ {hi}, got {v}")
     return int(v)
+
+
+def _int_or_auto(v: Any, key: str, lo: int, hi: int) -> int | str:
+    return "auto" if v == "auto" else _int(v, key, lo=lo, hi=hi)
 
 
 def _num(v: Any, key: str, lo: float | None = None, hi: float | None = None,
@@ -453,9 +490,10 @@ def _parse(data: Any) -> BakeSpec:
 
     m = _section(PointsSpec, root.get("measurement_points", {}), "measurement_points")
     points = PointsSpec(
-        count=_int(m.get("count", 256), "measurement_points.count", lo=1, hi=1 << 20),
-        placement=_choice(m.get("placement", "surface"), "measurement_points.placement",
-                          ("surface", "hull", "qdeim")),
+        count=_int_or_auto(m.get("count", "auto"), "measurement_points.count", lo=1,
+                           hi=1 << 20),
+        placement=_choice(m.get("placement", "auto"), "measurement_points.placement",
+                          ("auto", "surface", "hull", "qdeim")),
         supersample=_int(m.get("supersample", 8), "measurement_points.supersample",
                          lo=1, hi=256),
         seed=_int(m.get("seed", 1), "measurement_points.seed", lo=0),
@@ -472,7 +510,7 @@ def _parse(data: Any) -> BakeSpec:
             raise SpecError("lights.families", "expected a non-empty list of light families")
         families = tuple(_family(f, f"lights.families[{i}]") for i, f in enumerate(fams))
     lights = LightsSpec(
-        count=_int(lt.get("count", 128), "lights.count", lo=1, hi=1 << 16),
+        count=_int_or_auto(lt.get("count", "auto"), "lights.count", lo=1, hi=1 << 16),
         holdout=_int(lt.get("holdout", 16), "lights.holdout", lo=0, hi=1 << 16),
         seed=_int(lt.get("seed", 2), "lights.seed", lo=0),
         families=families,
@@ -496,8 +534,7 @@ def _parse(data: Any) -> BakeSpec:
     )
 
     f = _section(FitSpec, root.get("fit", {}), "fit")
-    basis = f.get("basis", 16)
-    basis = "auto" if basis == "auto" else _int(basis, "fit.basis", lo=1, hi=4096)
+    basis = _int_or_auto(f.get("basis", 16), "fit.basis", lo=1, hi=4096)
     ridge = f.get("ridge", "auto")
     ridge = "auto" if ridge == "auto" else _num(ridge, "fit.ridge", lo=0.0)
     gamma = f.get("gamma")
@@ -509,6 +546,11 @@ def _parse(data: Any) -> BakeSpec:
         # ~1e6 at g = 0.05, and the float32 model long before): refused, see fit.py
         gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=1.0, hi=10.0),
         denoise=_num(f.get("denoise", FitSpec().denoise), "fit.denoise", lo=0.0, hi=8.0),
+        transfer=_choice(f.get("transfer", "ridge"), "fit.transfer", ("ridge", "mlp")),
+        mlp_width=_int(f.get("mlp_width", 64), "fit.mlp_width", lo=1, hi=256),
+        mlp_layers=_int(f.get("mlp_layers", 2), "fit.mlp_layers", lo=1, hi=8),
+        mlp_steps=_int(f.get("mlp_steps", 2000), "fit.mlp_steps", lo=0, hi=100000),
+        seed=_int(f.get("seed", 0), "fit.seed", lo=0),
     )
 
     k = _section(KeyframesSpec, root.get("keyframes", {}), "keyframes")
@@ -528,6 +570,9 @@ def _parse(data: Any) -> BakeSpec:
                          ("shared", "per_keyframe")),
         seed=_int(k.get("seed", 4), "keyframes.seed", lo=0),
     )
+    if fit.transfer == "mlp" and keyframes.transfer == "per_keyframe":
+        raise SpecError("fit.transfer", "'mlp' learns one shared transfer; "
+                        "keyframes.transfer 'per_keyframe' needs 'ridge'")
 
     o = _section(OutputSpec, root.get("output", {}), "output")
     output = OutputSpec(dtype=_choice(o.get("dtype", "half"), "output.dtype", ("half", "float")))
@@ -545,6 +590,21 @@ def _parse(data: Any) -> BakeSpec:
                               "validate.reference_lights", lo=1, hi=1 << 16),
     )
 
+    z = _section(SizingSpec, root.get("sizing", {}), "sizing")
+    zd = SizingSpec()
+    sizing = SizingSpec(
+        max_points=_int(z.get("max_points", zd.max_points), "sizing.max_points", lo=1,
+                        hi=1 << 20),
+        lights_start=_int(z.get("lights_start", zd.lights_start), "sizing.lights_start", lo=2,
+                          hi=1 << 16),
+        max_lights=_int(z.get("max_lights", zd.max_lights), "sizing.max_lights", lo=2,
+                        hi=1 << 16),
+        max_seconds=_num(z.get("max_seconds", zd.max_seconds), "sizing.max_seconds", lo=0.0),
+    )
+    if sizing.max_lights < sizing.lights_start:
+        raise SpecError("sizing.max_lights", f"{sizing.max_lights} is below "
+                        f"sizing.lights_start ({sizing.lights_start})")
+
     mt = _section(MethodSpec, root.get("method", {}), "method")
     method = MethodSpec(name=_choice(mt.get("name", "data_driven"), "method.name",
                                      ("data_driven", "sh_prt")))
@@ -560,7 +620,11 @@ def _parse(data: Any) -> BakeSpec:
         strata=_int(sp.get("strata", sd.strata), "sh_prt.strata", lo=1, hi=128),
         bounce=bounce,
         seed=_int(sp.get("seed", sd.seed), "sh_prt.seed", lo=0),
+        specular=_num(sp.get("specular", sd.specular), "sh_prt.specular", lo=0.0, hi=1.0),
+        exponent=_num(sp.get("exponent", sd.exponent), "sh_prt.exponent", lo=0.0, hi=1e4),
     )
+    if sh_prt.specular > 0 and sh_prt.storage != "texture":
+        raise SpecError("sh_prt.specular", "the glossy layer (TP) needs texture storage")
     if method.name == "sh_prt" and keyframes.animation is not None:
         raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
                         "animation is set)")
@@ -588,7 +652,7 @@ def _parse(data: Any) -> BakeSpec:
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
                     validate=validate, method=method, sh_prt=sh_prt, hair=hair,
-                    materials=materials)
+                    materials=materials, sizing=sizing)
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

@@ -23,16 +23,23 @@ DOCS: dict[str, str] = {
                       "bounding-box diagonal (1e-4–0.5), or null for none",
     "prepare.uv": "`auto` (keep a valid TEXCOORD_1, else generate) · `generate` · `keep` "
                   "(refuse when TEXCOORD_1 is missing or invalid)",
-    "measurement_points.count": "P, measurement points, 1–1048576",
-    "measurement_points.placement": "`surface` (blue noise on the asset) · `hull` (on "
+    "measurement_points.count": "P, measurement points, 1–1048576, or `auto`: the bake "
+                                "tries P = 128, 256, … up to `sizing.max_points` and "
+                                "ships the smallest that meets the verdict's target",
+    "measurement_points.placement": "`auto` (`qdeim` when the bake chooses P: count "
+                                    "`auto` on a static bake; else `surface`) · "
+                                    "`surface` (blue noise on the asset) · `hull` (on "
                                     "its convex hull) · `qdeim` (chosen for the transfer "
                                     "from blue-noise candidates by pivoted QR on their "
                                     "direct light, Drmač & Gugercin 2016)",
-    "measurement_points.candidates": "`qdeim`: blue-noise candidates the points are "
-                                     "chosen from (0: 8 × count)",
+    "measurement_points.candidates": "blue-noise candidates the points are chosen from "
+                                     "(`qdeim`, or count `auto`; 0: 8 × count, or 2 × "
+                                     "`sizing.max_points` when count is `auto`)",
     "measurement_points.supersample": "samples averaged per measurement point, 1–256",
     "measurement_points.seed": "seed of the placement",
-    "lights.count": "K, training lighting configurations, 1–65536",
+    "lights.count": "K, training lighting configurations, 1–65536, or `auto`: start at "
+                    "`sizing.lights_start` and double (tracing only the new lights) while "
+                    "the verdict's target is not met, within `sizing`'s budget",
     "lights.holdout": "held-out validation configurations, 0–65536",
     "lights.seed": "seed of the light draws (training and held-out streams are "
                    "independent)",
@@ -46,6 +53,8 @@ DOCS: dict[str, str] = {
     "transport.near_field": "gather hits closer than this many texel footprints take the "
                             "direct light of the hit point in the first bounce (0: off), "
                             "0–16",
+    "fit.basis": "n, basis elements including the mean (1–4096), or `auto` (the smallest "
+                 "n whose held-out error is within 1 % of the best)",
     "transport.subsurface_walks": "random walks per translucent texel through its medium "
                                   "(docs/subsurface.md), 1–4096",
     "transport.subsurface_max_scatter": "scattering events after which a walk is dropped "
@@ -55,13 +64,20 @@ DOCS: dict[str, str] = {
     "hair.albedo": "null (the hair file's colours), or [r, g, b] in [0, 1]: one fibre "
                    "colour for every strand",
     "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged)",
-    "fit.basis": "n, basis elements including the mean (1–4096), or `auto`",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",
     "fit.denoise": "radius in texels (0–8) of the seam-aware filter applied to the "
                    "training lightmaps before the basis is fitted (0: off); the held-out "
                    "lightmaps the verdict is judged on are not filtered",
+    "fit.transfer": "`ridge` (linear, paper 4.3) · `mlp` (the ridge plus a learnt "
+                    "residual network trained on its leave-one-out errors; "
+                    "docs/bundle.md)",
+    "fit.mlp_width": "`mlp`: neurons per hidden layer, 1–256",
+    "fit.mlp_layers": "`mlp`: hidden layers (leaky ReLU), 1–8",
+    "fit.mlp_steps": "`mlp`: AdamW steps at most (the count is chosen on a seeded "
+                     "validation fifth of the training lights), 0–100000",
+    "fit.seed": "`mlp`: seed of the initial weights and the validation split",
     "keyframes.animation": "animation index or name to bake keyframes of; null: static",
     "keyframes.count": "keyframes drawn (stratified) when `times` is not given, 1–4096",
     "keyframes.times": "explicit keyframe times in seconds",
@@ -76,6 +92,11 @@ DOCS: dict[str, str] = {
                               "path-trace `reference_lights` of them at this many samples "
                               "per texel and judge their noise-corrected error",
     "validate.reference_lights": "held-out lights path-traced when `reference_spp` > 0",
+    "sizing.max_points": "largest P tried when `measurement_points.count` is `auto`",
+    "sizing.lights_start": "K of the first transport pass when `lights.count` is `auto`, ≥ 2",
+    "sizing.max_lights": "largest K automatic sizing may grow to, ≥ `lights_start`",
+    "sizing.max_seconds": "growing K stops when the next pass would end past this many "
+                          "seconds of transport (0: no time limit; the memory limit holds)",
     "method.name": "`data_driven` (Belcour et al. 2022) · `sh_prt` (classic SH-PRT or "
                    "transfer textures, section `sh_prt`; docs/sh_prt.md)",
     "sh_prt.storage": "`texture` (transfer textures: per lightmap texel, RGBA EXRs) · "
@@ -86,6 +107,12 @@ DOCS: dict[str, str] = {
     "sh_prt.bounce": "add one inter-reflection bounce computed from the stored shadowed "
                      "transfer (T⁰ + T¹)",
     "sh_prt.seed": "seed of the transfer rays",
+    "sh_prt.specular": "ρ_s of a glossy Phong layer on every material, 0–1 (0: diffuse "
+                       "only); > 0 stores visibility textures for the triple product (TP, "
+                       "texture storage only), drawn by `prtcore render`",
+    "sh_prt.exponent": "Phong exponent n of the glossy layer, 0–10000 (the lobe "
+                       "(n+1)/(2π)·cosⁿ about the mirror direction, band-limited to "
+                       "`bands`)",
     "material.subsurface": "the medium inside the material's closed mesh (below); null: "
                            "as the asset says (KHR_materials_volume, "
                            "KHR_materials_diffuse_transmission, KHR_materials_volume_scatter)",

@@ -102,6 +102,9 @@ def sample_configurations(spec: LightsSpec, center: np.ndarray, radius: float,
     Families are chosen by weight. Training and held-out lights come from independent
     streams of ``spec.seed``, so changing ``holdout`` never changes the training set.
     """
+    if not isinstance(spec.count, int):
+        raise ValueError(f"sample_configurations: lights.count {spec.count!r} must be "
+                         "resolved to a number first (intake/plan.py decide_sizing)")
     train_ss, hold_ss = np.random.SeedSequence(spec.seed).spawn(2)
     weights = np.array([f.weight for f in spec.families], dtype=np.float64)
     weights /= weights.sum()

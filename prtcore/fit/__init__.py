@@ -3,4 +3,4 @@
 Transfer regressors register themselves on import (one line each below).
 """
 
-from prtcore.fit import ridge  # noqa: F401  (registration)
+from prtcore.fit import mlp, ridge  # noqa: F401  (registration)

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from prtcore.core.mlp import Mlp
+
 #: λ grid for ridge="auto", relative to σ_max² (0 is added in front): 25 values.
 RIDGE_GRID_REL = tuple(float(v) for v in np.logspace(-8.0, 2.0, 24))
 #: basis="auto" without held-out data: smallest n keeping this fraction of the energy
@@ -67,6 +69,8 @@ class FitDiagnostics:
     unlit_points : measurement points that no used configuration lights (rows of D all 0)
     warnings : human-readable notes
     seconds : wall time of the fit's steps
+    transfer : the transfer regressor ("ridge" | "mlp")
+    learnt : what training the learnt residual measured (:mod:`prtcore.fit.mlp`), or None
     """
 
     configurations: int
@@ -95,6 +99,8 @@ class FitDiagnostics:
     unlit_points: tuple[int, ...]
     warnings: tuple[str, ...]
     seconds: dict[str, float] = field(default_factory=dict)
+    transfer: str = "ridge"
+    learnt: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of lists/floats/ints/str/None (json.dumps works, strict JSON)."""
@@ -117,6 +123,8 @@ class TransferModel:
     ridge : λ used
     group_ids : keyframe ids, in the order of the transfer's first axis (None: shared)
     diagnostics : :class:`FitDiagnostics`
+    learnt : "mlp" transfer: the residual network (:mod:`prtcore.core.mlp`, outputs
+        3·n_b rows ``[c][i]``) whose ``s·r(x'/s)`` is added to u; None for ridge
     """
 
     mean: np.ndarray
@@ -128,6 +136,7 @@ class TransferModel:
     ridge: float
     group_ids: tuple[int, ...] | None
     diagnostics: FitDiagnostics
+    learnt: Mlp | None = None
 
     @property
     def n_basis(self) -> int:

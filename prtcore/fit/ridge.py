@@ -7,7 +7,9 @@ leave-one-out residuals for choosing λ. Registered as the "ridge" member of
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -78,20 +80,33 @@ def loo_sse(svd: DirectSVD, C: np.ndarray, lams: np.ndarray) -> np.ndarray:
     of configuration k is e_k/(1 − h_kk). Returns (m, L) float64; +inf where some
     1 − h_kk ≤ LOO_LEVERAGE_TOL.
     """
-    Cc, _ = centre(svd, C)
-    Z = Cc @ svd.vt.T
-    v2 = svd.vt**2
-    base = 1.0 / svd.k if svd.intercept else 0.0
+    parts = _loo_parts(svd, C)
     out = np.empty((C.shape[0], len(lams)))
     for j, lam in enumerate(lams):
-        phi = svd.s**2 / (svd.s**2 + lam) if svd.s.size else np.zeros(0)
-        E = Cc - (Z * phi) @ svd.vt
-        denom = 1.0 - (base + phi @ v2)
-        if np.any(denom <= LOO_LEVERAGE_TOL):
-            out[:, j] = np.inf
-        else:
-            out[:, j] = np.sum((E / denom) ** 2, axis=1)
+        e = loo_residuals(svd, C, lam, parts)
+        out[:, j] = np.inf if e is None else np.sum(e**2, axis=1)
     return out
+
+
+def loo_residuals(svd: DirectSVD, C: np.ndarray, lam: float, parts=None
+                  ) -> np.ndarray | None:
+    """The leave-one-out residuals themselves (see :func:`loo_sse`): (m, K) float64, entry
+    (i, k) = row i of configuration k minus the ridge fitted without configuration k; None
+    where some 1 − h_kk ≤ LOO_LEVERAGE_TOL. ``parts``: :func:`_loo_parts` of (svd, C)."""
+    Cc, Z, v2, base = _loo_parts(svd, C) if parts is None else parts
+    phi = svd.s**2 / (svd.s**2 + lam) if svd.s.size else np.zeros(0)
+    E = Cc - (Z * phi) @ svd.vt
+    denom = 1.0 - (base + phi @ v2)
+    if np.any(denom <= LOO_LEVERAGE_TOL):
+        return None
+    return E / denom
+
+
+def _loo_parts(svd: DirectSVD, C: np.ndarray):
+    """What every λ of :func:`loo_residuals` shares: centred C, its projection on the
+    right singular vectors, their squares and the intercept's leverage."""
+    Cc, _ = centre(svd, C)
+    return Cc, Cc @ svd.vt.T, svd.vt**2, 1.0 / svd.k if svd.intercept else 0.0
 
 
 @register
@@ -102,8 +117,8 @@ class RidgeRegressor(TransferRegressor):
 
     name = "ridge"
 
-    def fit(self, norm: Normalised, basis: SnapshotBasis, setting: float | str
-            ) -> TransferFit:
+    def fit(self, norm: Normalised, basis: SnapshotBasis, setting: float | str,
+            options: Mapping[str, Any] | None = None) -> TransferFit:
         t1 = time.perf_counter()
         Dn, intercept, nb_max = norm.Dn, norm.intercept, basis.nb_max
         C = basis.coefficients

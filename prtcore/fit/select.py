@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from prtcore.core.mlp import Mlp, transfer_residual
 from prtcore.fit.basis import SnapshotBasis
 from prtcore.fit.model import (
     AUTO_ENERGY,
@@ -36,7 +37,7 @@ def select_basis_count(norm: Normalised, sb: SnapshotBasis, tf: TransferFit,
     if holdout is not None:
         curve, used = holdout_curve(sb.mean, sb.basis, tf.transfer, tf.offset, norm.gamma,
                                     norm.mono, holdout, norm.group_ids, norm.P, norm.T,
-                                    block_rows)
+                                    block_rows, tf.learnt)
     if basis != "auto":
         nb = nb_max
         n_method = "capped" if nb < int(basis) - 1 else "given"
@@ -55,8 +56,10 @@ def select_basis_count(norm: Normalised, sb: SnapshotBasis, tf: TransferFit,
 
 
 def holdout_curve(mean, basis_arr, M, b, gamma, mono, holdout, group_ids, P, T,
-                   block_rows) -> tuple[np.ndarray, int]:
+                   block_rows, learnt: Mlp | None = None) -> tuple[np.ndarray, int]:
     """Held-out relative RMSE (stacked over configurations, linear units) for n = 1..nb+1.
+
+    learnt : the learnt residual network of the "mlp" regressor (rows ``[c][i]``), or None.
 
     Returns (nb_max + 1,) float64 and the number of held-out configurations used.
     """
@@ -88,6 +91,9 @@ def holdout_curve(mean, basis_arr, M, b, gamma, mono, holdout, group_ids, P, T,
     nb = M.shape[2]
     u = np.einsum("hcip,phc->hci", M[gidx[use]], xg[:, use, :]) \
         + s[use, None, None] * b[gidx[use]]  # (H, 3, nb)
+    if learnt is not None:
+        for j, h in enumerate(use):
+            u[j] += s[h] * transfer_residual(learnt, xg[:, h, :])
     sse = np.zeros(nb + 1)
     ref_ss = 0.0
     su = s[use]

@@ -60,6 +60,7 @@ Runtime (what :func:`reconstruct` does, and what an engine must do with a bundle
     x' = γ(x)                               (identity without gamma)
     s  = ‖x'‖                               (Frobenius over points and channels)
     u_c = M_c x'_c + s · b_c                 (n−1 coefficients, per channel c)
+    u  += s · r(x'/s)                       (fit.transfer "mlp" only: prtcore.fit.mlp)
     y'_c = s · m_c + Σ_i u_c,i · U_i         (mono: shared U_i; rgb: U_i,c)
     y  = max(y', 0)^g                       (only with gamma; without gamma y = y' unclamped)
 
@@ -80,12 +81,14 @@ closed-form leave-one-out cross-validation of the transfer (basis held fixed).
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 
+from prtcore.core.mlp import transfer_residual, transfer_rows
 from prtcore.core.progress import StageTimer
 from prtcore.core.tolerances import DIRECT_SVD_REL_TOL
 from prtcore.fit.basis import snapshot_basis
@@ -119,6 +122,8 @@ def fit_transfer(
     *,
     intercept: bool = True,
     block_rows: int | None = None,
+    transfer: str = "ridge",
+    transfer_options: Mapping[str, Any] | None = None,
 ) -> TransferModel:
     """Fit mean, basis and transfer (module docstring) and return a float32 model.
 
@@ -136,23 +141,26 @@ def fit_transfer(
     timer : progress bars over texel blocks (step timings go to ``diagnostics.seconds``)
     intercept : fit the transfer offset b (default; False gives the paper's eq. 14 as is)
     block_rows : texel rows per block (default from BLOCK_BYTES)
+    transfer : the transfer regressor ("ridge" | "mlp", :mod:`prtcore.fit.regressor`)
+    transfer_options : the regressor's own options (mlp: :data:`prtcore.fit.mlp.DEFAULTS`)
     """
     return _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
-                intercept, block_rows, np.float32)
+                intercept, block_rows, np.float32, transfer, transfer_options)
 
 
 def fit_transfer64(D: np.ndarray, I: np.ndarray, **kwargs: Any) -> TransferModel:
     """:func:`fit_transfer` keeping every model array in float64 (precision checks)."""
     args = {"basis": 16, "ridge": "auto", "channels": "mono", "gamma": None, "groups": None,
             "per_group": False, "holdout": None, "timer": None, "intercept": True,
-            "block_rows": None}
+            "block_rows": None, "transfer": "ridge", "transfer_options": None}
     unknown = set(kwargs) - set(args)
     if unknown:
         raise TypeError(f"fit_transfer64: unknown arguments {sorted(unknown)}")
     args.update(kwargs)
     return _fit(D, I, args["basis"], args["ridge"], args["channels"], args["gamma"],
                 args["groups"], args["per_group"], args["holdout"], args["timer"],
-                args["intercept"], args["block_rows"], np.float64)
+                args["intercept"], args["block_rows"], np.float64, args["transfer"],
+                args["transfer_options"])
 
 
 # ---------------------------------------------------------------------------------------
@@ -268,11 +276,9 @@ def heldout_errors(model: TransferModel, X: np.ndarray, R: np.ndarray, ns,
     s = np.zeros(H)
     U = np.zeros((nb_max, H, 3))  # the runtime coefficients u of each configuration
     for h in range(H):
-        M, b = _group_transfer(model, None if groups is None else int(groups[h]))
-        xg = _check_x(model, X[:, h])
-        s[h] = float(np.linalg.norm(xg))
-        U[:, h] = (np.einsum("cip,pc->ci", M[:, :nb_max].astype(np.float64), xg)
-                   + s[h] * b[:, :nb_max].astype(np.float64)).T
+        s[h], u = coefficients(model, X[:, h], nb_max + 1,
+                               None if groups is None else int(groups[h]))
+        U[:, h] = u.T
     N = len(ns)
     sse, neg = np.zeros((N, H)), np.zeros((N, H))
     ref_ss, r_ss = np.zeros(H), np.zeros(H)
@@ -337,16 +343,27 @@ def reconstruct64(model: TransferModel, x: np.ndarray, n: int | None = None,
                    group: int | None = None) -> np.ndarray:
     """:func:`reconstruct` in float64 (the model's arrays are promoted): (T, 3) float64."""
     nb = _resolve_n(model, n)
-    M, b = _group_transfer(model, group)
-    xg = _check_x(model, x)
-    s = float(np.linalg.norm(xg))
-    u = np.einsum("cip,pc->ci", M[:, :nb].astype(np.float64), xg) \
-        + s * b[:, :nb].astype(np.float64)
+    s, u = coefficients(model, x, n, group)
     out = np.empty((model.texels, 3))
     rows = default_rows(8 * (nb + 4) * 3, None)
     for sl in blocks(model.texels, rows):
         out[sl] = _blend(model, sl, s, u, nb)
     return out
+
+
+def coefficients(model: TransferModel, x: np.ndarray, n: int | None = None,
+                 group: int | None = None) -> tuple[float, np.ndarray]:
+    """The runtime's coefficients for direct values x (P, 3): s = ‖γ(x)‖ and u (3, n−1)
+    float64 (``u_c = M_c x'_c + s·b_c``, plus ``s·r(x'/s)`` for a learnt transfer)."""
+    nb = _resolve_n(model, n)
+    M, b = _group_transfer(model, group)
+    xg = _check_x(model, x)
+    s = float(np.linalg.norm(xg))
+    u = np.einsum("cip,pc->ci", M[:, :nb].astype(np.float64), xg) \
+        + s * b[:, :nb].astype(np.float64)
+    if model.learnt is not None:
+        u += s * transfer_residual(model.learnt, xg)[:, :nb]
+    return s, u
 
 
 # ---------------------------------------------------------------------------------------
@@ -404,16 +421,17 @@ def _blend(model: TransferModel, sl: slice, s: float, u: np.ndarray, nb: int) ->
 
 
 def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
-         intercept, block_rows, out_dtype, regressor_name: str = "ridge") -> TransferModel:
+         intercept, block_rows, out_dtype, regressor_name: str = "ridge",
+         options: Mapping[str, Any] | None = None) -> TransferModel:
     t0 = time.perf_counter()
     D, gamma, groups = check_arguments(D, I, basis, ridge, channels, gamma, groups, per_group)
     norm = normalise(D, I, gamma, channels, groups, per_group, intercept, block_rows)
     sb = snapshot_basis(I, norm, basis, timer, block_rows, out_dtype)
-    tf = regressor(regressor_name).fit(norm, sb, ridge)
+    tf = regressor(regressor_name).fit(norm, sb, ridge, options or {})
     nb, n_method, curve, used, sel_warnings, sel_seconds = select_basis_count(
         norm, sb, tf, basis, holdout, block_rows)
     seconds = {**sb.seconds, **tf.seconds, **sel_seconds}
-    warnings = [*norm.warnings, *sb.warnings, *sel_warnings]
+    warnings = [*norm.warnings, *sb.warnings, *tf.warnings, *sel_warnings]
 
     cond: list[float | None] = []
     eff: list[int] = []
@@ -459,6 +477,8 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
         unlit_points=tuple(int(p) for p in norm.unlit),
         warnings=tuple(warnings),
         seconds=seconds,
+        transfer=regressor_name,
+        learnt=tf.learnt_diagnostics,
     )
     M, b = tf.transfer, tf.offset
     transfer = M[:, :, :nb] if per_group else M[0, :, :nb]
@@ -474,4 +494,6 @@ def _fit(D, I, basis, ridge, channels, gamma, groups, per_group, holdout, timer,
         ridge=tf.regularisation,
         group_ids=norm.group_ids,
         diagnostics=diag,
+        learnt=None if tf.learnt is None else tf.learnt.select_outputs(
+            transfer_rows(sb.nb_max, nb)).astype(out_dtype),
     )

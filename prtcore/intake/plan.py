@@ -16,6 +16,7 @@ texels    run — 512×512 atlas, padding 4
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from prtcore.core.errors import AssetError, SpecError
@@ -35,12 +36,72 @@ class StagePlan:
 
 
 @dataclass(frozen=True)
+class Sizing:
+    """How many measurement points P and training lights K the bake uses, resolved from
+    the spec's counts (``"auto"`` or numbers) by :func:`decide_sizing`; carried out by
+    :mod:`prtcore.sizing`.
+
+    placement : "surface" | "hull" | "qdeim" (the spec's "auto" resolved)
+    candidates : points the intake places (blue noise); equal to the largest of ``points``
+        when nothing is chosen after transport
+    points : the P values tried, ascending (one value: P is fixed)
+    select : the points are chosen from the candidates after transport (qdeim, or nested
+        farthest-point subsets of the blue-noise candidates for "surface" / "hull")
+    lights_start, lights_max : K of the first transport pass and the most it may grow to
+        (equal: K is fixed)
+    max_seconds : transport time budget for growing K (0: none)
+    grow_candidates : more candidates (2P) are placed when P outgrows them (count "auto"
+        without measurement_points.candidates)
+    reason : one line for the plan
+    """
+
+    placement: str
+    candidates: int
+    points: tuple[int, ...]
+    select: bool
+    lights_start: int
+    lights_max: int
+    max_seconds: float
+    reason: str
+    grow_candidates: bool = False
+
+    @property
+    def candidate_placement(self) -> str:
+        """How candidates are placed: blue noise on the surface for "qdeim"."""
+        return "surface" if self.placement == "qdeim" else self.placement
+
+    @property
+    def automatic(self) -> bool:
+        """Whether anything is chosen from the data (P or K not fixed)."""
+        return len(self.points) > 1 or self.lights_max > self.lights_start
+
+
+#: the smallest P automatic sizing tries; P doubles from here to sizing.max_points
+AUTO_POINTS_START = 128
+#: P and K a bake uses for "auto" where sizing does not run (keyframe and hair bakes)
+FIXED_POINTS, FIXED_LIGHTS = 256, 128
+
+
+def fixed_counts(spec: BakeSpec) -> BakeSpec:
+    """``spec`` with "auto" counts replaced by FIXED_POINTS / FIXED_LIGHTS, for bakes that
+    do not size themselves (hair bakes)."""
+    mp, lt = spec.measurement_points, spec.lights
+    return dataclasses.replace(
+        spec,
+        measurement_points=dataclasses.replace(
+            mp, count=FIXED_POINTS if mp.count == "auto" else mp.count),
+        lights=dataclasses.replace(lt, count=FIXED_LIGHTS if lt.count == "auto"
+                                   else lt.count))
+
+
+@dataclass(frozen=True)
 class Plan:
     """The stages in execution order, plus what the decisions were based on."""
 
     stages: tuple[StagePlan, ...]
     health: MeshHealth | None = None
     uv_check: UVCheck | None = None
+    sizing: Sizing | None = None
 
     def format(self) -> str:
         """One line per stage: ``name action — reason``."""
@@ -137,6 +198,56 @@ def decide_keyframes(scene: Scene, spec: BakeSpec) -> StagePlan:
                      f"({anim.duration:g} s), {count} keyframes, transfer {k.transfer}")
 
 
+def decide_sizing(spec: BakeSpec, keyframed: bool) -> Sizing:
+    """Resolve the spec's P, K and placement ("auto" or given) for a static or keyframe
+    bake (keyframe bakes take fixed FIXED_POINTS / FIXED_LIGHTS for "auto": their
+    per-pose transport is not grown)."""
+    mp, lt, z = spec.measurement_points, spec.lights, spec.sizing
+    p_auto, k_auto = mp.count == "auto", lt.count == "auto"
+    placement = mp.placement
+    if placement == "auto":  # chosen for the transfer when the bake chooses P
+        placement = "qdeim" if p_auto and not keyframed else "surface"
+    why = []
+    if keyframed:
+        if placement == "qdeim":
+            raise SpecError("measurement_points.placement", "'qdeim' is not available for "
+                            "keyframe bakes yet (use 'surface')")
+        points = (FIXED_POINTS if p_auto else int(mp.count),)
+        k0 = k1 = FIXED_LIGHTS if k_auto else int(lt.count)
+        if p_auto or k_auto:
+            why.append(f"keyframe bake: auto counts are P = {FIXED_POINTS}, "
+                       f"K = {FIXED_LIGHTS} (no sizing)")
+    else:
+        if p_auto:
+            top = max(z.max_points, 1)
+            points = (*(p for p in (AUTO_POINTS_START << i for i in range(21)) if p < top),
+                      top)
+        else:
+            points = (int(mp.count),)
+        k0, k1 = (z.lights_start, z.max_lights) if k_auto else (int(lt.count),) * 2
+    select = not keyframed and (placement == "qdeim" or len(points) > 1)
+    grow = select and p_auto and not mp.candidates
+    if grow:  # 2P for the first two P tried; more when P outgrows them (prtcore/sizing.py)
+        candidates = 2 * points[min(1, len(points) - 1)]
+    elif select:
+        candidates = mp.candidates or (2 * points[-1] if p_auto else 8 * points[-1])
+        candidates = max(candidates, points[-1])
+    else:
+        candidates = points[-1]
+    if not keyframed:
+        p_txt = (f"P ∈ {{{', '.join(map(str, points))}}}" if len(points) > 1
+                 else f"P = {points[0]}")
+        k_txt = f"K from {k0} up to {k1}" if k1 > k0 else f"K = {k0}"
+        if p_auto or k_auto:
+            why.append(f"auto: {p_txt}, {k_txt} until the held-out error is within "
+                       f"{spec.validate.target_ratio:g}× the projection bound"
+                       + (f" (transport budget {z.max_seconds:g} s)" if k1 > k0 else ""))
+    return Sizing(placement=placement, candidates=int(candidates), points=points,
+                  select=select, lights_start=int(k0), lights_max=int(k1),
+                  max_seconds=float(z.max_seconds), reason="; ".join(why),
+                  grow_candidates=grow)
+
+
 # ---------------------------------------------------------------------------------------
 # The plan
 
@@ -159,6 +270,7 @@ def plan_asset(scene: Scene, spec: BakeSpec) -> Plan:
         check = check_uv1(after, R, pad)
     uv = decide_uv(check, spec, scene.source, remeshed=remesh.action == "run")
     keyframes = decide_keyframes(scene, spec)
+    sizing = decide_sizing(spec, keyframes.action == "run")
 
     mp, lt, tr, fit = spec.measurement_points, spec.lights, spec.transport, spec.fit
     types = sorted({f.type for f in lt.families})
@@ -168,21 +280,27 @@ def plan_asset(scene: Scene, spec: BakeSpec) -> Plan:
     stages = [
         repair, remesh, uv, keyframes,
         StagePlan("texels", "run", f"{R}×{R} atlas, padding {pad}"),
-        StagePlan("points", "run", f"{mp.count} measurement points, {mp.placement}"
-                  + (f" from {mp.candidates or 8 * mp.count} candidates after transport"
-                     if mp.placement == "qdeim" else "")
-                  + f", supersample {mp.supersample}"),
-        StagePlan("lights", "run", f"{lt.count} lights + {lt.holdout} held out, {fams} "
-                  f"({', '.join(types)})"),
+        StagePlan("points", "run", (
+            f"{sizing.candidates} blue-noise candidates"
+            + (" (2P as P grows)" if sizing.grow_candidates else "")
+            + f", P chosen after transport ({sizing.placement})" if sizing.select else
+            f"{sizing.points[0]} measurement points, {sizing.placement}")
+            + f", supersample {mp.supersample}"),
+        StagePlan("lights", "run", (
+            f"{sizing.lights_start}–{sizing.lights_max}" if sizing.lights_max >
+            sizing.lights_start else f"{sizing.lights_start}")
+            + f" lights + {lt.holdout} held out, {fams} ({', '.join(types)})"),
         StagePlan("transport", "run", f"{tr.gather_rays} gather rays, "
                   f"{tr.direct_samples} direct samples per texel, near field {near}, "
                   f"≤ {tr.max_bounces} bounces, tolerance {tr.tolerance:g}"),
         StagePlan("fit", "run", f"basis {fit.basis}, ridge {fit.ridge}, {fit.channels}{gamma}"),
         StagePlan("export", "run", f"bundle with {spec.output.dtype} EXRs"),
     ]
+    if sizing.automatic:
+        stages.insert(stages.index(keyframes) + 1, StagePlan("sizing", "run", sizing.reason))
     if lt.holdout > 0:
         stages.append(StagePlan("validate", "run", f"{lt.holdout} held-out lights against "
                                 "the reference"))
     else:
         stages.append(StagePlan("validate", "skip", "no held-out lights (lights.holdout = 0)"))
-    return Plan(stages=tuple(stages), health=health, uv_check=check)
+    return Plan(stages=tuple(stages), health=health, uv_check=check, sizing=sizing)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -257,9 +257,16 @@ def _scene_scale(scene: Scene) -> float:
 
 
 def _place(scene: Scene, spec: PointsSpec) -> MeasurementPoints:
+    # "auto" is resolved by the bake's plan (intake/plan.py decide_sizing: "qdeim" chooses
+    # among blue-noise candidates after transport); placed directly it is blue noise
+    if spec.placement == "auto":
+        spec = replace(spec, placement="surface")
     if spec.placement not in ("surface", "hull"):
         raise SpecError("measurement_points.placement",
                         f"must be 'surface' or 'hull', got {spec.placement!r}")
+    if not isinstance(spec.count, int):
+        raise SpecError("measurement_points.count", f"{spec.count!r} is resolved by the "
+                        "bake's plan (intake/plan.py); placing points needs a number")
     if spec.count < 1:
         raise SpecError("measurement_points.count", f"must be ≥ 1, got {spec.count}")
     if spec.supersample < 1:

@@ -186,12 +186,19 @@ def farthest_fill(positions: np.ndarray, chosen: np.ndarray, count: int,
     return out
 
 
+def direct_svd(prepared: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The thin SVD (U, s, Vt) of a :func:`prepare_direct` matrix (N, K·C), float64."""
+    return scipy.linalg.svd(prepared, full_matrices=False)
+
+
 def select_sensors(direct: np.ndarray, count: int,
                    coefficients: np.ndarray | None = None, *,
                    positions: np.ndarray | None = None, seed: int = 0,
                    energy: float = SENSOR_ENERGY, qr_fraction: float = SENSOR_QR_FRACTION,
                    normalise: bool = True, centre: bool = True,
-                   rank_tol: float = SENSOR_RANK_TOL) -> SensorSelection:
+                   rank_tol: float = SENSOR_RANK_TOL,
+                   svd: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                   ) -> SensorSelection:
     """Choose ``count`` of N candidate measurement points for the transfer.
 
     direct : (N, K) or (N, K, C) float — the candidates' direct radiance over the K
@@ -213,6 +220,8 @@ def select_sensors(direct: np.ndarray, count: int,
         ``energy=1, qr_fraction=1`` is plain Q-DEIM with oversampling by the fill.
     normalise, centre : see :func:`prepare_direct`
     rank_tol : singular values ≤ rank_tol·σ_max count as zero
+    svd : (U, s, Vt) of ``prepare_direct(direct, normalise=…, centre=…)`` when the caller
+        already has it (:func:`direct_svd`; choosing several P from one set of candidates)
 
     Returns a :class:`SensorSelection`; ``indices`` (P,) int64.
     """
@@ -225,7 +234,7 @@ def select_sensors(direct: np.ndarray, count: int,
         raise ValueError("select_sensors: energy and qr_fraction must be in (0, 1]")
     if positions is not None and np.shape(positions) != (n, 3):
         raise ValueError(f"select_sensors: positions {np.shape(positions)}, expected ({n}, 3)")
-    U, s, Vt = scipy.linalg.svd(A, full_matrices=False)
+    U, s, Vt = direct_svd(A) if svd is None else svd
     rank = int(np.sum(s > rank_tol * s[0])) if s.size and s[0] > 0 else 0
     target_energy = None
     if coefficients is None:

@@ -21,6 +21,7 @@ import numpy as np
 
 from prtcore import __version__
 from prtcore.core.errors import BundleError, PrtError
+from prtcore.core.mlp import Mlp
 from prtcore.io.imageio import read_image, write_exr
 
 SCHEMA = "prtcore.bundle"
@@ -58,6 +59,8 @@ class RuntimeData:
     #: light is out of family (prtcore.runtime.family); None in bundles without them
     direct_span: np.ndarray | None = None
     family_warn_above: float | None = None
+    #: fit.transfer "mlp": the learnt residual network (prtcore.core.mlp), None for ridge
+    learnt: Mlp | None = None
 
     @property
     def n_basis(self) -> int:
@@ -101,6 +104,33 @@ def basis_planes(mean: np.ndarray, basis: np.ndarray, channels: str) -> np.ndarr
     if channels == "mono":
         return np.concatenate([mean, basis], axis=1).astype(np.float32)
     return np.concatenate([mean, basis.reshape(len(basis), -1)], axis=1).astype(np.float32)
+
+
+def learnt_files(directory: Path, net: Mlp) -> dict:
+    """The learnt transfer's layers as raw little-endian float32 files
+    ``transfer_learnt_<j>_weight.bin`` (out, in) and ``..._bias.bin`` (out,); returns
+    the manifest's ``transfer.learnt`` section (docs/bundle.md)."""
+    layers = [{"weight": raw_file(directory / f"transfer_learnt_{j}_weight.bin", w),
+               "bias": raw_file(directory / f"transfer_learnt_{j}_bias.bin", c)}
+              for j, (w, c) in enumerate(zip(net.weights, net.biases, strict=True))]
+    return {"layers": layers, "activation": "leaky_relu", "slope": net.slope,
+            "output": net.output,
+            "input": "x'/s flattened channel-major: index c*P + p (zero input when s = 0)",
+            "layout": "output index c*(n-1) + i: channel c, element i+1; "
+                      "u_c,i += s * output[c*(n-1) + i]"}
+
+
+def read_learnt(path: Path, section: dict) -> Mlp:
+    """The network of a manifest's ``transfer.learnt`` section."""
+    if section.get("activation") != "leaky_relu":
+        raise BundleError(f"{path}: transfer.learnt activation "
+                          f"{section.get('activation')!r}: this prtcore reads 'leaky_relu'")
+    try:
+        return Mlp(tuple(load_raw(path, layer["weight"]) for layer in section["layers"]),
+                   tuple(load_raw(path, layer["bias"]) for layer in section["layers"]),
+                   float(section["slope"]), section.get("output", "linear"))
+    except ValueError as e:
+        raise BundleError(f"{path}: transfer.learnt: {e}") from None
 
 
 def is_bundle(path: str | Path) -> bool:
@@ -296,6 +326,8 @@ def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
         keyframe_times=None if not m.get("keyframes") else tuple(m["keyframes"]["times"]),
         direct_span=load_raw(path, m["family"]["span"]) if m.get("family") else None,
         family_warn_above=m["family"]["warn_above"] if m.get("family") else None,
+        learnt=read_learnt(path, m["transfer"]["learnt"]) if m["transfer"].get("learnt")
+        else None,
     )
 
 

@@ -1,7 +1,8 @@
-"""Transfer textures on disk (issue 17, docs/sh_prt.md): SH transfer vectors per lightmap
-texel as RGBA EXRs, ``sh_transfer_{R,G,B}_{k:02d}.exr`` holding coefficients 4k .. 4k+3 of
-that colour channel (the last file of a channel zero-padded), dilated by the writer's
-caller (the atlas image it is given)."""
+"""Transfer textures on disk (issue 17, docs/sh_prt.md): SH vectors per lightmap texel as
+RGBA EXRs, ``{prefix}_{channel}_{k:02d}.exr`` holding coefficients 4k .. 4k+3 of that
+channel (the last file of a channel zero-padded), dilated by the writer's caller (the atlas
+image it is given). The diffuse transfer has channels R, G, B (prefix ``sh_transfer``); the
+glossy layer's visibility (TP) one channel V (prefix ``sh_visibility``)."""
 
 from __future__ import annotations
 
@@ -12,19 +13,25 @@ import numpy as np
 
 from prtcore.io.imageio import read_image, write_exr
 
+#: (prefix, channel names) of the two kinds of transfer texture
+TRANSFER = ("sh_transfer", "RGB")
+VISIBILITY = ("sh_visibility", "V")
 
-def transfer_texture_names(bands: int) -> list[str]:
-    """The file names of ``bands`` bands, R files first."""
-    return [f"sh_transfer_{c}_{k:02d}.exr" for c in "RGB"
+
+def transfer_texture_names(bands: int, kind: tuple[str, str] = TRANSFER) -> list[str]:
+    """The file names of ``bands`` bands, the first channel's files first."""
+    prefix, channels = kind
+    return [f"{prefix}_{c}_{k:02d}.exr" for c in channels
             for k in range(math.ceil(bands * bands / 4))]
 
 
-def write_transfer_textures(directory: Path, image: np.ndarray, dtype: str = "half"
-                            ) -> list[str]:
-    """Write the atlas ``image`` (H, W, 3, L²) float; returns the file names."""
+def write_transfer_textures(directory: Path, image: np.ndarray, dtype: str = "half",
+                            kind: tuple[str, str] = TRANSFER) -> list[str]:
+    """Write the atlas ``image`` (H, W, C, L²) float (C = the kind's channels); returns the
+    file names."""
     h, w, _, n = image.shape
-    names = transfer_texture_names(math.isqrt(n))
-    files = len(names) // 3
+    names = transfer_texture_names(math.isqrt(n), kind)
+    files = len(names) // len(kind[1])
     for i, name in enumerate(names):
         c, k = divmod(i, files)
         block = np.zeros((h, w, 4), np.float32)
@@ -34,10 +41,11 @@ def write_transfer_textures(directory: Path, image: np.ndarray, dtype: str = "ha
     return names
 
 
-def read_transfer_textures(directory: Path, bands: int) -> np.ndarray:
-    """The (H, W, 3, L²) float32 image written by :func:`write_transfer_textures`."""
-    names = transfer_texture_names(bands)
-    files = len(names) // 3
+def read_transfer_textures(directory: Path, bands: int, kind: tuple[str, str] = TRANSFER
+                           ) -> np.ndarray:
+    """The (H, W, C, L²) float32 image written by :func:`write_transfer_textures`."""
+    names = transfer_texture_names(bands, kind)
+    files = len(names) // len(kind[1])
     imgs = [read_image(Path(directory) / name) for name in names]
     return np.stack([np.concatenate(imgs[c * files:(c + 1) * files], axis=2)[:, :, :bands ** 2]
-                     for c in range(3)], axis=2)
+                     for c in range(len(kind[1]))], axis=2)

@@ -28,6 +28,10 @@ class BakeInputs:
     intake : the pipeline's IntakeResult (scene, texels, points, plan, prepare)
     train, hold : the training and held-out lights; keyframes : the KeyframeSet or None
     data : the transport Dataset (direct at points and indirect per texel for train + hold)
+    indirect : None, or the training and held-out lightmaps ((T, K, 3), (T, H, 3) float32)
+        as the fit sees them (denoised), when automatic sizing already prepared them
+    sizing : None, or what automatic sizing chose and why (:mod:`prtcore.sizing`), as JSON
+        data for the manifest and the report
     """
 
     spec: BakeSpec
@@ -36,6 +40,8 @@ class BakeInputs:
     hold: tuple[Light, ...]
     keyframes: Any
     data: Any
+    indirect: Any = None
+    sizing: dict | None = None
 
 
 class Method:

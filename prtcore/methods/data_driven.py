@@ -2,7 +2,8 @@
 matrix from the direct light at the measurement points, and the error-vs-run-time table.
 
 Files: basis_XX.exr (4 planes per RGBA file), coverage.exr, transfer.bin and
-transfer_offset.bin, the points files, per-keyframe files for animated bakes. The runtime
+transfer_offset.bin (and the learnt residual's layers, transfer_learnt_*.bin, with
+``fit.transfer: "mlp"``), the points files, per-keyframe files for animated bakes. The runtime
 is :mod:`prtcore.runtime.cpu` (and the GLSL of :mod:`prtcore.runtime.gl`); its formula is
 written into the manifest's ``runtime`` section.
 """
@@ -17,14 +18,16 @@ from typing import Any
 import numpy as np
 
 from prtcore.core.errors import PrtError
-from prtcore.core.formula import RUNTIME_FORMULA
+from prtcore.core.formula import LEARNT_FORMULA, RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
+from prtcore.fit.mlp import learnt_options
 from prtcore.fit.model import TransferModel
 from prtcore.fit.transfer import fit_transfer, heldout_errors, reconstruct
 from prtcore.io.bundle import (
     basis_planes,
+    learnt_files,
     planes_layout,
     points_files,
     raw_file,
@@ -33,7 +36,7 @@ from prtcore.io.bundle import (
 from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
-from prtcore.receivers.smoothing import smooth_texels, smoothing_operator
+from prtcore.receivers.smoothing import denoise_lightmaps
 from prtcore.report import (
     TABLE_N,
     error_vs_runtime,
@@ -73,14 +76,18 @@ class DataDriven(Method):
         D, I = data.direct_points[:, :K], data.indirect[:, :K]
         Dh, Ih = data.direct_points[:, K:], data.indirect[:, K:]
         reference = "fast transport of the held-out lights"
-        if spec.fit.denoise > 0:
+        if inputs.indirect is not None:  # prepared by automatic sizing (prtcore/sizing.py)
+            I, Ih = inputs.indirect
+            if spec.fit.denoise > 0:
+                reference += f", denoised (radius {spec.fit.denoise:g} texels)"
+        elif spec.fit.denoise > 0:
             # the gather's per-texel noise stays out of the basis; the held-out lightmaps
             # carry the same noise and are filtered alike, or the table would count that
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
-            with timer.stage("denoise"):
-                I = _denoised(texels, I, spec.fit.denoise)
-                Ih = _denoised(texels, Ih, spec.fit.denoise)
+            with timer.stage("denoise"):  # one filter for training and held-out lightmaps
+                both = denoise_lightmaps(texels, data.indirect, spec.fit.denoise)
+                I, Ih = both[:, :K], both[:, K:]
             reference += f", denoised (radius {spec.fit.denoise:g} texels)"
         holdout = (Dh, Ih) if len(inputs.hold) else None
         per_group = kfs is not None and kfs.transfer == "per_keyframe"
@@ -90,7 +97,9 @@ class DataDriven(Method):
         with timer.stage("fit"):
             n_table = max(TABLE_N)
             fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
-                      "gamma": spec.fit.gamma, "timer": timer}  # progress bars
+                      "gamma": spec.fit.gamma, "timer": timer,  # progress bars
+                      "transfer": spec.fit.transfer,
+                      "transfer_options": learnt_options(spec.fit)}
             if kfs is not None:  # one basis for all keyframes (paper 5.4)
                 fit_kw.update(groups=kfs.train, per_group=per_group)
             if spec.fit.basis == "auto":
@@ -110,7 +119,8 @@ class DataDriven(Method):
                 table = error_vs_runtime(full, Dh, Ih, texels.width * texels.height,
                                          texels.width * texels.height * dtype_bytes,
                                          reference=reference,
-                                         groups=kfs.holdout if per_group else None)
+                                         groups=kfs.holdout if per_group else None,
+                                         shipped=model.n_basis)
             else:
                 table = {"reference": None, "heldout_configurations": 0, "rows": []}
         diag = model.diagnostics.to_dict()
@@ -154,6 +164,8 @@ class DataDriven(Method):
                       "offset[c, i]" + ("; leading axis: keyframe" if
                                         model.transfer.ndim == 4 else ""),
         }
+        if model.learnt is not None:
+            transfer["learnt"] = learnt_files(directory, model.learnt)
         save_light_file(inputs.hold, directory / "holdout_lights.json")
         K = len(inputs.train)
         span = direct_span(data.direct_points[:, :K])
@@ -174,6 +186,7 @@ class DataDriven(Method):
                                  "G, B",
                       "dtype": spec.output.dtype, "dilated": True},
             "fit": {"channels": model.channels, "gamma": model.gamma, "ridge": model.ridge,
+                    "transfer": diag.get("transfer", "ridge"),
                     "n_basis": model.n_basis, "n_method": diag.get("n_basis_method"),
                     "ridge_method": diag.get("ridge_method"),
                     "energy_kept": diag.get("energy_kept"), "warnings": diag.get("warnings"),
@@ -182,7 +195,8 @@ class DataDriven(Method):
             "points": pts,
             "keyframes": None if kfs is None else keyframe_files(directory, kfs,
                                                                  inputs.intake.scene),
-            "runtime": {"formula": RUNTIME_FORMULA},
+            "runtime": {"formula": RUNTIME_FORMULA} if model.learnt is None else
+            {"formula": RUNTIME_FORMULA, "learnt": LEARNT_FORMULA},
             "diagnostics": diag,
             "metrics": {"error_vs_runtime": table["rows"],
                         "transport_iterations": data.iterations,
@@ -243,13 +257,3 @@ class DataDriven(Method):
                    inputs.intake.prepare.utilisation,
                    f"{texels.width}×{texels.height} atlas, {texels.count} texels",
                    directory / "report_atlas.png")
-
-
-def _denoised(texels, I, radius: float, block: int = 16) -> np.ndarray:
-    """The training lightmaps I (T, K, 3) through the seam-aware filter of ``radius``
-    texels (receivers/smoothing.py), ``block`` configurations at a time: (T, K, 3) float32."""
-    W = smoothing_operator(texels, radius=radius)
-    out = np.empty(I.shape, dtype=np.float32)
-    for k0 in range(0, I.shape[1], block):
-        out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
-    return out

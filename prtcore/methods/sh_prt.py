@@ -15,9 +15,13 @@ Transfer is shadowed (T⁰) and, with ``bounce``, one-bounce inter-reflected (T�
 poster's T₁ computed from the stored T₀ (interpolated from the vertices, or looked up in
 the dilated texture at the bounce's hit point).
 
-:func:`bake_sh_prt` is the library entry point (``prtcore compare`` uses it);
-:mod:`prtcore.io.transfer_textures` the file format, and :func:`memory_table` the poster's
-Table 1 for one asset.
+:func:`bake_sh_prt` is the library entry point; :class:`ShPrtMethod` the registered
+method (``"method": {"name": "sh_prt"}``, section ``sh_prt`` of the spec) that writes a
+bundle; :mod:`prtcore.io.transfer_textures` the file format; :func:`memory_table` the
+poster's Table 1 for one asset. Glossy Phong: :func:`glossy_tp` (the poster's TP: stored
+visibility × light by the triple product) and :func:`glossy_tpfl` (TPFL: stored L·V for a
+fixed light), with :func:`evaluate_vertex` / :func:`evaluate_texture` the CPU equivalents
+of the GL variants (:mod:`prtcore.runtime.sh_gl`).
 """
 
 from __future__ import annotations
@@ -37,7 +41,11 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
 from prtcore.io.bundle import raw_file
 from prtcore.io.imageio import read_image, write_exr, write_png
-from prtcore.io.transfer_textures import read_transfer_textures, write_transfer_textures
+from prtcore.io.transfer_textures import (
+    VISIBILITY,
+    read_transfer_textures,
+    write_transfer_textures,
+)
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
@@ -47,6 +55,7 @@ from prtcore.transport.sh_transfer import (
     texel_lookup,
     vertex_lookup,
     vertex_samples,
+    visibility_transfer,
 )
 
 #: bytes per stored coefficient: float32 per vertex (a vertex attribute), half per texel
@@ -230,11 +239,15 @@ def sky_lightmap(scene: Scene, texels: TexelSpace, result: ShPrtResult) -> np.nd
 
 @dataclass(frozen=True, eq=False)
 class ShPrtBake:
-    """The method's result: the SH-PRT bake and its preview lightmap (t, 3)."""
+    """The method's result: the SH-PRT bake, its preview lightmap (t, 3) at the covered
+    texels and the same as a dilated atlas image (H, W, 4), A = coverage."""
 
     bake: ShPrtResult
     preview: np.ndarray
+    preview_image: np.ndarray
     spec: object
+    #: the glossy layer's visibility SH as an atlas (H, W, 1, L²) (``sh_prt.specular`` > 0)
+    visibility: np.ndarray | None = None
 
 
 @register
@@ -253,9 +266,14 @@ class ShPrtMethod(Method):
         with timer.stage("fit"):
             bake = bake_sh_prt(scene, tracer, spec.storage, spec.bands, spec.strata,
                                spec.seed, bounce=spec.bounce, texels=texels)
+            visibility = None
+            if spec.specular > 0:  # the glossy layer's T₀ for the triple product
+                vis = visibility_transfer(tracer, texel_samples(texels), spec.bands,
+                                          spec.strata, spec.seed)
+                visibility = texels.to_image(vis)[:, :, :-1][:, :, None, :]
         with timer.stage("report"):
             preview = sky_lightmap(scene, texels, bake)
-        return ShPrtBake(bake, preview, spec)
+        return ShPrtBake(bake, preview, texels.to_image(preview), spec, visibility)
 
     def write(self, directory: Path, inputs: BakeInputs, result: ShPrtBake
               ) -> tuple[dict, dict]:
@@ -271,12 +289,19 @@ class ShPrtMethod(Method):
             section["layout"] = ("sh_transfer_{R,G,B}_{k}.exr: R, G, B, A = coefficients "
                                  "4k..4k+3 of that colour channel, dilated")
             section["dtype"] = dtype
+            if result.visibility is not None:
+                section["glossy"] = {
+                    "model": "TP: specular · Σ_k (M_c V)_k z_k Y_k(r), M_c = Σ_i Γ_ijk l_ic, V "
+                             "the visibility SH, z the Phong lobe's Funk–Hecke kernel, r the "
+                             "mirror direction of the view about the shading normal",
+                    "specular": result.spec.specular, "exponent": result.spec.exponent,
+                    "files": write_transfer_textures(directory, result.visibility, dtype,
+                                                     VISIBILITY)}
         else:
             section["vertex_transfer"] = raw_file(directory / "sh_vertex_transfer.bin",
                                                   bake.transfer.coeffs.astype(np.float32))
             section["layout"] = "vertex_transfer[v, c, i]: vertex v of asset.glb, channel c"
-        img = texels.to_image(result.preview)
-        write_exr(directory / "coverage.exr", img[:, :, -1:], dtype="half",
+        write_exr(directory / "coverage.exr", result.preview_image[:, :, -1:], dtype="half",
                   channel_names=("Y",))
         memory = memory_table(len(inputs.intake.scene.positions), (texels.width,),
                               (bake.bands,))
@@ -305,14 +330,9 @@ class ShPrtMethod(Method):
         return result
 
     def plot(self, result: ShPrtBake, path: Path) -> None:
-        """report.png: the preview (uniform white sky) over the atlas, tone-mapped."""
-        b = result.bake
-        if b.storage == "texture":
-            rgb = np.einsum("hwcl,lc->hwc", b.image.astype(np.float64),
-                            _uniform_sky(b.bands))
-        else:
-            return  # vertex storage: the preview lives on the texels (report.json)
-        write_png(path, (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
+        """report.png: the preview (uniform white sky of radiance 1) over the atlas."""
+        rgb = np.clip(result.preview_image[:, :, :3], 0.0, 1.0)
+        write_png(path, (rgb ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
 
 
 def relight_bundle(bundle: Path, manifest: dict, lighting) -> np.ndarray:

@@ -108,3 +108,14 @@ def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True
         y = (W @ x.reshape(texels.count, -1)).reshape(x.shape)
     out_dtype = np.float32 if v.dtype == np.float32 else np.float64
     return y.reshape(v.shape).astype(out_dtype)
+
+
+def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float,
+                      block: int = 16) -> np.ndarray:
+    """Lightmaps I (T, K, 3) through the seam-aware filter of ``radius`` texels, ``block``
+    configurations at a time: (T, K, 3) float32 (the fit's ``fit.denoise``)."""
+    W = smoothing_operator(texels, radius=radius)
+    out = np.empty(I.shape, dtype=np.float32)
+    for k0 in range(0, I.shape[1], block):
+        out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
+    return out

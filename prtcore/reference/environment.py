@@ -146,26 +146,41 @@ def reference_environment(scene: Scene, tracer: RayTracer, env: Environment,
 def reference_phong(tracer: RayTracer, env: Environment, position: np.ndarray,
                     geometric_normal: np.ndarray, reflected: np.ndarray,
                     specular: np.ndarray, exponent: float, spp: int, seed: int = 0,
-                    lobe_bands: int | None = None) -> EnvironmentReference:
+                    lobe_bands: int | None = None, scene: Scene | None = None
+                    ) -> EnvironmentReference:
     """Glossy (Phong) outgoing radiance from direct environment light, by Monte Carlo:
     ``ρ_s ∫ L(ω) V(x, ω) lobe(ω) dω`` with ``lobe = (n+1)/(2π) max(0, ω·r)^n`` about the
     mirror direction r (``reflected`` (m, 3)), or — with ``lobe_bands`` — that lobe's SH
     truncation to ``lobe_bands`` bands (the same band limit as an SH renderer; it may be
     negative). Directions uniform over each point's geometric hemisphere (V = 0 below it),
     ``spp`` (even) per point, two independent halves for the noise. L is the map's pixel
-    lookup. position, geometric_normal, specular : (m, 3) float64."""
+    lookup. position, geometric_normal, specular : (m, 3) float64. With ``scene``, a
+    direction that hits a front face at q also brings the diffuse radiance q sends out
+    under the environment (one path-traced sample of its direct light, :func:`_trace`):
+    the reference of direct + one bounce."""
     from prtcore.core import sh
     from prtcore.core.geometry import directions_around
 
     kernel = None if lobe_bands is None else sh.zonal_kernel(
         sh.phong_zonal(exponent, lobe_bands))
     spec = np.asarray(specular, np.float64)
+    sampler = EnvironmentSampler(env) if scene is not None else None
 
     def estimate(ti: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         u = rng.random((len(ti), 2))
         gn = geometric_normal[ti]
         d = directions_around(gn, u[:, 0], 2.0 * math.pi * u[:, 1])
-        free = ~tracer.occluded(position[ti] + gn * tracer.offset, d)
+        hits = tracer.intersect(position[ti] + gn * tracer.offset, d)
+        incident = np.zeros((len(ti), 3))
+        free = ~hits.hit
+        incident[free] = env.radiance(d[free])
+        if scene is not None:
+            q = np.flatnonzero(hits.hit & hits.front)
+            tri, bary = hits.triangle[q], hits.barycentric[q]
+            gq = tracer.face_normals[tri]
+            rho, _ = clamp_albedo(albedo_at(scene, tri, bary))
+            incident[q] = _trace(scene, tracer, env, sampler, tracer.surface_point(tri, bary),
+                                 shading_normals(scene, tri, bary, gq), gq, rho, rng, 1)
         if kernel is None:
             lobe = (exponent + 1.0) / (2.0 * math.pi) * np.clip(
                 np.einsum("ij,ij->i", d, reflected[ti]), 0.0, None) ** exponent
@@ -173,5 +188,5 @@ def reference_phong(tracer: RayTracer, env: Environment, position: np.ndarray,
             # the zonal kernel about r evaluated at d: Σ_l k_l Σ_m Y_lm(r) Y_lm(d)
             lobe = np.einsum("il,il->i", sh.basis(d, lobe_bands) * kernel,
                              sh.basis(reflected[ti], lobe_bands))
-        return spec[ti] * (2.0 * math.pi * free * lobe)[:, None] * env.radiance(d)
+        return spec[ti] * (2.0 * math.pi * lobe)[:, None] * incident
     return _two_halves(len(position), spp, seed, estimate)

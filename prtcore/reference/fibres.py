@@ -10,8 +10,10 @@ Estimator (as :mod:`prtcore.reference.pathtracer` for surfaces): a texel's value
 azimuth- and arc-averaged outgoing radiance ``L̄ = ρ/π · Ē``. A path starts at a point
 uniform over the texel's fibre surface (arc uniform in the interval, azimuth uniform)
 with the cylinder's radial normal n0, leaves along a cosine-distributed direction about
-n0 and at every fibre hit x_j takes the *cylinder's* radial normal there (the hit point
-projected off the fibre's axis), adds next-event estimation ``β · ρ_j/π · E_d(x_j, n_j)``
+n0 and at every fibre hit takes the normal a round fibre would present there
+(:func:`prtcore.core.fibres.cylinder_normal`: a uniformly random impact parameter across
+the fibre, the tube being only the occlusion proxy), x_j on the circumscribed cylinder
+along it, adds next-event estimation ``β · ρ_j/π · E_d(x_j, n_j)``
 and continues cosine-distributed about n_j with ``β ← β ρ_j``:
 
     L̄_ind(texel) = ρ0 · E[ Σ_{j≥1} (Π_{i=1}^{j-1} ρ_i) · ρ_j/π · E_d(x_j, n_j) ].
@@ -31,7 +33,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
+from prtcore.core.fibres import FibreMesh, cylinder_normal, outside_offset, segment_hits
 from prtcore.core.geometry import directions_around
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.raytrace import RayTracer
@@ -101,13 +103,9 @@ def fibre_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
                 p0 = hair.segment_start[seg]
                 a0, b0 = hair.points[p0], hair.points[p0 + 1]
                 hit_axis = a0 + t[:, None] * (b0 - a0)
-                hit_point = origin[alive] + hits.t[fib][:, None] * d
                 ax = b0 - a0
                 ax /= np.linalg.norm(ax, axis=1, keepdims=True)
-                radial = hit_point - hit_axis
-                radial -= np.einsum("ij,ij->i", radial, ax)[:, None] * ax
-                rl = np.linalg.norm(radial, axis=1, keepdims=True)
-                n_hit = np.where(rl > 0, radial / np.maximum(rl, 1e-300), -d)
+                n_hit = cylinder_normal(ax, d, 2 * rng.random(len(d)) - 1)
                 if radially_averaged:
                     w = n_hit
                     v = np.cross(ax, w)
@@ -131,17 +129,27 @@ def fibre_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
     return halves[0], halves[1]
 
 
-def noise_corrected_error(fast: np.ndarray, a: np.ndarray, b: np.ndarray
-                          ) -> dict[str, float]:
+def noise_corrected_error(fast: np.ndarray | tuple[np.ndarray, np.ndarray], a: np.ndarray,
+                          b: np.ndarray) -> dict[str, float]:
     """Error of ``fast`` against the reference (a + b) / 2 with the reference's noise
     removed: ``rrmse = sqrt(max(0, mean((fast − ref)²) − mean((a − b)²)/4)) / rms(ref)``,
-    ``bias = mean(fast − ref) / mean(ref)``; also the raw rRMSE and the reference's own
-    relative noise."""
+    ``bias = mean(fast − ref) / mean(ref)`` and its standard error ``bias_se`` (texels as
+    the independent samples); also the raw rRMSE and the reference's own relative noise.
+    ``fast`` given as two independent halves (another reference) has its own noise
+    removed too."""
+    noise = float(np.mean((a - b) ** 2) / 4)
+    if isinstance(fast, tuple):
+        noise += float(np.mean((fast[0] - fast[1]) ** 2) / 4)
+        fast = (fast[0] + fast[1]) / 2
     ref = (a + b) / 2
     raw = float(np.mean((fast - ref) ** 2))
-    noise = float(np.mean((a - b) ** 2) / 4)
     rms = float(np.sqrt(np.mean(ref ** 2)))
+    # standard error of the bias: per-texel mean differences (lights and channels of a
+    # texel share its noise) are the independent samples
+    per = (fast - ref).reshape(len(ref), -1).mean(axis=1)
+    se = float(np.std(per, ddof=1) / np.sqrt(max(len(per), 1))) if len(per) > 1 else 0.0
     return {"rrmse": float(np.sqrt(max(0.0, raw - noise))) / rms,
             "raw_rrmse": float(np.sqrt(raw)) / rms,
             "reference_noise": float(np.sqrt(noise)) / rms,
-            "bias": float(np.mean(fast - ref) / np.mean(ref))}
+            "bias": float(np.mean(fast - ref) / np.mean(ref)),
+            "bias_se": se / float(np.mean(ref))}

@@ -4,7 +4,8 @@ Per frame, exactly what an engine does:
 
 1. shade the measurement points' supersamples for the frame's lights
    (``albedo/π · E`` with shadows) and average each cluster → x (P, 3);
-2. coefficients: ``s = ‖γ(x)‖``, ``u_c = M_c γ(x)_c + s·b_c`` per channel;
+2. coefficients: ``s = ‖γ(x)‖``, ``u_c = M_c γ(x)_c + s·b_c`` per channel, plus
+   ``s·r(γ(x)/s)`` with a learnt transfer (``fit.transfer: "mlp"``, :mod:`prtcore.core.mlp`);
 3. blend the basis planes with one RGB coefficient per plane and undo gamma.
 
 The basis is stored as scalar *planes* packed four per RGBA EXR: planes 0–2 are the mean
@@ -28,6 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from prtcore.core.formula import RUNTIME_FORMULA as RUNTIME_FORMULA  # see the docstring
+from prtcore.core.mlp import transfer_residual
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.emitters.punctual import irradiance
@@ -73,6 +75,8 @@ def plane_weights(data: RuntimeData, x: np.ndarray, n: int | None = None,
     u = np.zeros((3, n_b))
     for c in range(3):
         u[c, :use] = M[c, :use].astype(np.float64) @ xg[:, c] + s * b[c, :use]
+    if data.learnt is not None:  # fit.transfer "mlp": u += s·r(x'/s)
+        u[:, :use] += s * transfer_residual(data.learnt, xg)[:, :use]
     w = np.zeros((len(data.plane_element), 3))
     for j, (el, ch) in enumerate(zip(data.plane_element, data.plane_channel, strict=True)):
         if el == 0:
@@ -85,11 +89,14 @@ def plane_weights(data: RuntimeData, x: np.ndarray, n: int | None = None,
 
 
 def blend(data: RuntimeData, weights: np.ndarray) -> np.ndarray:
-    """Σ_j plane_j · w_j, gamma undone: (h, w, 3) float32 indirect radiance."""
+    """max(Σ_j plane_j · w_j, 0), gamma undone: (h, w, 3) float32 indirect radiance
+    (negative light is clamped: the runtime's negative-value policy, core/formula.py and
+    docs/bundle.md; the fit's own reconstruction stays linear)."""
     h, w, q = data.planes.shape
     out = data.planes.reshape(-1, q).astype(np.float32) @ weights.astype(np.float32)
+    out = np.maximum(out, np.float32(0.0))
     if data.gamma is not None and data.gamma != 1.0:
-        out = np.maximum(out, 0.0) ** np.float32(data.gamma)
+        out = out ** np.float32(data.gamma)
     return out.reshape(h, w, 3)
 
 

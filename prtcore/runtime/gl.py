@@ -11,8 +11,9 @@ Per frame, all on the GPU (paper 4.3, 5.1, 5.2):
    (``albedo/π · E``, the KHR_lights_punctual formulas of :mod:`prtcore.emitters.punctual`, shadows
    from the shadow maps) and averages each cluster → x (P, 3), gamma applied;
 3. **coefficients** — a compute shader (one work group): ``s = ‖x'‖``,
-   ``u_c = M_c x'_c + s·b_c`` per channel, then the RGB weight of every basis plane
-   (:func:`prtcore.runtime.cpu.plane_weights`);
+   ``u_c = M_c x'_c + s·b_c`` per channel (plus ``s·r(x'/s)``, the learnt residual of a
+   ``fit.transfer: "mlp"`` bundle, one neuron per invocation: ``learnt.glsl``), then the
+   RGB weight of every basis plane (:func:`prtcore.runtime.cpu.plane_weights`);
 4. **camera pass** — direct light with shadow-map shadows plus the indirect term: the
    basis planes, packed four per RGBA layer of a texture array, are blended in the
    fragment shader, one 4×3 coefficient matrix per layer (paper 5.2), then gamma undone.
@@ -42,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core.errors import PrtError
+from prtcore.core.mlp import Mlp
 from prtcore.core.scene import Light
 from prtcore.reference.camera import Camera
 from prtcore.runtime.glcontext import (
@@ -239,8 +241,16 @@ class BundleRenderer:
         self._b = self._keep(ctx.buffer(np.ascontiguousarray(b, "<f4").tobytes() or b"\0" * 4))
         pl = np.stack([d.plane_element, d.plane_channel.astype(np.int32)], 1).astype("<i4")
         self._planes = self._keep(ctx.buffer(pl.tobytes()))
-        self._coeff_cs = self._keep(ctx.compute_shader(shader_source(
-            "coeff_cs.glsl", GROUP=COEFF_GROUP, N_U=max(1, 3 * self._n_b))))
+        defines = {"GROUP": COEFF_GROUP, "N_U": max(1, 3 * self._n_b)}
+        self._learnt = None
+        if d.learnt is not None:  # fit.transfer "mlp": learnt.glsl in the same pass
+            weights, layers = learnt_buffers(d.learnt)
+            self._learnt = (self._keep(ctx.buffer(weights.tobytes())),
+                            self._keep(ctx.buffer(layers.tobytes())))
+            defines.update(LEARNT=1, LEARNT_LAYERS=len(d.learnt.weights),
+                           LEARNT_WIDTH=max((1, *d.learnt.widths)))
+        self._coeff_cs = self._keep(ctx.compute_shader(shader_source("coeff_cs.glsl",
+                                                                     **defines)))
 
     def _unbind(self) -> None:
         """Bind framebuffer 0 before framebuffers are released (see
@@ -319,6 +329,10 @@ class BundleRenderer:
         self._b.bind_to_storage_buffer(7)
         self._planes.bind_to_storage_buffer(8)
         self._weights.bind_to_storage_buffer(4)
+        if self._learnt is not None:
+            self._learnt[0].bind_to_storage_buffer(9)
+            self._learnt[1].bind_to_storage_buffer(10)
+            set_uniform(cs, "learnt_slope", float(self.data.learnt.slope))
         q = len(self.data.plane_element)
         set_uniform(cs, "n_points", self.data.point_count)
         set_uniform(cs, "n_b", self._n_b)
@@ -486,6 +500,18 @@ class BundleRenderer:
         return RenderResult(image=img.reshape(h, w, 4)[::-1].copy(),
                             uv1=np.zeros((h, w, 2), np.float32), milliseconds=gpu,
                             wall_milliseconds=wall)
+
+
+def learnt_buffers(net: Mlp) -> tuple[np.ndarray, np.ndarray]:
+    """The learnt transfer as learnt.glsl reads it: every layer's weights (row-major) then
+    its biases in one float32 array, and per layer (inputs, outputs, weight offset, bias
+    offset) as (L, 4) int32."""
+    parts, table, at = [], [], 0
+    for w, c in zip(net.weights, net.biases, strict=True):
+        table.append((w.shape[1], w.shape[0], at, at + w.size))
+        parts += [np.asarray(w, "<f4").ravel(), np.asarray(c, "<f4")]
+        at += w.size + c.size
+    return np.concatenate(parts), np.asarray(table, "<i4")
 
 
 # ---------------------------------------------------------------------------------------

@@ -37,8 +37,10 @@ from prtcore.runtime.glcontext import (
 )
 from prtcore.runtime.glsl import shader_source
 
-#: position and TEXCOORD_1 of the scene buffer
-SH_VERTEX_FORMAT = "3f 2f"
+#: position, normal and TEXCOORD_1 of the scene buffer
+SH_VERTEX_FORMAT = "3f 3f 2f"
+#: most bands of the glossy layer in GLSL (sh_basis.glsl's SH_MAX_BANDS)
+GLOSSY_MAX_BANDS = 8
 
 
 class ShPrtRenderer:
@@ -72,12 +74,13 @@ class ShPrtRenderer:
         sc, c = self.scene, self.ctx
         self._prog = self._keep(c.program(vertex_shader=shader_source("sh_vs.glsl"),
                                           fragment_shader=shader_source("sh_fs.glsl")))
-        verts = np.concatenate([sc.positions, sc.uv1], axis=1)
+        verts = np.concatenate([sc.positions, sc.normals, sc.uv1], axis=1)
         vbo = self._keep(c.buffer(np.ascontiguousarray(verts, dtype="<f4").tobytes()))
         ibo = self._keep(c.buffer(np.ascontiguousarray(sc.faces, dtype="<u4").tobytes()))
         self._vao = self._keep(c.vertex_array(self._prog, [(vbo, SH_VERTEX_FORMAT, "in_pos",
-                                                            "in_uv1")],
+                                                            "in_nrm", "in_uv1")],
                                               index_buffer=ibo, index_element_size=4))
+        self._setup_glossy(sec.get("glossy"))
         if self.storage == "vertex":
             t = load_raw(self.bundle, sec["vertex_transfer"]).astype("<f4")
             self._transfer = self._keep(c.buffer(np.ascontiguousarray(t).tobytes()))
@@ -98,6 +101,39 @@ class ShPrtRenderer:
         self._light = self._keep(c.buffer(reserve=16 * 4 * self.files))
         self._fbos: dict = {}
         check_gl(self.ctx, "sh_prt setup")
+
+    def _setup_glossy(self, glossy: dict | None) -> None:
+        """The glossy layer (TP): visibility textures (one RGBA layer per four
+        coefficients), the Phong kernel, the basis normalisation; the product matrices are
+        written per frame."""
+        from prtcore.core import sh
+        from prtcore.io.transfer_textures import VISIBILITY, read_transfer_textures
+
+        c, n = self.ctx, self.bands ** 2
+        self.glossy = glossy
+        if glossy is None:
+            self._vis = self._keep(c.texture_array((1, 1, 1), 4, dtype="f4"))
+            for name in ("_product", "_kernel", "_norm"):
+                setattr(self, name, self._keep(c.buffer(reserve=16)))
+            return
+        if self.bands > GLOSSY_MAX_BANDS:
+            raise PrtError(f"{self.bundle}: the GL glossy layer takes at most "
+                           f"{GLOSSY_MAX_BANDS} bands, the bundle has {self.bands}")
+        vis = read_transfer_textures(self.bundle, self.bands, VISIBILITY)[:, :, 0]
+        h, w = vis.shape[:2]
+        pad = np.zeros((h, w, 4 * self.files), np.float32)
+        pad[..., :n] = vis
+        layers = pad.reshape(h, w, self.files, 4).transpose(2, 0, 1, 3)
+        self._vis = self._keep(c.texture_array((w, h, self.files), 4, np.ascontiguousarray(
+            layers, "<f4").tobytes(), dtype="f4"))
+        self._vis.filter = (self._mgl.LINEAR, self._mgl.LINEAR)
+        self._vis.repeat_x = self._vis.repeat_y = False
+        kernel = sh.zonal_kernel(sh.phong_zonal(float(glossy["exponent"]), self.bands))
+        self._kernel = self._keep(c.buffer(np.asarray(kernel, "<f4").tobytes()))
+        norm = np.zeros((GLOSSY_MAX_BANDS, GLOSSY_MAX_BANDS), np.float32)
+        norm[:self.bands, :self.bands] = sh.normalisation(self.bands)
+        self._norm = self._keep(c.buffer(norm.tobytes()))
+        self._product = self._keep(c.buffer(reserve=4 * 3 * n * n))
 
     def _keep(self, obj):
         self._objects.append(obj)
@@ -132,6 +168,11 @@ class ShPrtRenderer:
         buf = np.zeros((4 * self.files, 4), "<f4")
         buf[:n, :3] = light
         self._light.write(buf.tobytes())
+        if self.glossy is not None:  # M_c[k, j] = Σ_i Γ_ijk l_ic, once per frame
+            from prtcore.core import sh
+
+            mats = np.stack([sh.product_matrix(light[:, ch]) for ch in range(3)])
+            self._product.write(np.ascontiguousarray(mats, "<f4").tobytes())
         key = (camera.width, camera.height)
         if key not in self._fbos:
             tex = self._keep(c.texture(key, 4, dtype="f4"))
@@ -145,9 +186,18 @@ class ShPrtRenderer:
         set_uniform(prog, "n_coeffs", n)
         set_uniform(prog, "files", self.files)
         set_uniform(prog, "transfer_tex", 0)
+        set_uniform(prog, "visibility_tex", 1)
+        set_uniform(prog, "glossy", int(self.glossy is not None))
+        set_uniform(prog, "specular", float((self.glossy or {}).get("specular", 0.0)))
+        set_uniform(prog, "bands", self.bands)
+        set_uniform(prog, "eye", tuple(float(v) for v in camera.position))
         self._tex.use(location=0)
+        self._vis.use(location=1)
         self._transfer.bind_to_storage_buffer(5)
         self._light.bind_to_storage_buffer(6)
+        self._product.bind_to_storage_buffer(7)
+        self._kernel.bind_to_storage_buffer(8)
+        self._norm.bind_to_storage_buffer(9)
         self._timer.reset()
         with self._timer.timed(f"sh_{self.storage}"):
             fbo.use()

@@ -32,7 +32,7 @@ from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, TransportTerm, operator_for
 from prtcore.transport.direct import direct_radiance
-from prtcore.transport.solve import SOLVE_BLOCK_BYTES, solve_indirect
+from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS, solve_indirect
 
 #: The operators a bake runs, in order (registry names, :mod:`prtcore.transport.base`).
 DEFAULT_OPERATORS = ("surface",)
@@ -53,8 +53,8 @@ def operators_for(scene: Scene) -> tuple[str, ...]:
 #: (tests/stability) and rounded up, so that it overestimates by 10–30 %: per covered
 #: texel (texel space, gather bookkeeping, interpreter), per texel and configuration
 #: (texel direct and indirect, (T, K, 3) float32 each, and at most as much again for the
-#: near field's first-bounce correction), plus the solver's working arrays (five more per
-#: configuration, up to SOLVE_BLOCK_BYTES), plus each operator's own
+#: near field's first-bounce correction), plus the solver's working arrays
+#: (SOLVE_WORK_ARRAYS more per configuration, up to SOLVE_BLOCK_BYTES), plus each operator's own
 #: (:mod:`prtcore.transport.surface`: per texel and gather ray, and per ray in flight).
 MEM_PER_TEXEL = 1536
 MEM_PER_TEXEL_CONFIG = 36
@@ -159,17 +159,20 @@ def estimate_bake_bytes(texels: int, configurations: int, transport: TransportSp
     if not isinstance(transport, TransportSpec):
         transport = TransportSpec(gather_rays=int(transport))
     t, k = int(texels), int(configurations)
-    own = t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(5 * t * k * 12,
-                                                                   SOLVE_BLOCK_BYTES)
+    own = t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(
+        SOLVE_WORK_ARRAYS * t * k * 12, SOLVE_BLOCK_BYTES)
     return int(own + sum(operator_for(n).estimate_bytes(t, k, transport) for n in operators))
 
 
 def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int,
-                      operators: Sequence[str] = DEFAULT_OPERATORS) -> int:
+                      operators: Sequence[str] = DEFAULT_OPERATORS,
+                      training: int | None = None) -> int:
     """Refuse (:class:`~prtcore.core.errors.LimitExceeded`) a bake whose estimated peak memory
     exceeds ``limit_bytes`` (``IntakeLimits.max_bake_bytes``), before transport allocates.
-    spec : the :class:`~prtcore.core.spec.BakeSpec`. Returns the estimate."""
-    k = spec.lights.count + spec.lights.holdout
+    spec : the :class:`~prtcore.core.spec.BakeSpec`; training : the training lights of the
+    first pass (default ``spec.lights.count``, which must then be a number). Returns the
+    estimate."""
+    k = int(spec.lights.count if training is None else training) + spec.lights.holdout
     need = estimate_bake_bytes(texels.count, k, spec.transport, operators)
     if need > limit_bytes:
         gib = 1 << 30
@@ -244,12 +247,115 @@ def direct_at_points(scene: Scene | None, tracer: RayTracer, lights: Sequence[Li
         return direct_p.reshape(points.count, k, 3).astype(np.float32)
 
 
+@dataclass(frozen=True, eq=False)
+class Transport:
+    """The operators of one geometry, traced once (:func:`open_transport`), ready to light
+    any number of configurations (:func:`light_configurations`): automatic sizing adds
+    training lights to a bake without tracing the operators again.
+
+    tracer : the bake's ray tracer (counts rays); traced : the operators' terms;
+    rays : rays tracing the operators took; seconds : the operators' stage times.
+    """
+
+    scene: Scene
+    texels: TexelSpace
+    points: MeasurementPoints
+    spec: TransportSpec
+    tracer: RayTracer
+    traced: tuple[Traced, ...]
+    rays: int
+    seconds: dict
+
+
+def open_transport(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
+                   spec: TransportSpec | None = None, timer: StageTimer | None = None,
+                   tracer: RayTracer | None = None,
+                   operators: Sequence[str] | None = None) -> Transport:
+    """Trace the operators of ``operators`` (registry names; None: :func:`operators_for` the
+    scene, the subsurface walks join when a material is translucent) once, each timed as
+    its stage."""
+    spec = spec or TransportSpec()
+    timer = timer or StageTimer(quiet=True)
+    tracer = tracer or RayTracer(scene.positions, scene.faces, scene.radius)
+    operators = operators_for(scene) if operators is None else tuple(operators)
+    before = dict(timer.seconds)
+    rays0 = tracer.rays_traced
+    traced = trace_operators(scene, texels, tracer, spec, timer, operators)
+    seconds = {t.operator.stage: timer.seconds[t.operator.stage]
+               - before.get(t.operator.stage, 0.0) for t in traced}
+    return Transport(scene=scene, texels=texels, points=points, spec=spec, tracer=tracer,
+                     traced=traced, rays=tracer.rays_traced - rays0, seconds=seconds)
+
+
+def light_configurations(tr: Transport, lights: Sequence[Light], n_train: int,
+                         timer: StageTimer | None = None) -> Dataset:
+    """Direct light at the measurement points and the texels, and all bounces, for
+    ``lights`` (the first ``n_train`` training, the rest held out) on operators traced once.
+    Sub-stages "direct points", "direct texels", "near field", "indirect solve"."""
+    timer = timer or StageTimer(quiet=True)
+    scene, points, tracer = tr.scene, tr.points, tr.tracer
+    lights = tuple(lights)
+    before = dict(timer.seconds)
+    rays1 = tracer.rays_traced
+    direct_p = direct_at_points(scene, tracer, lights, points, timer)
+    rays2 = tracer.rays_traced
+    lit = light_texels(scene, tr.texels, tracer, tr.traced, lights, tr.spec, timer)
+    _, clamped = clamp_albedo(np.asarray(tr.texels.albedo, dtype=np.float64))
+    stats = {
+        "train": int(n_train), "holdout": len(lights) - int(n_train),
+        "texels": tr.texels.count, "points": points.count,
+        "rays": {**{t.operator.stats_key: t.rays for t in tr.traced},
+                 "direct_points": rays2 - rays1,
+                 **lit.stats["rays"], "total": tr.rays + tracer.rays_traced - rays1},
+        "direct_samples": lit.stats["direct_samples"],
+        **{t.operator.stats_key: t.term.stats for t in tr.traced},
+        "solve": lit.stats["solve"],
+        "albedo_clamped_values": clamped,
+        "seconds": {**tr.seconds, **{name: timer.seconds[name] - before.get(name, 0.0)
+                                     for name in LIGHT_STAGES if name in timer.seconds}},
+    }
+    return Dataset(lights=lights, direct_points=direct_p, direct_texels=lit.direct,
+                   indirect=lit.indirect, iterations=lit.iterations, residual=lit.residual,
+                   stats=stats)
+
+
+def add_training(data: Dataset, extra: Dataset) -> Dataset:
+    """``data`` with the training configurations of ``extra`` (all its lights) appended
+    after its own training ones and before its held-out ones. Stats: rays and stage seconds
+    add up; iterations and residual are the worse of the two passes."""
+    k = data.stats["train"]
+
+    def cat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.concatenate([a[:, :k], b, a[:, k:]], axis=1)
+
+    stats = dict(data.stats)
+    stats["train"] = k + len(extra.lights)
+    stats["rays"] = {name: data.stats["rays"].get(name, 0) + extra.stats["rays"].get(name, 0)
+                     for name in data.stats["rays"]}
+    # the operators were traced once: their rays are in ``data`` only
+    for t in (n for n in data.stats["rays"] if n not in ("direct_points", "direct_texels",
+                                                         "near_field", "total")):
+        stats["rays"][t] = data.stats["rays"][t]
+    stats["rays"]["total"] = data.stats["rays"]["total"] + sum(
+        extra.stats["rays"].get(n, 0) for n in ("direct_points", "direct_texels", "near_field"))
+    stats["seconds"] = {n: v + (extra.stats["seconds"].get(n, 0.0) if n in LIGHT_STAGES
+                                else 0.0) for n, v in data.stats["seconds"].items()}
+    stats["passes"] = data.stats.get("passes", 1) + 1
+    lights = (*data.lights[:k], *extra.lights, *data.lights[k:])
+    return Dataset(lights=lights, direct_points=cat(data.direct_points, extra.direct_points),
+                   direct_texels=cat(data.direct_texels, extra.direct_texels),
+                   indirect=cat(data.indirect, extra.indirect),
+                   iterations=max(data.iterations, extra.iterations),
+                   residual=max(data.residual, extra.residual), stats=stats)
+
+
 def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
                  lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                  spec: TransportSpec | None = None, timer: StageTimer | None = None,
                  tracer: RayTracer | None = None,
                  operators: Sequence[str] | None = None) -> Dataset:
-    """The transport stage: the operators (gather), direct light, all bounces.
+    """The transport stage: the operators (gather), direct light, all bounces
+    (:func:`open_transport` then :func:`light_configurations`).
 
     Training and held-out configurations are computed in one pass: ``Dataset.lights`` is
     ``(*lights_train, *lights_holdout)`` and every (…, K, 3) array follows that order;
@@ -257,37 +363,8 @@ def bake_dataset(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
     Sub-stages are timed on ``timer`` as :data:`STAGES` ("gather operator",
     "direct points", "direct texels", "near field", "indirect solve"). operators :
     registry names (:mod:`prtcore.transport.base`), traced in order; None:
-    :func:`operators_for` the scene (the subsurface walks join when a material is
-    translucent).
+    :func:`operators_for` the scene.
     """
-    spec = spec or TransportSpec()
-    timer = timer or StageTimer(quiet=True)
-    tracer = tracer or RayTracer(scene.positions, scene.faces, scene.radius)
-    operators = operators_for(scene) if operators is None else tuple(operators)
-    lights = (*tuple(lights_train), *tuple(lights_holdout))
-    rays0 = tracer.rays_traced
-    before = dict(timer.seconds)
-
-    traced = trace_operators(scene, texels, tracer, spec, timer, operators)
-    rays1 = tracer.rays_traced
-    direct_p = direct_at_points(scene, tracer, lights, points, timer)
-    rays2 = tracer.rays_traced
-    lit = light_texels(scene, texels, tracer, traced, lights, spec, timer)
-    _, clamped = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
-    stages = (*(t.operator.stage for t in traced), *LIGHT_STAGES)
-    stats = {
-        "train": len(lights_train), "holdout": len(lights_holdout),
-        "texels": texels.count, "points": points.count,
-        "rays": {**{t.operator.stats_key: t.rays for t in traced},
-                 "direct_points": rays2 - rays1,
-                 **lit.stats["rays"], "total": tracer.rays_traced - rays0},
-        "direct_samples": lit.stats["direct_samples"],
-        **{t.operator.stats_key: t.term.stats for t in traced},
-        "solve": lit.stats["solve"],
-        "albedo_clamped_values": clamped,
-        "seconds": {name: timer.seconds[name] - before.get(name, 0.0)
-                    for name in stages if name in timer.seconds},
-    }
-    return Dataset(lights=lights, direct_points=direct_p, direct_texels=lit.direct,
-                   indirect=lit.indirect, iterations=lit.iterations, residual=lit.residual,
-                   stats=stats)
+    tr = open_transport(scene, texels, points, spec, timer, tracer, operators)
+    return light_configurations(tr, (*tuple(lights_train), *tuple(lights_holdout)),
+                                len(lights_train), timer)

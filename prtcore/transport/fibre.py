@@ -35,7 +35,9 @@ dark underside, not its mean. Measured against the project's path tracer
 (:mod:`prtcore.reference.fibres`, which shades every hit with its own normal) on a dense
 hairball under a sun and a point light, the indirect came out 12 % too bright. So
 :func:`fibre_direct` also keeps the first ``HARMONICS`` azimuthal harmonics of the
-direct light, the gather records the azimuth ψ of every hit on the hit fibre, and
+direct light, the gather records the azimuth ψ of every hit on the hit fibre (the
+normal a round fibre presents to the ray, :func:`prtcore.core.fibres.cylinder_normal`),
+and
 :func:`harmonic_first_bounce` adds ``Σ_h G_h L_h`` to the first bounce (the solver's
 ``first_bounce``): the bias fell to about 4 % (``benchmarks/hair_accuracy.py``). Later
 bounces stay radially constant.
@@ -53,7 +55,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from prtcore.core.fibres import DEFAULT_SIDES, FibreMesh, fibre_tubes, segment_hits
+from prtcore.core.fibres import (
+    DEFAULT_SIDES,
+    FibreMesh,
+    cylinder_normal,
+    fibre_tubes,
+    segment_hits,
+)
 from prtcore.core.geometry import directions_around
 from prtcore.core.progress import StageTimer, bar
 from prtcore.core.raytrace import RayTracer
@@ -65,10 +73,17 @@ from prtcore.transport.direct import direct_radiance
 
 #: rays per intersect call of the fibre gather
 FIBRE_BATCH = 1 << 18
-#: Memory of the fibre gather (bytes): per texel and gather ray (the (row, column) pairs
-#: before they are summed into CSR, and the CSR), and per ray in flight.
-MEM_PER_TEXEL_RAY = 24
+#: Memory of the fibre gather (bytes): per texel and gather ray (the ray origins, normals,
+#: axis points and azimuths of :meth:`StrandSpace.surface_samples`, 80; the (row, column,
+#: azimuth) triples before they are summed into CSR, and the CSR matrices, 24), and per
+#: ray in flight. With it the 10k-strand hairball bake at K = 144 is estimated at
+#: 2.6 GiB; benchmarks/hair_bake.py measured a 2.22 GiB peak.
+MEM_PER_TEXEL_RAY = 104
 MEM_PER_RAY_IN_FLIGHT = 200
+#: Memory of the fibre tubes per polyline segment (bytes): prtcore's float64 vertices,
+#: faces and face normals plus Embree's copies and BVH, measured at 10k strands × 16
+#: segments by benchmarks/hair_geometry.py (89 + 112 MiB) and rounded up.
+MEM_PER_FIBRE_SEGMENT = 1400
 
 
 def hair_tracer(space: StrandSpace, scene: Scene | None = None, sides: int = DEFAULT_SIDES,
@@ -169,8 +184,12 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         p0 = hair.segment_start[seg]
         arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
         strand = hair.strand_of_segment[seg]
-        point = origin[a:b][fib] + hits.t[fib][:, None] * d[fib]
-        _, _, cs = azimuth_frame(hair, strand, arc, point)
+        a0, b0 = hair.points[p0], hair.points[p0 + 1]
+        axis = b0 - a0
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        normal_hit = cylinder_normal(axis, d[fib], 2 * rng.random(len(p0)) - 1)
+        centre = a0 + along[:, None] * (b0 - a0)
+        _, _, cs = azimuth_frame(hair, strand, arc, centre + normal_hit)
         rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
         cols_all.append(space.texel_of(strand, arc).astype(np.int32))
         cs_all.append(cs.astype(np.float32))

@@ -200,11 +200,10 @@ def texel_lookup(scene: Scene, image: np.ndarray):
 # product with a fixed light (TPFL)
 
 
-def _hemisphere_visibility(tracer: RayTracer, samples: SurfaceSamples, rows: slice,
-                           strata: int, rng: np.random.Generator
-                           ) -> tuple[np.ndarray, np.ndarray]:
+def _hemisphere_rays(tracer: RayTracer, samples: SurfaceSamples, rows: slice, strata: int,
+                     rng: np.random.Generator):
     """Stratified uniform directions over each sample's geometric hemisphere (m, S, 3) and
-    their visibility (m, S) bool (a ray that hits anything is blocked)."""
+    their closest hits (:class:`prtcore.core.raytrace.Hits`, m·S rays)."""
     gn = samples.geometric_normal[rows]
     m, s = len(gn), strata * strata
     cell = np.arange(s)
@@ -212,24 +211,33 @@ def _hemisphere_visibility(tracer: RayTracer, samples: SurfaceSamples, rows: sli
           + rng.random((m, s, 2))) / strata).reshape(-1, 2)
     d = directions_around(np.repeat(gn, s, axis=0), u[:, 0], 2.0 * math.pi * u[:, 1])
     origin = samples.position[rows] + gn * tracer.offset
-    hits = tracer.intersect(np.repeat(origin, s, axis=0), d)
-    return d.reshape(m, s, 3), ~hits.hit.reshape(m, s)
+    return d.reshape(m, s, 3), tracer.intersect(np.repeat(origin, s, axis=0), d)
+
+
+def _hemisphere_projection(tracer: RayTracer, samples: SurfaceSamples, bands: int,
+                           strata: int, seed: int, incident, channels: int) -> np.ndarray:
+    """SH (n, channels, L²) of an incident function over each sample's geometric hemisphere
+    (0 below it): ``∫ Y_i f dω`` estimated with strata² stratified uniform directions,
+    ``incident(directions (k, 3), hits)`` → (k, channels) its value along each ray."""
+    out = np.zeros((samples.count, channels, bands * bands))
+    s = strata * strata
+    for start in range(0, samples.count, POINT_CHUNK):
+        rows = slice(start, min(samples.count, start + POINT_CHUNK))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
+        d, hits = _hemisphere_rays(tracer, samples, rows, strata, rng)
+        m, flat = d.shape[0], d.reshape(-1, 3)
+        f = np.asarray(incident(flat, hits), np.float64).reshape(m, s, channels)
+        y = sh.basis(flat, bands).reshape(m, s, -1)
+        out[rows] = 2.0 * math.pi / s * np.einsum("msc,msl->mcl", f, y)
+    return out
 
 
 def visibility_transfer(tracer: RayTracer, samples: SurfaceSamples, bands: int, strata: int,
                         seed: int) -> np.ndarray:
     """The poster's T₀ for the triple product: SH of the visibility V(x, ω) over the whole
-    sphere (0 below the geometric plane), ``V_i = ∫ Y_i V dω`` estimated with strata²
-    stratified uniform directions over the hemisphere: (n, L²) float64."""
-    out = np.zeros((samples.count, bands * bands))
-    s = strata * strata
-    for start in range(0, samples.count, POINT_CHUNK):
-        rows = slice(start, min(samples.count, start + POINT_CHUNK))
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
-        d, vis = _hemisphere_visibility(tracer, samples, rows, strata, rng)
-        y = sh.basis(d.reshape(-1, 3), bands).reshape(d.shape[0], s, -1)
-        out[rows] = 2.0 * math.pi / s * np.einsum("ms,msl->ml", vis.astype(np.float64), y)
-    return out
+    sphere (0 below the geometric plane), ``V_i = ∫ Y_i V dω``: (n, L²) float64."""
+    return _hemisphere_projection(tracer, samples, bands, strata, seed,
+                                  lambda d, hits: ~hits.hit, 1)[:, 0]
 
 
 def fixed_light_transfer(tracer: RayTracer, samples: SurfaceSamples, radiance, bands: int,
@@ -238,14 +246,23 @@ def fixed_light_transfer(tracer: RayTracer, samples: SurfaceSamples, radiance, b
     fixed distant light, ``radiance`` a callable (k, 3) directions → (k, 3) RGB (e.g.
     :meth:`prtcore.emitters.environment.Environment.radiance`). Same rays and streams as
     :func:`visibility_transfer`. Returns (n, 3, L²) float64."""
-    out = np.zeros((samples.count, 3, bands * bands))
-    s = strata * strata
-    for start in range(0, samples.count, POINT_CHUNK):
-        rows = slice(start, min(samples.count, start + POINT_CHUNK))
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
-        d, vis = _hemisphere_visibility(tracer, samples, rows, strata, rng)
-        flat = d.reshape(-1, 3)
-        y = sh.basis(flat, bands).reshape(d.shape[0], s, -1)
-        lv = radiance(flat).reshape(d.shape[0], s, 3) * vis[:, :, None]
-        out[rows] = 2.0 * math.pi / s * np.einsum("msc,msl->mcl", lv, y)
-    return out
+    def incident(d: np.ndarray, hits) -> np.ndarray:
+        return radiance(d) * ~hits.hit[:, None]
+    return _hemisphere_projection(tracer, samples, bands, strata, seed, incident, 3)
+
+
+def fixed_light_bounce_transfer(tracer: RayTracer, samples: SurfaceSamples, outgoing,
+                                bands: int, strata: int, seed: int) -> np.ndarray:
+    """The poster's inter-reflection texture T₁ (section 2.1): SH of the *indirect* incident
+    radiance for the fixed light, ``B(ω) = (1 − V(x, ω)) L_out(q(ω))`` with q the front face
+    the ray hits, ``outgoing`` a callable (triangle (h,), barycentric (h, 3)) → (h, 3) the
+    diffuse radiance q sends out, e.g. the stored T₀ at q dotted with the fixed light's SH.
+    Same rays and streams as :func:`fixed_light_transfer` (add the two for direct + one
+    bounce). Returns (n, 3, L²) float64."""
+    def incident(d: np.ndarray, hits) -> np.ndarray:
+        radiance = np.zeros((len(d), 3))
+        front = np.flatnonzero(hits.hit & hits.front)
+        if len(front):
+            radiance[front] = outgoing(hits.triangle[front], hits.barycentric[front])
+        return radiance
+    return _hemisphere_projection(tracer, samples, bands, strata, seed, incident, 3)

@@ -30,15 +30,18 @@ def viewer_content_type(name: str) -> str:
     return "text/plain; charset=utf-8" if not suffix else "application/octet-stream"
 
 
-def viewer_page(static: str, bundle: str) -> str:
-    """The viewer page (HTML) with its static files at ``static`` and the bundle at
-    ``bundle`` (URL prefixes ending with ``/``)."""
-    for what, prefix in (("static", static), ("bundle", bundle)):
-        if not prefix.endswith("/"):
+def viewer_page(static: str, bundle: str, reference: str = "") -> str:
+    """The viewer page (HTML) with its static files at ``static``, the bundle at ``bundle``
+    and, optionally, a path-traced reference at ``reference`` (``reference.exr``, the
+    indirect lightmap of ``prtcore reference``, and ``light.json``, its light): URL prefixes
+    ending with ``/``; ``reference`` empty for none."""
+    for what, prefix in (("static", static), ("bundle", bundle), ("reference", reference)):
+        if not prefix.endswith("/") and (prefix or what != "reference"):
             raise PrtError(f"viewer page: the {what} prefix {prefix!r} must end with '/'")
     text = (STATIC / "index.html").read_text(encoding="utf-8")
-    return text.replace("{{STATIC}}", html.escape(static)).replace("{{BUNDLE}}",
-                                                                   html.escape(bundle))
+    for key, value in (("STATIC", static), ("BUNDLE", bundle), ("REFERENCE", reference)):
+        text = text.replace("{{" + key + "}}", html.escape(value))
+    return text
 
 
 @cache

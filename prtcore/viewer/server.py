@@ -18,8 +18,10 @@ from prtcore.viewer.page import viewer_content_type, viewer_page, viewer_static_
 HOST = "127.0.0.1"
 
 
-def _handler(bundle: Path, quiet: bool) -> type[BaseHTTPRequestHandler]:
-    index = viewer_page("./static/", "./bundle/").encode("utf-8")
+def _handler(bundle: Path, quiet: bool, reference: dict[str, Path]
+             ) -> type[BaseHTTPRequestHandler]:
+    index = viewer_page("./static/", "./bundle/", "./reference/" if reference else ""
+                        ).encode("utf-8")
 
     class Handler(BaseHTTPRequestHandler):
         server_version = "prtcore-view"
@@ -31,6 +33,8 @@ def _handler(bundle: Path, quiet: bool) -> type[BaseHTTPRequestHandler]:
             if path.startswith("/static/"):
                 f = viewer_static_path(path[len("/static/"):])
                 return self._file(f)
+            if path.startswith("/reference/"):
+                return self._file(reference.get(path[len("/reference/"):]))
             if path.startswith("/bundle/"):
                 name = path[len("/bundle/"):]
                 ok = name and "/" not in name and "\\" not in name and not name.startswith(".")
@@ -62,15 +66,30 @@ def _handler(bundle: Path, quiet: bool) -> type[BaseHTTPRequestHandler]:
 class ViewerServer:
     """The viewer of the bundle ``directory`` on 127.0.0.1:``port`` (0: any free port).
 
+    ``reference`` and ``reference_light``: a path-traced indirect lightmap of the bundle
+    (``prtcore reference DIR --light L --out REF.exr``) and its light file, for the page's
+    error heat map (served as /reference/reference.exr and /reference/light.json).
     ``url`` is the page; :meth:`serve_forever` blocks, :meth:`start` serves from a daemon
     thread, :meth:`close` stops. The bundle is checked (manifest.json) before binding.
     """
 
-    def __init__(self, directory: str | Path, port: int = 0, quiet: bool = False):
+    def __init__(self, directory: str | Path, port: int = 0, quiet: bool = False,
+                 reference: str | Path | None = None,
+                 reference_light: str | Path | None = None):
         self.directory = Path(directory)
         read_manifest(self.directory)  # a clear error for a non-bundle, before binding
+        if (reference is None) != (reference_light is None):
+            raise PrtError("view: --reference and --light go together (the path-traced "
+                           "lightmap and the light it was traced for)")
+        ref = {}
+        if reference is not None:
+            ref = {"reference.exr": Path(reference), "light.json": Path(reference_light)}
+            for f in ref.values():
+                if not f.is_file():
+                    raise PrtError(f"view: {f}: no such file")
         try:
-            self.httpd = ThreadingHTTPServer((HOST, port), _handler(self.directory, quiet))
+            self.httpd = ThreadingHTTPServer((HOST, port),
+                                             _handler(self.directory, quiet, ref))
         except OSError as e:
             raise PrtError(f"view: cannot listen on {HOST}:{port}: {e.strerror or e}") from None
         self.httpd.daemon_threads = True

@@ -43,6 +43,7 @@ def _through_app(client):
     return handle
 
 
+@pytest.mark.slow  # a bake and a second browser (~25 s); the route itself: test_service_api
 def test_service_viewer_loads_the_bake_behind_the_token(finished_bake):
     from playwright.sync_api import sync_playwright
 

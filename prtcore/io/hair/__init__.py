@@ -9,14 +9,14 @@ from pathlib import Path
 from prtcore.core.errors import UnsupportedAsset
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
-from prtcore.io.hair.usd import read_usd_hair
+from prtcore.io.hair.usd import read_usd_hair, write_usd_hair
 from prtcore.io.hair.yuksel import read_hair, write_hair
 
 #: file suffixes read as hair
 HAIR_SUFFIXES = (".hair", ".usd", ".usda", ".usdc")
 
 __all__ = ["HAIR_SUFFIXES", "is_hair_file", "load_hair", "read_hair", "read_usd_hair",
-           "write_hair"]
+           "write_hair", "write_usd_hair"]
 
 
 def is_hair_file(path: str | Path) -> bool:

@@ -11,8 +11,9 @@ absent: the spec's or 1 mm), ``primvars:displayColor`` (``constant``, ``uniform`
 (``periodic`` and ``pinned`` wraps are refused).
 
 Hardening as the ``.hair`` reader: the file size is checked before the stage is opened,
-counts before arrays are converted, NaN points are refused, every refusal names the file
-and the prim's attribute (``/Hair/curves.points[3]``).
+a layer that composes other files (sublayers, references, payloads) is refused before
+USD would open them, counts before arrays are converted, NaN points are refused, every
+refusal names the file and the prim's attribute (``/Hair/curves.points[3]``).
 """
 
 from __future__ import annotations
@@ -78,13 +79,8 @@ def read_usd_hair(path: str | Path, limits: IntakeLimits | None = None,
     limits = limits or IntakeLimits()
     file, _ = checked_size(path, limits)
     Usd, UsdGeom = _pxr()
-    try:
-        stage = Usd.Stage.Open(file)
-    except Exception as e:  # pxr raises Tf.ErrorException for unreadable layers
-        raise AssetError(file, "", f"not a readable USD stage ({str(e).splitlines()[0]})"
-                         ) from None
-    if stage is None:
-        raise AssetError(file, "", "not a readable USD stage")
+    _refuse_external_layers(file)
+    stage = _opened(file, Usd.Stage.Open, "stage")
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
     up = UsdGeom.GetStageUpAxis(stage)
     to_y_up = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float) if up == "Z" else np.eye(3)
@@ -179,6 +175,32 @@ def read_usd_hair(path: str | Path, limits: IntakeLimits | None = None,
                 name=Path(file).name)
 
 
+def _opened(file: str, open_fn, what: str):
+    """``open_fn(file)``; a failure or None becomes an AssetError naming the file."""
+    try:
+        out = open_fn(file)
+    except Exception as e:  # pxr raises Tf.ErrorException for unreadable layers
+        raise AssetError(file, "", f"not a readable USD {what} ({str(e).splitlines()[0]})"
+                         ) from None
+    if out is None:
+        raise AssetError(file, "", f"not a readable USD {what}")
+    return out
+
+
+def _refuse_external_layers(file: str) -> None:
+    """A hair file must be self-contained: sublayers, references and payloads to other
+    files (which USD would open from anywhere on disk) are refused before the stage is
+    composed."""
+    from pxr import Sdf
+
+    layer = _opened(file, Sdf.Layer.OpenAsAnonymous, "layer")
+    deps = [str(d) for d in layer.GetCompositionAssetDependencies()]
+    if deps:
+        raise UnsupportedAsset(file, "", f"the layer composes other files ({', '.join(deps[:3])}"
+                               f"{', …' if len(deps) > 3 else ''}); hair files must be "
+                               "self-contained")
+
+
 def _per_vertex(file: str, where: str, raw, interpolation: str, counts: np.ndarray,
                 segs: np.ndarray, channels: int, default) -> np.ndarray:
     """A primvar expanded to one value per control vertex, (n, channels) float64.
@@ -211,3 +233,25 @@ def _per_vertex(file: str, where: str, raw, interpolation: str, counts: np.ndarr
                              range(channels)], axis=1))
         start += s + 1
     return np.concatenate(out)
+
+
+def write_usd_hair(path: str | Path, hair: Hair, prim: str = "/Hair") -> Path:
+    """Write ``hair`` as one linear ``BasisCurves`` prim (metres, +Y up; widths and
+    ``displayColor`` per vertex) to a ``.usda`` / ``.usdc`` / ``.usd`` file."""
+    Usd, UsdGeom = _pxr()
+    from pxr import Gf, Sdf, Vt
+
+    path = Path(path)
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    curves = UsdGeom.BasisCurves.Define(stage, Sdf.Path(prim))
+    curves.CreateTypeAttr(UsdGeom.Tokens.linear)
+    curves.CreateCurveVertexCountsAttr(Vt.IntArray([int(c) for c in np.diff(hair.offsets)]))
+    curves.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, p)) for p in hair.points]))
+    curves.CreateWidthsAttr(Vt.FloatArray([float(w) for w in hair.thickness]))
+    curves.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+    color = curves.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
+    color.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, c)) for c in hair.color]))
+    stage.GetRootLayer().Save()
+    return path

@@ -1,7 +1,8 @@
 #version 430
-// Coefficients: s = |x'|, u_c = M_c x'_c + s b_c, the RGB weight of every basis plane;
-// prtcore.runtime.cpu.plane_weights on the GPU. GROUP (the work-group size) and N_U
-// (3 n_b, at least 1) are #defined by prtcore.runtime.gl.
+// Coefficients: s = |x'|, u_c = M_c x'_c + s b_c (+ s r(x'/s)_c with a learnt transfer,
+// learnt.glsl), the RGB weight of every basis plane; prtcore.runtime.cpu.plane_weights on
+// the GPU. GROUP (the work-group size) and N_U (3 n_b, at least 1) are #defined by
+// prtcore.runtime.gl, and LEARNT for a bundle with fit.transfer "mlp".
 layout(local_size_x = GROUP) in;
 layout(std430, binding = 3) readonly buffer X { vec4 x[]; };
 layout(std430, binding = 6) readonly buffer M { float m[]; };       // [c][i][p]
@@ -14,6 +15,9 @@ uniform int use;
 uniform int n_planes;
 shared float partial[GROUP];
 shared float u[N_U];
+#ifdef LEARNT
+#include "learnt.glsl"
+#endif
 void main() {
     int t = int(gl_LocalInvocationID.x);
     float acc = 0.0;
@@ -27,6 +31,9 @@ void main() {
         barrier();
     }
     float s = sqrt(partial[0]);
+#ifdef LEARNT
+    learnt_residual(t, s, n_points);
+#endif
     for (int k = t; k < 3 * n_b; k += GROUP) {
         int c = k / n_b, i = k - c * n_b;
         float v = 0.0;
@@ -34,6 +41,9 @@ void main() {
             int row = (c * n_b + i) * n_points;
             for (int p = 0; p < n_points; ++p) v += m[row + p] * x[p][c];
             v += s * b[c * n_b + i];
+#ifdef LEARNT
+            v += s * r_learnt[k];
+#endif
         }
         u[k] = v;
     }

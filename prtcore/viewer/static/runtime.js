@@ -61,8 +61,9 @@ export async function loadBundle(base) {
   if ((manifest.method ?? 'data_driven') !== 'data_driven') {
     throw new BundleError(`method ${manifest.method}: this viewer shows data-driven bundles`);
   }
-  if (manifest.keyframes) {
-    throw new BundleError('keyframe bundles are not shown by this viewer yet');
+  if (manifest.strands) {  // docs/hair.md: strand textures over asset.hair
+    throw new BundleError('hair bundles (strand textures) are not shown by this viewer yet; ' +
+                          'use `prtcore relight`');
   }
   // docs/bundle.md: EXR row 0 is the top row (TEXCOORD_1 v = 0). EXRLoader stores the file's
   // rows bottom-up, so a top-down file is sampled at (u, 1 - v).
@@ -83,6 +84,14 @@ export async function loadBundle(base) {
     fetchOk(base + manifest.validation.holdout_lights).then((r) => r.json()),
   ]);
   const span = manifest.family ? await loadRaw(base, manifest.family.span) : null;
+  // keyframe bundles: per keyframe, posed vertices (asset.glb order), clusters and points,
+  // each row px py pz nx ny nz (docs/bundle.md; prtcore/keyframes/pose.py keyframe_files)
+  const kf = manifest.keyframes;
+  const keyframes = kf ? {
+    times: kf.times, count: kf.count,
+    vertices: await loadRaw(base, kf.vertices), clusters: await loadRaw(base, kf.clusters),
+    points: await loadRaw(base, kf.points),
+  } : null;
   const W = manifest.atlas.width, H = manifest.atlas.height;
   const data = new Uint16Array(W * H * 4 * layers.length);
   layers.forEach((t, f) => {
@@ -98,7 +107,9 @@ export async function loadBundle(base) {
   basis.minFilter = basis.magFilter = THREE.LinearFilter;
   basis.needsUpdate = true;
   coverage.minFilter = coverage.magFilter = THREE.NearestFilter;
-  const [, nB, P] = manifest.transfer.matrix.shape;
+  // (3, nB, P), or (keyframes, 3, nB, P) with one transfer per keyframe
+  const [nB, P] = manifest.transfer.matrix.shape.slice(-2);
+  const perKeyframe = manifest.transfer.matrix.shape.length === 4;
   const meshes = [];
   gltf.scene.updateMatrixWorld(true);
   gltf.scene.traverse((o) => { if (o.isMesh) meshes.push(o); });
@@ -107,25 +118,71 @@ export async function loadBundle(base) {
       throw new BundleError(`${manifest.asset.file}: mesh ${m.name} has no TEXCOORD_1`);
     }
   }
-  const box = new THREE.Box3().setFromObject(gltf.scene);
+  if (keyframes) {
+    const rows = meshes.reduce((a, m) => a + m.geometry.attributes.position.count, 0);
+    if (rows * 6 * kf.count !== keyframes.vertices.length) {
+      throw new BundleError(`${kf.vertices.file}: ${keyframes.vertices.length / 6 / kf.count} ` +
+                            `vertices per keyframe, ${manifest.asset.file} has ${rows}`);
+    }
+  }
+  const { center, radius } = boundingSphere(meshes);
+  return {
+    manifest, meshes, basis, coverage, W, H, flipV: rowOrder === 'top_down',
+    layers: layers.length, planes: manifest.basis.planes,
+    planeElement: manifest.basis.plane_element, planeChannel: manifest.basis.plane_channel,
+    nBasis: manifest.basis.count, M, b, nB, P, perKeyframe, keyframes, gamma: manifest.fit.gamma,
+    clusters, owner, clusterCount: owner.length, points, span,
+    warnAbove: manifest.family ? manifest.family.warn_above : null,
+    holdoutLights: holdout.lights, center, radius,
+  };
+}
+
+// Centre of the bounding box and the radius around it (prtcore.core.scene: the scale of
+// the shadow views).
+export function boundingSphere(meshes) {
+  const box = new THREE.Box3(), v = new THREE.Vector3();
+  for (const m of meshes) {
+    const p = m.geometry.attributes.position;
+    for (let i = 0; i < p.count; i++) box.expandByPoint(v.fromBufferAttribute(p, i).applyMatrix4(m.matrixWorld));
+  }
   const center = box.getCenter(new THREE.Vector3());
   let radius = 0;
   for (const m of meshes) {
-    const p = m.geometry.attributes.position, v = new THREE.Vector3();
+    const p = m.geometry.attributes.position;
     for (let i = 0; i < p.count; i++) {
       radius = Math.max(radius, v.fromBufferAttribute(p, i).applyMatrix4(m.matrixWorld)
         .distanceTo(center));
     }
   }
-  return {
-    manifest, meshes, basis, coverage, W, H, flipV: rowOrder === 'top_down',
-    layers: layers.length, planes: manifest.basis.planes,
-    planeElement: manifest.basis.plane_element, planeChannel: manifest.basis.plane_channel,
-    nBasis: manifest.basis.count, M, b, nB, P, gamma: manifest.fit.gamma,
-    clusters, owner, clusterCount: owner.length, points, span,
-    warnAbove: manifest.family ? manifest.family.warn_above : null,
-    holdoutLights: holdout.lights, center, radius: Math.max(radius, 1e-30),
-  };
+  return { center, radius: Math.max(radius, 1e-30) };
+}
+
+// Pose a keyframe bundle at keyframe k: the meshes' vertices and normals (asset.glb order:
+// the meshes in file order, each in accessor order), the clusters and the points; the
+// scene's bounding sphere follows. The light pass must be re-run afterwards.
+export function poseKeyframe(bundle, k) {
+  const kf = bundle.keyframes;
+  if (!kf) return;
+  const V = kf.vertices.length / kf.count / 6;
+  let row = k * V;
+  for (const m of bundle.meshes) {
+    const pos = m.geometry.attributes.position, nrm = m.geometry.attributes.normal;
+    for (let i = 0; i < pos.count; i++, row++) {
+      pos.setXYZ(i, kf.vertices[6 * row], kf.vertices[6 * row + 1], kf.vertices[6 * row + 2]);
+      nrm.setXYZ(i, kf.vertices[6 * row + 3], kf.vertices[6 * row + 4], kf.vertices[6 * row + 5]);
+    }
+    pos.needsUpdate = nrm.needsUpdate = true;
+    m.geometry.computeBoundingSphere();
+  }
+  const s = bundle.clusterCount;
+  for (let i = 0; i < s; i++) {
+    for (let c = 0; c < 6; c++) bundle.clusters[12 * i + c] = kf.clusters[(k * s + i) * 6 + c];
+  }
+  for (let p = 0; p < bundle.P; p++) {
+    for (let c = 0; c < 6; c++) bundle.points[12 * p + c] = kf.points[(k * bundle.P + p) * 6 + c];
+  }
+  Object.assign(bundle, boundingSphere(bundle.meshes));
+  bundle.keyframe = k;
 }
 
 // A light-file light (docs/lights.md) as the uniforms of LIGHTS_GLSL need it.
@@ -302,19 +359,12 @@ void main() { f_dist = vec4(u_lightType == 2 ? dot(v_pos, u_lightDir) : length(v
     }
     // clusters: one pixel each, row by row from the bottom of the target
     const n = bundle.clusterCount, rows = Math.ceil(n / CLUSTER_ROW);
-    const cl = bundle.clusters, pos = new Float32Array(3 * n), nrm = new Float32Array(3 * n);
-    const alb = new Float32Array(3 * n);
-    for (let k = 0; k < n; k++) {
-      for (let c = 0; c < 3; c++) {
-        pos[3 * k + c] = cl[12 * k + c];
-        nrm[3 * k + c] = cl[12 * k + 3 + c];
-        alb[3 * k + c] = cl[12 * k + 6 + c];
-      }
-    }
     const g = new THREE.BufferGeometry();
-    g.setAttribute('position', new THREE.BufferAttribute(pos, 3));
-    g.setAttribute('c_normal', new THREE.BufferAttribute(nrm, 3));
-    g.setAttribute('c_albedo', new THREE.BufferAttribute(alb, 3));
+    for (const name of ['position', 'c_normal', 'c_albedo']) {
+      g.setAttribute(name, new THREE.BufferAttribute(new Float32Array(3 * n), 3));
+    }
+    this.clusterGeometry = g;
+    this.updateClusters();
     this.clusterTarget = new THREE.WebGLRenderTarget(CLUSTER_ROW, rows, {
       type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: false,
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter });
@@ -340,6 +390,20 @@ void main() { f_color = vec4(v_albedo / PI * irradiance(v_pos, v_nrm, v_nrm), 1.
     this.clusterScene = new THREE.Scene().add(clusterPoints);
     this.camera = new THREE.Camera();  // the passes use their own matrices
     this.pixels = new Float32Array(4 * CLUSTER_ROW * rows);
+  }
+
+  // Copy the clusters' position, normal and albedo from the bundle (again after
+  // poseKeyframe).
+  updateClusters() {
+    const cl = this.bundle.clusters, a = this.clusterGeometry.attributes;
+    for (let k = 0; k < this.bundle.clusterCount; k++) {
+      for (let c = 0; c < 3; c++) {
+        a.position.array[3 * k + c] = cl[12 * k + c];
+        a.c_normal.array[3 * k + c] = cl[12 * k + 3 + c];
+        a.c_albedo.array[3 * k + c] = cl[12 * k + 6 + c];
+      }
+    }
+    for (const name of ['position', 'c_normal', 'c_albedo']) a[name].needsUpdate = true;
   }
 
   // Set the light's uniforms and render its shadow maps.
@@ -398,6 +462,8 @@ void main() { f_color = vec4(v_albedo / PI * irradiance(v_pos, v_nrm, v_nrm), 1.
 // using n elements (mean included).
 export function coefficients(b, x, n) {
   const g = b.gamma, nB = b.nB, P = b.P;
+  const k = b.perKeyframe ? (b.keyframe ?? 0) : 0;  // the keyframe's transfer
+  const mOff = k * 3 * nB * P, bOff = k * 3 * nB;
   const xg = new Float64Array(x.length);
   for (let i = 0; i < x.length; i++) {
     xg[i] = g === null || g === 1 ? x[i] : Math.sign(x[i]) * Math.abs(x[i]) ** (1 / g);
@@ -410,9 +476,9 @@ export function coefficients(b, x, n) {
   for (let c = 0; c < 3; c++) {
     for (let i = 0; i < use; i++) {
       let acc = 0;
-      const row = (c * nB + i) * P;
+      const row = mOff + (c * nB + i) * P;
       for (let p = 0; p < P; p++) acc += b.M[row + p] * xg[3 * p + c];
-      u[c * nB + i] = acc + s * b.b[c * nB + i];
+      u[c * nB + i] = acc + s * b.b[bOff + c * nB + i];
     }
   }
   const w = new Float32Array(4 * b.planes);

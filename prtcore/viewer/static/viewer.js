@@ -1,16 +1,23 @@
 // The prtcore viewer page: orbit a bake, drag its light, look at the terms of the runtime.
-// Rendering is on demand (a frame after each change); runtime.js does the PRT runtime.
-// Test hook: window.prt (ready, error, x, u, s, pixel(), atlas(), setLight(), setView(),
-// set()), used by tests/test_viewer.py.
+// Rendering is on demand (a frame after each change). runtime.js is the PRT runtime (the
+// engine integration), shaders.js the page's GLSL, reference.js the heat map's reference.
+// Test hook: window.prt (ready, error, x, u, s, familyResidual, referenceError, badge,
+// pixel(), image(), atlas(), setLight(), setView(), set()), used by tests/test_viewer.py.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { TransformControls } from 'three/addons/controls/TransformControls.js';
+import { loadReference, relativeError } from './reference.js';
 import {
-  LIGHTS_GLSL, LightPass, coefficients, familyResidual, loadBundle, normaliseLight,
+  LightPass, coefficients, familyResidual, loadBundle, normaliseLight, poseKeyframe,
 } from './runtime.js';
+import {
+  ATLAS_FS, ATLAS_VS, POINTS_FS, POINTS_VS, SURFACE_FS, SURFACE_VS,
+} from './shaders.js';
 
 const MODES = { full: 0, direct: 1, indirect: 2, albedo: 3, element: 4, points: 0, checker: 6,
-                uv: 7 };
+                uv: 7, error: 8 };
+// Heat map: relative error |indirect - reference| / mean reference, red at this value.
+const ERROR_FULL_SCALE = 0.5;
 const TONEMAPS = { aces: 0, reinhard: 1, linear: 2 };
 const $ = (id) => document.getElementById(id);
 const prt = { ready: false, error: null, frames: 0 };
@@ -22,124 +29,6 @@ function fail(text) {
   m.textContent = text;
   m.className = 'error';
 }
-
-const HEADER = 'precision highp float;\nprecision highp int;\nprecision highp sampler2DArray;\n';
-
-// The basis blend (prtcore/runtime/shaders/blend.glsl) with the bundle's row order, and the
-// display transform.
-const BLEND_GLSL = `
-uniform highp sampler2DArray u_basis;
-uniform highp sampler2D u_weights;  // (planes, 1) RGBA32F: the RGB weight of every plane
-uniform int u_planes;
-uniform float u_gamma;              // 0: none
-uniform int u_flipV;
-uniform int u_output;               // 0: linear radiance (read-back), 1: display
-uniform float u_exposure;
-uniform int u_tonemap;
-vec2 atlas_uv(vec2 uv1) { return vec2(uv1.x, u_flipV == 1 ? 1.0 - uv1.y : uv1.y); }
-vec3 indirect_at(vec2 uv1) {
-  vec2 t = atlas_uv(uv1);
-  vec3 c = vec3(0.0);
-  for (int f = 0; f < N_LAYERS; ++f) {
-    vec4 p = texture(u_basis, vec3(t, float(f)));
-    for (int k = 0; k < 4; ++k) {
-      int j = 4 * f + k;
-      if (j < u_planes) c += p[k] * texelFetch(u_weights, ivec2(j, 0), 0).rgb;
-    }
-  }
-  if (u_gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(u_gamma));
-  return c;
-}
-vec3 srgb(vec3 c) {
-  c = clamp(c, 0.0, 1.0);
-  return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
-}
-vec4 display(vec3 c) {
-  if (u_output == 0) return vec4(c, 1.0);
-  c *= exp2(u_exposure);
-  if (u_tonemap == 0) c = c * (2.51 * c + 0.03) / (c * (2.43 * c + 0.59) + 0.14);
-  else if (u_tonemap == 1) c = c / (1.0 + c);
-  return vec4(srgb(c), 1.0);
-}
-`;
-
-const SURFACE_VS = `${HEADER}
-uniform mat4 modelMatrix; uniform mat4 viewMatrix; uniform mat4 projectionMatrix;
-uniform int u_mode;
-in vec3 position; in vec3 normal; in vec2 uv; in vec2 uv1;
-out vec3 v_pos; out vec3 v_nrm; out vec2 v_uv0; out vec2 v_uv1;
-void main() {
-  vec4 wp = modelMatrix * vec4(position, 1.0);
-  v_pos = wp.xyz; v_nrm = mat3(modelMatrix) * normal; v_uv0 = uv; v_uv1 = uv1;
-  // UV layout: the mesh drawn at TEXCOORD_1, the image's top row at the top
-  gl_Position = u_mode == 7 ? vec4(uv1.x * 2.0 - 1.0, 1.0 - uv1.y * 2.0, 0.0, 1.0)
-                            : projectionMatrix * viewMatrix * wp;
-}`;
-
-// prtcore/runtime/shaders/camera_fs.glsl plus the viewer's modes.
-const SURFACE_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}
-uniform vec3 u_eye;
-uniform vec3 u_baseColor;
-uniform int u_hasMap;
-uniform int u_mapChannel;
-uniform mat3 u_mapTransform;
-uniform sampler2D u_map;
-uniform int u_mode;          // MODES of viewer.js
-uniform float u_elementScale;
-uniform vec2 u_atlasSize;
-in vec3 v_pos; in vec3 v_nrm; in vec2 v_uv0; in vec2 v_uv1;
-out vec4 f_color;
-void main() {
-  if (u_mode == 7) { f_color = display(indirect_at(v_uv1)); return; }
-  if (u_mode == 6) {  // texel density: one checker square per lightmap texel
-    ivec2 t = ivec2(floor(atlas_uv(v_uv1) * u_atlasSize));
-    f_color = vec4(vec3(((t.x + t.y) & 1) == 0 ? 0.85 : 0.35), 1.0);
-    return;
-  }
-  if (!gl_FrontFacing) { f_color = vec4(0.0, 0.0, 0.0, 1.0); return; }  // inside geometry
-  vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-  if (dot(ng, u_eye - v_pos) < 0.0) ng = -ng;
-  vec3 n = normalize(v_nrm);
-  if (!(dot(n, ng) > 0.0)) n = ng;  // prtcore.core.geometry.shading_normals
-  vec3 albedo = u_baseColor;
-  if (u_hasMap != 0) {
-    vec2 uv = u_mapChannel == 1 ? v_uv1 : v_uv0;
-    albedo *= texture(u_map, (u_mapTransform * vec3(uv, 1.0)).xy).rgb;
-  }
-  albedo = clamp(albedo, 0.0, 0.99);
-  if (u_mode == 3) { f_color = u_output == 0 ? vec4(albedo, 1.0) : vec4(srgb(albedo), 1.0); return; }
-  if (u_mode == 4) {  // one basis element, signed: positive as is, negative in blue
-    vec3 v = indirect_at(v_uv1) * u_elementScale;
-    float neg = max(-(v.r + v.g + v.b) / 3.0, 0.0);
-    f_color = u_output == 0 ? vec4(indirect_at(v_uv1), 1.0)
-                            : vec4(srgb(max(v, 0.0) + vec3(0.0, 0.0, neg)), 1.0);
-    return;
-  }
-  vec3 col = vec3(0.0);
-  if (u_mode != 2) col += albedo / PI * irradiance(v_pos, n, ng);
-  if (u_mode != 1) col += indirect_at(v_uv1);
-  f_color = display(col);
-}`;
-
-// The indirect lightmap at atlas size (prtcore/runtime/shaders/atlas_fs.glsl): texel (x, y),
-// y from the top row, at TEXCOORD_1 ((x+0.5)/W, (y+0.5)/H); A = coverage.
-const ATLAS_FS = `${HEADER}${BLEND_GLSL}
-uniform sampler2D u_coverage;
-uniform vec2 u_atlasSize;
-out vec4 f_color;
-void main() {
-  vec2 t = vec2(floor(gl_FragCoord.x), u_atlasSize.y - 1.0 - floor(gl_FragCoord.y));
-  vec2 uv1 = (t + 0.5) / u_atlasSize;
-  f_color = vec4(indirect_at(uv1), texture(u_coverage, atlas_uv(uv1)).r);
-}`;
-
-const POINTS_VS = `${HEADER}
-uniform mat4 modelViewMatrix; uniform mat4 projectionMatrix;
-in vec3 position; in vec3 color; out vec3 v_color;
-void main() { v_color = color; gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); gl_PointSize = 5.0; }`;
-const POINTS_FS = `${HEADER}${BLEND_GLSL}
-in vec3 v_color; out vec4 f_color;
-void main() { vec2 d = gl_PointCoord - 0.5; if (dot(d, d) > 0.25) discard; f_color = display(v_color); }`;
 
 async function main() {
   const canvas = $('view');
@@ -161,6 +50,9 @@ async function main() {
   renderer.autoClear = true;
   const bundle = await loadBundle(document.body.dataset.bundle);
   const m = bundle.manifest;
+  const reference = await loadReference(document.body.dataset.reference, bundle);
+  if (!reference) $('mode').querySelector('option[value=error]').remove();
+  poseKeyframe(bundle, 0);  // keyframe bundles: the first keyframe (as relight without --time)
   const pass = new LightPass(renderer, bundle);
   const weights = new THREE.DataTexture(new Float32Array(4 * bundle.planes), bundle.planes, 1,
                                         THREE.RGBAFormat, THREE.FloatType);
@@ -171,6 +63,8 @@ async function main() {
     u_flipV: { value: bundle.flipV ? 1 : 0 }, u_output: { value: 1 },
     u_exposure: { value: 0 }, u_tonemap: { value: 0 }, u_mode: { value: 0 },
     u_elementScale: { value: 1 }, u_eye: { value: new THREE.Vector3() },
+    u_reference: { value: reference ? reference.texture : null },
+    u_referenceScale: { value: reference ? 1 / (reference.mean * ERROR_FULL_SCALE) : 1 },
     u_atlasSize: { value: new THREE.Vector2(bundle.W, bundle.H) },
   };
   const defines = { N_LAYERS: bundle.layers };
@@ -197,14 +91,19 @@ async function main() {
     meshes.push(mesh);
   }
   // measurement points as dots, coloured by their direct light, lifted off the surface
-  const P = bundle.P, pp = new Float32Array(3 * P);
-  for (let p = 0; p < P; p++) {
-    for (let c = 0; c < 3; c++) {
-      pp[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
-    }
-  }
+  const P = bundle.P;
   const dotsGeometry = new THREE.BufferGeometry();
-  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(pp, 3));
+  dotsGeometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
+  function placeDots() {
+    const pp = dotsGeometry.attributes.position;
+    for (let p = 0; p < P; p++) {
+      for (let c = 0; c < 3; c++) {
+        pp.array[3 * p + c] = bundle.points[12 * p + c] + 2e-3 * bundle.radius * bundle.points[12 * p + 3 + c];
+      }
+    }
+    pp.needsUpdate = true;
+  }
+  placeDots();
   dotsGeometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * P), 3));
   const dots = new THREE.Points(dotsGeometry, new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3, defines, uniforms: view, vertexShader: POINTS_VS,
@@ -237,10 +136,23 @@ async function main() {
   const atlasMesh = new THREE.Mesh(tri, new THREE.RawShaderMaterial({
     glslVersion: THREE.GLSL3, defines, depthTest: false,
     uniforms: { ...view, u_output: { value: 0 }, u_coverage: { value: bundle.coverage } },
-    vertexShader: `${HEADER}in vec3 position; void main() { gl_Position = vec4(position, 1.0); }`,
+    vertexShader: ATLAS_VS,
     fragmentShader: ATLAS_FS }));
   atlasMesh.frustumCulled = false;
   atlasScene.add(atlasMesh);
+
+  // The indirect lightmap (H, W, 4) float32, row 0 at the top, A = coverage.
+  function readAtlas() {
+    renderer.setRenderTarget(atlasTarget);
+    renderer.render(atlasScene, uvCamera);
+    renderer.setRenderTarget(null);
+    const W = bundle.W, H = bundle.H, raw = new Float32Array(4 * W * H), out = new Float32Array(4 * W * H);
+    renderer.readRenderTargetPixels(atlasTarget, 0, 0, W, H, raw);
+    for (let r = 0; r < H; r++) {  // read-back rows come bottom first
+      out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+    }
+    return out;
+  }
 
   // camera and controls
   const camera = new THREE.PerspectiveCamera(40, 1, 1e-3 * bundle.radius, 20 * bundle.radius);
@@ -255,7 +167,7 @@ async function main() {
   }
   // the light: a gizmo whose position and -Z axis are the light's
   const trainedTypes = [...new Set((m.spec?.lights?.families ?? []).map((f) => f.type))];
-  const start = bundle.holdoutLights[0] ?? { type: trainedTypes[0] ?? 'point', intensity: 1,
+  const start = reference?.light ?? bundle.holdoutLights[0] ?? { type: trainedTypes[0] ?? 'point', intensity: 1,
     position: [bundle.center.x, bundle.center.y + bundle.radius, bundle.center.z] };
   const lightObj = new THREE.Object3D();
   const marker = new THREE.Mesh(new THREE.SphereGeometry(0.03 * bundle.radius, 12, 8),
@@ -273,7 +185,7 @@ async function main() {
   gizmo.addEventListener('change', () => requestRender());
   controls.addEventListener('change', () => requestRender());
 
-  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0 };
+  const state = { light: null, mode: 'full', basis: bundle.nBasis, element: 0, keyframe: 0 };
   let x = null;
 
   function placeGizmo(light) {
@@ -285,16 +197,19 @@ async function main() {
     lightObj.updateMatrixWorld(true);
     arrow.visible = light.type !== 'point';
   }
-  function lightFromGizmo() {
+  // The current light as a light-file object, placed where the gizmo is.
+  function lightDict() {
     const l = state.light;
     const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
-    applyLight({ type: l.type, color: state.color, intensity: state.intensity,
-      position: lightObj.position.toArray(), direction: dir.toArray(), range: l.range || undefined,
-      spot: state.spot }, false);
+    const pos = l.type === 'directional' ? l.position.toArray() : lightObj.position.toArray();
+    return { type: l.type, color: state.color, intensity: state.intensity, position: pos,
+      direction: dir.toArray(), range: l.range || undefined, spot: state.spot };
   }
+  function lightFromGizmo() { applyLight(lightDict(), false); }
   // Set the light: shadow maps, cluster pass, coefficients, badge; then a frame.
   function applyLight(dict, moveGizmo = true) {
     const light = normaliseLight(dict);
+    state.atReference = dict === reference?.light;
     state.light = light;
     state.color = dict.color ?? [1, 1, 1];
     state.intensity = dict.intensity ?? 1;
@@ -309,8 +224,11 @@ async function main() {
     colours.needsUpdate = true;
     if (moveGizmo) placeGizmo(light);
     badge(light);
+    if (reference) {
+      prt.referenceError = relativeError(readAtlas(), reference);
+    }
     $('light-type').value = light.type;
-    $('light-intensity').value = String(state.intensity);
+    $('light-intensity').value = String(+Number(state.intensity).toPrecision(4));
     $('light-color').value = '#' + new THREE.Color().setRGB(...state.color).getHexString();
     requestRender();
   }
@@ -330,7 +248,7 @@ async function main() {
         for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
         peak = Math.max(peak, 1);
       }
-      view.u_gamma.value = 0;
+      view.u_gamma.value = -1;  // a basis element is signed: shown unclamped
       view.u_elementScale.value = elementScale(state.element);
     } else {
       weights.image.data.set(c.w);
@@ -383,7 +301,7 @@ async function main() {
     gizmo.getHelper().visible = output === 1;
     lightObj.visible = output === 1;
     renderer.setRenderTarget(target);
-    renderer.setClearColor(0x000000, 1);
+    renderer.setClearColor(0x000000, output === 1 ? 1 : 0);  // read-back: A = 0 off the asset
     if (state.mode === 'uv') renderer.render(uvScene, uvCamera);
     else renderer.render(scene, camera);
     renderer.setRenderTarget(null);
@@ -396,12 +314,18 @@ async function main() {
     $('stats').textContent = `${bundle.P} points, ${bundle.clusterCount} supersamples, ` +
       `${state.basis}/${bundle.nBasis} basis elements\nlight pass ${prt.lightMs.toFixed(1)} ms, ` +
       `frame ${prt.frameMs.toFixed(1)} ms` +
-      (prt.familyResidual === null ? '' : `\nout-of-family measure ${(100 * prt.familyResidual).toFixed(1)} %`);
+      (prt.familyResidual === null ? '' : `\nout-of-family measure ${(100 * prt.familyResidual).toFixed(1)} %`) +
+      (reference ? `\nindirect vs path-traced reference: ${(100 * prt.referenceError).toFixed(1)} % ` +
+        (state.atReference ? '(its light)' : '(the light has moved: the heat map compares with the reference light\'s)') : '');
   }
 
   // controls
   const basis = $('basis');
   basis.max = String(bundle.nBasis);
+  if (bundle.keyframes) {  // keyframe bundles: a time slider over the keyframes
+    $('time-row').hidden = false;
+    $('time').max = String(bundle.keyframes.count - 1);
+  }
   basis.value = String(bundle.nBasis);
   $('element').max = String(bundle.nBasis - 1);
   const sync = () => {
@@ -413,21 +337,39 @@ async function main() {
     $('basis-out').textContent = basis.value;
     $('exposure-out').textContent = `${Number($('exposure').value) >= 0 ? '+' : ''}${$('exposure').value} EV`;
     gizmo.setMode($('gizmo').value);
+    const k = Number($('time').value) | 0;
+    if (bundle.keyframes) {
+      $('time-out').textContent = `${bundle.keyframes.times[k].toFixed(2)} s (${k + 1}/${bundle.keyframes.count})`;
+    }
+    if (bundle.keyframes && k !== state.keyframe) {  // pose, then the light pass again
+      state.keyframe = k;
+      poseKeyframe(bundle, k);
+      pass.updateClusters();
+      placeDots();
+      if (state.light) { applyLight(lightDict(), false); return; }
+    }
     updateCoefficients();
     requestRender();
   };
-  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo']) {
+  for (const id of ['mode', 'basis', 'element', 'exposure', 'tonemap', 'gizmo', 'time']) {
     $(id).addEventListener('input', sync);
   }
-  const relightFromForm = () => {
-    const c = new THREE.Color($('light-color').value);
-    const dir = new THREE.Vector3(0, 0, -1).transformDirection(lightObj.matrixWorld);
-    const type = $('light-type').value;
-    applyLight({ type, color: [c.r, c.g, c.b], intensity: Number($('light-intensity').value),
-      position: lightObj.position.toArray(), direction: dir.toArray(),
-      spot: type === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined },
-    false);
-    arrow.visible = type !== 'point';
+  // A field of the light's form changed: only that property of the light changes (the
+  // colour picker holds 8-bit sRGB; it is read only when it is the field that changed).
+  const relightFromForm = (e) => {
+    const d = lightDict(), v = e.target.value;
+    if (e.target.id === 'light-color') {
+      const c = new THREE.Color(v);
+      d.color = [c.r, c.g, c.b];
+    } else if (e.target.id === 'light-intensity') {
+      d.intensity = Number(v);
+    } else {
+      d.type = v;
+      d.position = lightObj.position.toArray();
+      d.spot = v === 'spot' ? (state.spot ?? { innerConeAngle: 0.2, outerConeAngle: 0.7 }) : undefined;
+    }
+    applyLight(d, false);
+    arrow.visible = d.type !== 'point';
   };
   for (const id of ['light-type', 'light-color', 'light-intensity']) {
     $(id).addEventListener('change', relightFromForm);
@@ -440,7 +382,7 @@ async function main() {
     type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: true });
   Object.assign(prt, {
     bundle: { P: bundle.P, nB: bundle.nB, nBasis: bundle.nBasis, W: bundle.W, H: bundle.H,
-              flipV: bundle.flipV },
+              flipV: bundle.flipV, keyframes: bundle.keyframes ? bundle.keyframes.count : 0 },
     setLight(dict) { applyLight(dict); renderNow(); return { x: prt.x, u: prt.u, s: prt.s }; },
     setView({ position, target, up = [0, 1, 0], fov_y_deg = 40 }) {
       camera.position.set(...position);
@@ -467,19 +409,31 @@ async function main() {
       renderer.readRenderTargetPixels(readTarget, px, canvas.height - 1 - py, 1, 1, out);
       return Array.from(out);
     },
-    // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
-    atlas() {
-      renderer.setRenderTarget(atlasTarget);
-      renderer.render(atlasScene, uvCamera);
-      renderer.setRenderTarget(null);
-      const W = bundle.W, H = bundle.H, raw = new Float32Array(4 * W * H), out = new Array(4 * W * H);
-      renderer.readRenderTargetPixels(atlasTarget, 0, 0, W, H, raw);
-      for (let r = 0; r < H; r++) {  // read-back rows come bottom first
-        for (let i = 0; i < 4 * W; i++) out[4 * W * (H - 1 - r) + i] = raw[4 * W * r + i];
+    // the canvas in `mode` as linear float RGBA (H, W, 4), row 0 at the top, A = 0 where
+    // no surface is seen: base64 of the little-endian float32 bytes (a quarter million
+    // numbers travel faster so than as JSON)
+    image(mode) {
+      const keep = state.mode;
+      state.mode = mode;
+      draw(readTarget, 0);
+      state.mode = keep;
+      const W = canvas.width, H = canvas.height, raw = new Float32Array(4 * W * H);
+      renderer.readRenderTargetPixels(readTarget, 0, 0, W, H, raw);
+      const out = new Float32Array(4 * W * H);
+      for (let r = 0; r < H; r++) out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+      const bytes = new Uint8Array(out.buffer);
+      let text = '';
+      for (let i = 0; i < bytes.length; i += 0x8000) {
+        text += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
       }
-      return out;
+      return btoa(text);
     },
+    // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
+    atlas() { return Array.from(readAtlas()); },
   });
+
+  // the current light as a light-file object (where the gizmo has put it)
+  Object.defineProperty(prt, 'light', { get: () => (state.light ? lightDict() : null) });
 
   sync();
   applyLight(start);
