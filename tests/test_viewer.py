@@ -337,6 +337,24 @@ def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, 
     assert errors == []
 
 
+@pytest.mark.parametrize(("manifest", "says"), [
+    ({"method": "sh_prt"}, "this viewer shows data-driven bundles"),
+    ({"method": "data_driven", "strands": {"texels_per_strand": 10}},
+     "hair bundles (strand textures) are not shown"),
+])
+def test_other_bundles_are_refused_plainly(browser, tmp_path, manifest, says):
+    """Bundles the viewer cannot show (SH-PRT, hair) get one line saying so, not a loader
+    error (only their manifest is read)."""
+    (tmp_path / "manifest.json").write_text(json.dumps(
+        {"schema": "prtcore.bundle", "version": 1, **manifest}))
+    with ViewerServer(tmp_path, quiet=True).start() as server:
+        page = browser.new_page()
+        page.goto(server.url)
+        page.wait_for_function("window.prt && window.prt.error", timeout=30_000)
+        assert says in page.text_content("#message")
+        page.close()
+
+
 def test_no_webgl2_says_so(browser, bundle):
     """Without WebGL2 the page says so plainly, and throws nothing."""
     errors: list[str] = []
