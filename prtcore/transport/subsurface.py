@@ -62,7 +62,8 @@ class SubsurfaceTerm:
     matrix : (T, T) float32 CSR, empty (the walks' light differs per channel)
     channel_matrices : three (T, T) float32 CSR, W_c for R, G, B (rows receive, columns
         sorted), row sums ≤ 1
-    stats : walks traced, exits, absorbed/capped/lost counts, mean scattering events, nnz
+    stats : walks traced, exits, walks ended by roulette, the cap, a front or foreign face
+        or an outward first direction, total scattering events, nnz per channel
     """
 
     matrix: sp.csr_matrix
