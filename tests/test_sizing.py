@@ -146,6 +146,8 @@ def test_an_auto_bake_reports_what_it_chose(tmp_path):
     assert sizing["lights"] == manifest["fit"]["configurations"]
     assert sizing["trials"] and sizing["reason"]
     assert manifest["spec"]["lights"]["count"] == "auto"
+    assert json.loads((out / "report.json").read_text())["sizing"] == sizing
+    assert (out / "report.txt").read_text().startswith(f"sizing: {sizing['reason']}\n")
     chosen = [t for t in sizing["trials"] if t["points"] == sizing["points"]
               and t["lights"] == sizing["lights"]]
     # the verdict is judged on the same fit sizing measured
