@@ -88,6 +88,7 @@ def fake_bundle(tmp_path_factory) -> Path:
     (d / "transfer.bin").write_bytes(b"\0" * 8)
     (d / ".hidden").write_text("no")
     (d.parent / "secret.txt").write_text("outside the bundle")
+    (d / "link.txt").symlink_to(d.parent / "secret.txt")
     return d
 
 
@@ -103,7 +104,7 @@ def test_server_serves_the_page_the_viewer_and_the_bundle(fake_bundle):
         assert status == 200 and body == b"\0" * 8
         for bad in ("bundle/../secret.txt", "bundle/%2e%2e/secret.txt", "bundle/.hidden",
                     "static/../page.py", "static/index.html", "bundle/", "elsewhere",
-                    "bundle/missing.bin"):
+                    "bundle/missing.bin", "bundle/link.txt", "bundle/transfer.bin%00"):
             assert _get(s.url + bad)[0] == 404, bad
 
 
