@@ -1,25 +1,31 @@
-"""Benchmark: how fast the bake's dataset is, and how much faster than path tracing.
+"""Benchmark: how fast a whole bake is, stage by stage, and at what accuracy.
 
-Cornell box (prtcore.scenes.cornell) at a 512² atlas, K = 128 training + 16 held-out lights from
-the box's example spec, P = 256 measurement points. One run prints and writes
-(benchmarks/results/bake_speed.json):
+Issue 20's figures, from one run (benchmarks/results/bake_speed.json):
 
-* wall time per stage: load, plan, uv, texels, points (the intake), then the transport
-  sub-stages gather operator, direct texels, direct points, indirect solve, and totals;
-* ray throughput: the bake's own (rays / seconds of the tracing sub-stages, numpy work
-  included), our RayTracer on random rays, and a raw ``embreex`` ``scene.run`` loop on the
-  same random rays (same count and mix of closest-hit and occlusion rays as the bake);
-* the reference path tracer's time for ONE configuration at the fast path's accuracy: at a
-  low resolution both are compared with a high-spp reference; the reference's error
-  follows c/√spp (fitted on a few spp levels), which gives the spp at which its noise
-  equals the fast path's error; that spp × the 512² texel count × the measured time per
-  path is the estimate. Speed-up = reference time × K / the fast dataset's time.
+* the **whole bake** (:func:`prtcore.pipeline.bake`, intake to export, report included) of
+  the bundled Cornell box (examples/cornell_box.glb, its example spec) at a 512² atlas,
+  K = 128 training + 16 held-out lights, P = 256, M = 64 gather rays: wall time of every
+  stage and in total, peak RSS, each bake in its own child process (numba kernels are
+  compiled on first use and cached on disk; a fresh cache costs a few seconds once);
+* the same bake at 1024²: its time as a ratio to the 512² bake, and its peak RSS;
+* **direct texels against raw Embree on the same rays**: the 512² bake records the shadow
+  rays of its first ``--record-calls`` occlusion queries in the direct-texels stage and
+  replays them through embreex ``scene.run`` (float32 arrays ready, chunks on the bake's
+  threads, no numpy): seconds per ray of the stage against seconds per ray of the raw queries;
+* the **indirect solve**: products, residual, seconds; ``--before FILE`` (a JSON this
+  script wrote for an earlier commit) prints before/after columns for every stage;
+* **transport against the path tracer** (unless ``--skip-reference``): at a low resolution
+  the fast dataset and the reference path tracer are both compared with a high-spp
+  reference; the reference's error follows c/√spp (fitted on a few spp levels), which gives
+  the spp at which its noise equals the fast path's error; that spp × the 512² texel count ×
+  the measured time per path is the reference's time for one configuration. Errors are
+  per-configuration relative RMSE over the lightmap, noise-corrected: the high-spp
+  reference's own variance (from its standard errors) is subtracted.
 
-Errors are per-configuration relative RMSE over the lightmap, noise-corrected: the
-high-spp reference's own variance (from its standard errors) is subtracted.
+The machine's load average is recorded at start and end: on a shared machine compare
+ratios measured in one run, not absolute seconds across runs.
 
-Usage: python benchmarks/bake_speed.py [--resolution 512] [--low-resolution 64] ...
-The full run takes several minutes on 2 cores (most of it the high-spp reference).
+Usage: python benchmarks/bake_speed.py [--resolution 512] [--big-resolution 1024] ...
 """
 
 from __future__ import annotations
@@ -42,7 +48,6 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from prtcore.core.progress import StageTimer  # noqa: E402
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
 from prtcore.emitters.families import sample_configurations  # noqa: E402
@@ -66,54 +71,6 @@ def make_spec(resolution: int, lights: int, holdout: int, points: int,
     d["lights"]["holdout"] = holdout
     d["measurement_points"]["count"] = points
     return parse_spec(d)
-
-
-def random_rays(rng: np.random.Generator, n: int, lo: np.ndarray, hi: np.ndarray):
-    o = (lo + (hi - lo) * rng.random((n, 3))).astype(np.float32)
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return o, d.astype(np.float32)
-
-
-def throughput(scene, tracer: RayTracer, closest: int, occlusion: int, threads: int
-               ) -> dict:
-    """Rays/s of our RayTracer and of a raw embreex loop on the same random rays."""
-    from embreex import mesh_construction, rtcore_scene
-
-    raw = rtcore_scene.EmbreeScene()
-    mesh_construction.TriangleMesh(raw, scene.positions.astype(np.float32),
-                                   scene.faces.astype(np.int32))
-    lo, hi = scene.bounds[0], scene.bounds[1]
-    sub = 1 << 17
-    out = {}
-    for label, count, query in (("closest_hit", closest, "INTERSECT"),
-                                ("occlusion", occlusion, "OCCLUDED")):
-        rng = np.random.default_rng(0)
-        t_ours = t_raw1 = t_rawn = 0.0
-        for s in range(0, count, RAY_CHUNK):
-            o, d = random_rays(rng, min(RAY_CHUNK, count - s), lo, hi)
-            t0 = time.perf_counter()
-            if query == "INTERSECT":
-                tracer.intersect(o, d)
-            else:
-                tracer.occluded(o, d)
-            t1 = time.perf_counter()
-            for a in range(0, len(o), sub):
-                raw.run(o[a:a + sub], d[a:a + sub], query=query)
-            t2 = time.perf_counter()
-            def run(a, o=o, d=d, query=query):
-                return raw.run(o[a:a + sub], d[a:a + sub], query=query)
-
-            with ThreadPoolExecutor(threads) as ex:
-                list(ex.map(run, range(0, len(o), sub)))
-            t3 = time.perf_counter()
-            t_ours += t1 - t0
-            t_raw1 += t2 - t1
-            t_rawn += t3 - t2
-        out[label] = {"rays": count, "ours_rays_per_s": count / max(t_ours, 1e-9),
-                      "raw_embreex_1thread_rays_per_s": count / max(t_raw1, 1e-9),
-                      f"raw_embreex_{threads}threads_rays_per_s": count / max(t_rawn, 1e-9)}
-    return out
 
 
 def rel_rmse(fast: np.ndarray, ref: np.ndarray, err: np.ndarray) -> float:
@@ -205,99 +162,238 @@ def add_equal_accuracy_args(ap: argparse.ArgumentParser, ref_spp_high: int,
     ap.add_argument("--skip-reference", action="store_true")
 
 
+def record_direct_rays(calls: int, store: list) -> None:
+    """Make the direct-texels stage keep the shadow rays of its first ``calls`` occlusion
+    queries (a few lights' worth): (origins, directions, tmax) float32 as handed to
+    embreex."""
+    from prtcore.core import raytrace
+    from prtcore.transport import dataset
+
+    state = {"on": False}
+    inner, occluded = dataset.direct_radiance, raytrace.RayTracer.occluded
+
+    def direct_radiance(scene, tracer, lights, positions, *a, **kw):
+        state["on"] = np.asarray(positions).ndim == 3  # texels: (T, J, 3); points: (P, 3)
+        try:
+            return inner(scene, tracer, lights, positions, *a, **kw)
+        finally:
+            state["on"] = False
+
+    def recording(self, origins, directions, tmax=None):
+        if state["on"] and len(store) < calls:
+            o, d = self._prep(origins, directions)
+            store.append((o.copy(), d.copy(), self._tmax(tmax, len(o))))
+        return occluded(self, origins, directions, tmax)
+
+    dataset.direct_radiance = direct_radiance
+    raytrace.RayTracer.occluded = recording
+
+
+def raw_seconds(scene, rays: list, threads: int) -> float:
+    """Seconds of raw embreex occlusion queries on ``rays`` (RayTracer's chunking and
+    threads, arrays prepared beforehand)."""
+    from embreex import mesh_construction, rtcore_scene
+
+    from prtcore.core.raytrace import CHUNK
+
+    raw = rtcore_scene.EmbreeScene()
+    mesh_construction.TriangleMesh(raw, scene.positions.astype(np.float32),
+                                   scene.faces.astype(np.int32))
+    jobs = [(o[a:a + CHUNK], d[a:a + CHUNK], tm[a:a + CHUNK].copy())
+            for o, d, tm in rays for a in range(0, len(o), CHUNK)]
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(threads) as ex:
+        list(ex.map(lambda j: raw.run(j[0], j[1], dists=j[2], query="OCCLUDED"), jobs))
+    return time.perf_counter() - t0
+
+
+def child_bake(args) -> int:
+    """One whole bake in this process; prints one JSON line."""
+    import resource
+
+    from prtcore.pipeline import bake
+
+    spec = make_spec(args.child_bake, args.lights, args.holdout, args.points,
+                     gather_rays=args.gather_rays)
+    cpu_stage: dict[str, float] = {}
+    started: dict[str, float] = {}
+
+    def on_progress(stage: str, fraction: float) -> None:  # CPU seconds per stage
+        if fraction == 0.0 and stage not in started:
+            started[stage] = time.process_time()
+        elif fraction == 1.0 and stage in started:
+            cpu_stage[stage] = time.process_time() - started[stage]
+
+    rays: list = []
+    if args.record_calls:
+        record_direct_rays(args.record_calls, rays)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = bake(ROOT / "examples" / "cornell_box.glb", spec, Path(tmp) / "bundle",
+                   quiet=True, force=True, callback=on_progress)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        report = json.loads((out / "report.json").read_text())
+        manifest = json.loads((out / "manifest.json").read_text())
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    tr = report["transport"]
+    result = {"resolution": args.child_bake, "seconds": manifest["timings"], "total": wall,
+              "cpu_seconds": cpu, "cpu_stage_seconds": cpu_stage, "peak_rss_bytes": peak,
+              "texels": tr["texels"],
+              "rays": tr["rays"], "solve": {k: v for k, v in tr["solve"].items()
+                                            if k != "blocks"},
+              "table": [{k: r[k] for k in ("n", "heldout_rmse_mean", "projection_bound_mean")}
+                        for r in report["table"]["rows"]]}
+    if rays:
+        from prtcore.core.raytrace import default_threads
+        from prtcore.io.gltf.loader import load_asset
+
+        scene = load_asset(ROOT / "examples" / "cornell_box.glb")
+
+        n = sum(len(o) for o, _, _ in rays)
+        raw = min(raw_seconds(scene, rays, default_threads()) for _ in range(2))
+        stage = manifest["timings"]["direct texels"] / max(tr["rays"]["direct_texels"], 1)
+        result["direct_vs_raw"] = {"recorded_rays": n, "raw_seconds_per_ray": raw / n,
+                                   "stage_seconds_per_ray": stage,
+                                   "ratio": stage / max(raw / n, 1e-30)}
+    print(json.dumps(result, default=float))
+    return 0
+
+
+def run_child(args, resolution: int, record: int) -> dict:
+    """A whole bake in a child process (its own peak RSS, its own numba cache reads)."""
+    import subprocess
+
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child-bake", str(resolution),
+           "--lights", str(args.lights), "--holdout", str(args.holdout), "--points",
+           str(args.points), "--gather-rays", str(args.gather_rays), "--record-calls",
+           str(record)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    if done.returncode:
+        raise SystemExit(f"child bake at {resolution}² failed:\n{done.stderr[-4000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--resolution", type=int, default=512)
+    ap.add_argument("--big-resolution", type=int, default=1024,
+                    help="the second whole bake (0: none)")
     ap.add_argument("--lights", type=int, default=128)
     ap.add_argument("--holdout", type=int, default=16)
     ap.add_argument("--points", type=int, default=256)
     ap.add_argument("--gather-rays", type=int, default=TransportSpec().gather_rays,
                     help="M (default: the spec's default, DESIGN 3.5)")
+    ap.add_argument("--record-calls", type=int, default=16,
+                    help="occlusion queries of the direct-texels stage replayed through raw "
+                         "embreex (two per light at 512²)")
     add_equal_accuracy_args(ap, ref_spp_high=4096, ref_spp_timing=64)
+    ap.add_argument("--before", type=Path, help="an earlier run's JSON: before/after columns")
+    ap.add_argument("--child-bake", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" /
                     "bake_speed.json")
     args = ap.parse_args(argv)
+    if args.child_bake:
+        return child_bake(args)
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    spec = make_spec(args.resolution, args.lights, args.holdout, args.points,
-                     gather_rays=args.gather_rays)
+    before = json.loads(args.before.read_text()) if args.before else None
     load_start = os.getloadavg()
-    timer = StageTimer(quiet=True)
-    t_all = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        asset = write_cornell_box(Path(tmp) / "cornell.glb")
-        intake = run_intake(asset, spec, timer=timer)
-    scene, texels, points = intake.scene, intake.texels, intake.points
-    train, hold = sample_configurations(spec.lights, scene.center, scene.radius)
-    tracer = RayTracer(scene.positions, scene.faces, scene.radius)
-    log(f"intake done: {texels.count} texels, {points.count} points; transport …")
-    t0, c0 = time.perf_counter(), time.process_time()
-    ds = bake_dataset(scene, texels, points, train, hold, spec.transport, timer,
-                      tracer=tracer)
-    t_dataset = time.perf_counter() - t0
-    cpu_dataset = time.process_time() - c0  # all threads: compare with wall × cores
-    t_total = time.perf_counter() - t_all
-    sub = ds.stats["seconds"]
-    trace_seconds = sub["gather operator"] + sub["direct texels"] + sub["direct points"]
-    rays = ds.stats["rays"]
-    log("ray throughput …")
-    thr = throughput(scene, tracer, rays["gather"],
-                     rays["direct_texels"] + rays["direct_points"], tracer.threads)
+    log(f"whole bake at {args.resolution}² …")
+    small = run_child(args, args.resolution, args.record_calls)
+    big = None
+    if args.big_resolution:
+        log(f"whole bake at {args.big_resolution}² …")
+        big = run_child(args, args.big_resolution, 0)
     result = {
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "load_average_at_start": load_start,
-                    "load_average_at_end": os.getloadavg()},
-        "scene": {"asset": "cornell box", "atlas": args.resolution,
-                  "texels": texels.count, "triangles": scene.triangle_count,
-                  "configurations": len(ds.lights), "train": len(train),
-                  "holdout": len(hold), "points": points.count,
-                  "gather_rays": spec.transport.gather_rays},
-        "seconds": {**dict(timer.seconds), "dataset": t_dataset, "total": t_total},
-        "cpu_seconds_dataset": cpu_dataset,
-        "solve": {"bounces": ds.iterations, "residual": ds.residual,
-                  "converged": ds.stats["solve"]["converged"],
-                  "method": ds.stats["solve"]["method"]},
-        "gather": ds.stats["gather"],
-        "rays": {**rays, "bake_rays_per_s": rays["total"] / max(trace_seconds, 1e-9)},
-        "throughput": thr,
+                    "load_average_at_start": load_start},
+        "scene": {"asset": "examples/cornell_box.glb", "atlas": args.resolution,
+                  "texels": small["texels"], "train": args.lights, "holdout": args.holdout,
+                  "points": args.points, "gather_rays": args.gather_rays},
+        "bake": small, "big_bake": big,
+        "big_over_small": big["total"] / small["total"] if big else None,
     }
     if not args.skip_reference:
-        eq = reference_equivalence(args, spec, texels.count, log)
-        ref_one = eq["reference_seconds_one_configuration_at_full_resolution"]
-        eq["speedup"] = ref_one * len(train) / t_dataset
+        spec = make_spec(args.resolution, args.lights, args.holdout, args.points,
+                         gather_rays=args.gather_rays)
+        eq = reference_equivalence(args, spec, small["texels"], log)
+        t_dataset = sum(small["seconds"].get(k, 0.0) for k in DATASET_STAGES)
+        eq["speedup"] = eq["reference_seconds_one_configuration_at_full_resolution"] * \
+            args.lights / max(t_dataset, 1e-9)
         result["reference"] = eq
-
+    result["machine"]["load_average_at_end"] = os.getloadavg()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2, default=float) + "\n")
-    print(f"Cornell box {args.resolution}², {texels.count} texels, K = {len(train)} + "
-          f"{len(hold)} lights, P = {points.count}, M = {spec.transport.gather_rays}")
-    for name, sec in result["seconds"].items():
-        print(f"  {name:<18s} {sec:8.2f} s")
-    print(f"  dataset CPU time {cpu_dataset:.2f} s (all threads); load average at start "
-          f"{load_start[0]:.2f}, at end {result['machine']['load_average_at_end'][0]:.2f}")
-    print(f"  solve: {ds.iterations} products ({ds.stats['solve']['method']}), residual "
-          f"{ds.residual:.1e}, converged {ds.stats['solve']['converged']}")
-    print(f"  rays: {rays['total']:,} traced, bake {result['rays']['bake_rays_per_s']:,.0f}"
-          f" rays/s (incl. numpy)")
-    for kind, v in thr.items():
-        extra = ", ".join(f"{k} {x:,.0f}" for k, x in v.items() if k.endswith("per_s"))
-        print(f"  {kind}: {extra}")
+    report(result, before, args)
+    return 0
+
+
+#: the transport stages (the dataset), for the speed-up over the path tracer
+DATASET_STAGES = ("gather operator", "direct points", "direct texels", "near field",
+                  "indirect solve")
+
+
+def report(result: dict, before: dict | None, args) -> None:
+    small, big = result["bake"], result["big_bake"]
+    b = before["bake"] if before else None
+    print(f"Cornell box {args.resolution}², {small['texels']} texels, K = {args.lights} + "
+          f"{args.holdout} lights, P = {args.points}, M = {args.gather_rays}; load average "
+          f"{result['machine']['load_average_at_start'][0]:.1f} at start, "
+          f"{result['machine']['load_average_at_end'][0]:.1f} at end "
+          f"({result['machine']['cpus']} CPUs)")
+    print(f"  {'stage':<18s} {'wall':>9s} {'CPU':>8s}" + (
+        f"   before: {'wall':>8s} {'CPU':>8s}  CPU ratio" if b else ""))
+    rows = [*small["seconds"].items(), ("whole bake", small["total"])]
+
+    def cpu(run, name):
+        return run.get("cpu_seconds") if name == "whole bake" else \
+            run.get("cpu_stage_seconds", {}).get(name)
+
+    def fmt(v):
+        return f"{v:7.2f}s" if v is not None else f"{'—':>8s}"
+
+    for name, sec in rows:
+        line = f"  {name:<18s} {sec:8.2f}s {fmt(cpu(small, name))}"
+        if b:
+            old = b["total"] if name == "whole bake" else b["seconds"].get(name)
+            c_new, c_old = cpu(small, name), cpu(b, name)
+            ratio = f"{c_old / c_new:8.1f}×" if c_new and c_old else ""
+            line += f"           {fmt(old)} {fmt(c_old)} {ratio}"
+        print(line)
+    print(f"  whole bake CPU time {small['cpu_seconds']:.1f} s (all threads); peak RSS "
+          f"{small['peak_rss_bytes'] / 2**30:.2f} GiB")
+    sv = small["solve"]
+    print(f"  solve: {sv.get('method')}, converged {sv.get('converged')}, "
+          f"interval {sv.get('interval')}")
+    if "direct_vs_raw" in small:
+        d = small["direct_vs_raw"]
+        print(f"  direct texels: {d['stage_seconds_per_ray'] * 1e9:.0f} ns/ray in the stage, "
+              f"{d['raw_seconds_per_ray'] * 1e9:.0f} ns/ray raw embreex on the same "
+              f"{d['recorded_rays']:,} rays: ×{d['ratio']:.2f}")
+    if big:
+        print(f"  {args.big_resolution}² whole bake {big['total']:.1f} s = "
+              f"×{result['big_over_small']:.2f} the {args.resolution}² bake; peak RSS "
+              f"{big['peak_rss_bytes'] / 2**30:.2f} GiB; stages: " + ", ".join(
+                  f"{k} {v:.1f}" for k, v in big["seconds"].items()))
+    print("  held-out rRMSE (fit vs fast transport): " + ", ".join(
+        f"n={r['n']}: {100 * r['heldout_rmse_mean']:.2f}%" for r in small["table"]
+        if r["heldout_rmse_mean"] is not None))
     if "reference" in result:
         eq = result["reference"]
-        print(f"  reference at {eq['resolution']}²: fast rel. RMSE "
-              f"{[round(x, 3) for x in eq['fast_rel_rmse']]}, bias "
-              f"{[round(x, 4) for x in eq['fast_bias']]}")
+        print(f"  transport vs path tracer at {eq['resolution']}²: rel. RMSE "
+              f"{[round(x, 4) for x in eq['fast_rel_rmse']]}, bias "
+              f"{[round(x, 4) for x in eq['fast_bias']]} (noise-corrected)")
         print("  reference error by spp: " + ", ".join(
             f"{k}: {[round(x, 3) for x in v]}" for k, v in
             eq["reference_rel_rmse_by_spp"].items()))
         print(f"  equal-accuracy spp ≈ {eq['spp_star']:.0f}; reference for one "
               f"configuration at {args.resolution}²: "
               f"{eq['reference_seconds_one_configuration_at_full_resolution']:.0f} s; "
-              f"speed-up ×{eq['speedup']:.0f} over {len(train)} configurations")
+              f"speed-up ×{eq['speedup']:.0f} over {args.lights} configurations")
     print(f"  → {args.out}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -179,6 +179,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     def write(tmp: Path) -> dict:
         write_glb(scene, tmp / "asset.glb")
         sections, report = m.write(tmp, inputs, result)
+        if record is not None:
+            report = {**report, "sizing": record}
         _write_run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         common = {
             "asset": {"source": source_name or Path(str(asset)).name,
@@ -252,14 +254,17 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
         tmp = out / f".{name}.tmp"
         tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         os.replace(tmp, out / name)
-    (out / "report.txt").write_text(m.summary(result, seconds) + "\n", encoding="utf-8")
+    text = m.summary(result, seconds)
+    if report.get("sizing"):  # what automatic sizing chose and why (prtcore/sizing.py)
+        text = f"sizing: {report['sizing']['reason']}\n{text}"
+    (out / "report.txt").write_text(text + "\n", encoding="utf-8")
 
 
 def intake_points(points: PointsSpec, sizing: Sizing) -> PointsSpec:
     """What the intake places: the plan's candidates when points are chosen after
     transport (blue noise on the surface for "qdeim"), else the P points themselves."""
-    placement = "surface" if sizing.placement == "qdeim" else sizing.placement
-    return dataclasses.replace(points, placement=placement, count=sizing.candidates)
+    return dataclasses.replace(points, placement=sizing.candidate_placement,
+                               count=sizing.candidates)
 
 
 def _select_points(intake: IntakeResult, data, n_train: int, timer: StageTimer):

@@ -15,10 +15,10 @@ lights. Then, for each P:
 3. measure the held-out error at the fitted n and its projection bound, pooled over the
    held-out lights (:func:`prtcore.report.heldout_metrics`, the verdict's own figures).
 
-P is tried in increasing order, and stops growing once two successive P both meet the
-target and the larger lowered the error by no more than :data:`CLOSE_TO_BEST`. The bake
-ships the smallest P whose error is within :data:`CLOSE_TO_BEST` of the best among those
-within ``validate.target_ratio`` × the bound. When none is, and K may grow,
+P is tried in increasing order; the first P whose error is within
+``validate.target_ratio`` × the bound ships. Candidates are placed lazily: 2P blue-noise
+candidates for the largest P tried so far (only their direct light is computed again: the
+texels' transport does not depend on the points). When none is, and K may grow,
 the next K lights are transported (the operators are not traced again: only the new
 lights, :func:`prtcore.transport.dataset.light_configurations`) unless the memory limit
 or the time budget (``sizing.max_seconds``, extrapolated from the last pass) says no;
@@ -43,7 +43,7 @@ from prtcore.core.scene import Light
 from prtcore.core.spec import BakeSpec
 from prtcore.fit.transfer import fit_transfer
 from prtcore.intake.plan import Sizing
-from prtcore.intake.points import MeasurementPoints
+from prtcore.intake.points import MeasurementPoints, place_measurement_points
 from prtcore.intake.sensors import (
     direct_svd,
     farthest_fill,
@@ -58,11 +58,13 @@ from prtcore.transport.dataset import (
     Dataset,
     Transport,
     add_training,
+    direct_at_points,
     estimate_bake_bytes,
     light_configurations,
 )
 
-#: a larger P ships only when it lowers the held-out error by more than this fraction
+#: when no P meets the target, a larger P ships only when it lowers the held-out error by
+#: more than this fraction
 CLOSE_TO_BEST = 0.05
 
 
@@ -111,15 +113,10 @@ class Sized:
 
 
 def choose(trials: list[Trial], target_ratio: float) -> Trial | None:
-    """The trial that ships among ``trials`` of one K: the smallest P within
-    :data:`CLOSE_TO_BEST` of the lowest error among those meeting ``target_ratio``; None
-    when none meets it."""
+    """The trial that ships among ``trials`` of one K: the smallest P meeting
+    ``target_ratio``; None when none does."""
     ok = [t for t in trials if t.ratio is not None and t.ratio <= target_ratio]
-    if not ok:
-        return None
-    best = min(t.error for t in ok)
-    return min((t for t in ok if t.error <= best * (1 + CLOSE_TO_BEST)),
-               key=lambda t: t.points)
+    return min(ok, key=lambda t: t.points) if ok else None
 
 
 def fallback(trials: list[Trial]) -> Trial:
@@ -156,30 +153,57 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
         ``sizing.lights_start`` training lights and the ``n_hold`` held-out ones;
     train_pool : (≥ sizing.lights_max,) training lights, a prefix-stable draw
     limit_bytes : the bake's memory limit (growing K stops before it)
-    Timed stages: "select points" (selection and trial fits), and the transport stages of
-    every pass that adds lights.
+    Timed stages: "select points" (selection and trial fits), "points" and "direct points"
+    when candidates grow, and the transport stages of every pass that adds lights.
     """
     fit, target = spec.fit, spec.validate.target_ratio
     t_start = time.perf_counter()
     candidates = transport.points
     K = data.stats["train"]
+    svd_of: dict[tuple[int, int], tuple] = {}
+
+    def ensure_candidates(p: int) -> None:
+        """More candidates when P outgrows them: a fresh blue-noise set of 2P, lit by the
+        lights so far (direct light at points only: the texels' transport does not depend
+        on the points)."""
+        nonlocal candidates, data, transport
+        if not sizing.grow_candidates or candidates.count >= 2 * p:
+            return
+        with timer.stage("points"):
+            candidates = place_measurement_points(transport.scene, dataclasses.replace(
+                spec.measurement_points, placement=sizing.candidate_placement, count=2 * p))
+        transport = dataclasses.replace(transport, points=candidates)
+        data = dataclasses.replace(data, direct_points=direct_at_points(
+            transport.scene, transport.tracer, data.lights, candidates, timer))
+
+    def rows_for(p: int) -> np.ndarray:
+        svd = None
+        if sizing.select and sizing.placement == "qdeim":
+            key = (candidates.count, K)
+            if key not in svd_of:  # one SVD of the candidates' direct light per (C, K)
+                svd_of.clear()
+                svd_of[key] = direct_svd(prepare_direct(data.direct_points[:, :K]))
+            svd = svd_of[key]
+        return _rows(candidates, data, K, p, sizing, spec, svd)
+
     I, Ih = _lightmaps(transport, data, fit.denoise, timer)
     trials: list[Trial] = []
     transport_seconds = sum(data.stats["seconds"].values())
     pass_seconds = sum(data.stats["seconds"].get(s, 0.0) for s in LIGHT_STAGES)
     pass_lights = len(data.lights)
-    tried = sorted({min(p, candidates.count) for p in sizing.points})
+    tried = sorted(sizing.points if sizing.grow_candidates else
+                   {min(p, candidates.count) for p in sizing.points})
     while True:
         scan, rows_of = [], {}
-        with timer.stage("select points"):
-            svd = None
-            if sizing.select and sizing.placement == "qdeim":
-                svd = direct_svd(prepare_direct(data.direct_points[:, :K]))
-            for p in bar(tried, f"sizing: P at K = {K}", total=len(tried)):
-                rows_of[p] = _rows(candidates, data, K, p, sizing, spec, svd)
-                scan.append(_trial(spec, data, K, I, Ih, rows_of[p]))
-                if _settled(scan, target):
-                    break
+        for p in bar(tried, f"sizing: P at K = {K}", total=len(tried)):
+            ensure_candidates(p)
+            with timer.stage("select points"):
+                rows = rows_for(p)
+                # the pool these rows index (candidates may grow later in the scan)
+                rows_of[p] = (candidates, rows, data.direct_points[rows])
+                scan.append(_trial(spec, data, K, I, Ih, rows))
+            if scan[-1].ratio is not None and scan[-1].ratio <= target:
+                break  # the smallest P that meets the target ships
         trials.extend(scan)
         chosen = choose(scan, target)
         if chosen is not None:
@@ -216,10 +240,9 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
         I = np.concatenate([I, _denoised(transport, extra.indirect, fit.denoise, timer)],
                            axis=1)
         K = grow
-    rows = rows_of[chosen.points]
-    points = dataclasses.replace(restrict_points(candidates, rows),
-                                 placement=sizing.placement)
-    data = dataclasses.replace(data, direct_points=data.direct_points[rows])
+    pool, rows, direct = rows_of[chosen.points]
+    points = dataclasses.replace(restrict_points(pool, rows), placement=sizing.placement)
+    data = dataclasses.replace(data, direct_points=direct)
     data.stats["sizing_seconds"] = time.perf_counter() - t_start
     return Sized(points=points, data=data, train=tuple(train_pool[:K]), indirect=(I, Ih),
                  trials=tuple(trials), chosen=chosen, stop=stop)
@@ -242,16 +265,6 @@ def _lightmaps(transport: Transport, data: Dataset, radius: float, timer: StageT
     K = data.stats["train"]
     both = _denoised(transport, data.indirect, radius, timer)
     return both[:, :K], both[:, K:]
-
-
-def _settled(scan: list[Trial], target: float) -> bool:
-    """Whether a larger P can no longer change the choice: the last two P both meet the
-    target and the larger lowered the error by no more than :data:`CLOSE_TO_BEST`."""
-    if len(scan) < 2:
-        return False
-    a, b = scan[-2], scan[-1]
-    meets = all(t.ratio is not None and t.ratio <= target for t in (a, b))
-    return meets and b.error > a.error * (1 - CLOSE_TO_BEST)
 
 
 def _rows(candidates: MeasurementPoints, data: Dataset, K: int, p: int, sizing: Sizing,

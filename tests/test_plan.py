@@ -62,8 +62,8 @@ def test_box_without_uv1_plan_text():
                  "sizing    run — auto: P ∈ {128, 256, 512, 1024}, K from 128 up to 512 "
                  "until the held-out error is within 1.25× the projection bound "
                  "(transport budget 300 s)",
-                 "points    run — 2048 blue-noise candidates, P chosen after transport "
-                 "(qdeim), supersample 8",
+                 "points    run — 512 blue-noise candidates (2P as P grows), P chosen "
+                 "after transport (qdeim), supersample 8",
                  "lights    run — 128–512 lights + 16 held out, 1 family (spot)",
                  "validate  run — 16 held-out lights against the reference"):
         assert line in text.splitlines(), (line, text)

@@ -59,11 +59,11 @@ def weights_clause(d: RuntimeData, s: float, u: np.ndarray) -> np.ndarray:
 
 
 def colour_clause(d: RuntimeData, w: np.ndarray) -> np.ndarray:
-    return np.einsum("hwq,qc->hwc", d.planes.astype(np.float64), w)
+    return np.maximum(np.einsum("hwq,qc->hwc", d.planes.astype(np.float64), w), 0.0)
 
 
 def gamma_undo_clause(c: np.ndarray, g: float | None) -> np.ndarray:
-    return c if g is None else np.maximum(c, 0.0) ** g
+    return c if g is None else c ** g
 
 
 #: RUNTIME_FORMULA, clause by clause, with the function above that implements each.
@@ -74,8 +74,8 @@ CLAUSES = [
     ("u_c = transfer[c] @ x'_c + s * offset[c] (c = R, G, B)", u_clause),
     ("plane weights: mean plane of channel c -> s*e_c, mono element i -> (u_R,i, u_G,i, "
      "u_B,i), rgb element i channel c -> u_c,i*e_c", weights_clause),
-    ("colour = sum_j plane_j * w_j", colour_clause),
-    ("with gamma: colour = max(colour, 0)^gamma", gamma_undo_clause),
+    ("colour = max(sum_j plane_j * w_j, 0) (negative light is clamped)", colour_clause),
+    ("with gamma: colour = colour^gamma", gamma_undo_clause),
 ]
 
 

@@ -19,7 +19,12 @@ from prtcore.core.spec import parse_spec
 from prtcore.emitters.families import sample_configurations
 from prtcore.intake.plan import decide_sizing
 from prtcore.sizing import Trial, choose, fallback, size_bake
-from prtcore.transport.dataset import add_training, light_configurations, open_transport
+from prtcore.transport.dataset import (
+    add_training,
+    direct_at_points,
+    light_configurations,
+    open_transport,
+)
 
 CORNELL = Path(__file__).resolve().parents[1] / "examples" / "cornell_box.glb"
 
@@ -29,26 +34,25 @@ def trial(p, error, bound=0.1, k=64):
                  ratio=None if error is None else error / bound, seconds=0.0)
 
 
-def test_choose_takes_the_smallest_p_close_to_the_best_that_meets_the_target():
-    scan = [trial(128, 0.20), trial(256, 0.120), trial(512, 0.116), trial(1024, 0.100)]
-    # 1024 meets the target and is more than 5 % better than the others that do
-    assert choose(scan, 1.25).points == 1024
-    scan[-1] = trial(1024, 0.115)  # within 5 % of 256's: the smaller ships
+def test_choose_ships_the_smallest_p_that_meets_the_target():
+    scan = [trial(128, 0.20), trial(256, 0.120), trial(512, 0.116)]
     assert choose(scan, 1.25).points == 256
     assert choose([trial(128, 0.5), trial(256, 0.4)], 1.25) is None
-    # nothing meets the target: the smallest P close to the lowest error
+    # nothing meets the target: the smallest P close (5 %) to the lowest error
     assert fallback([trial(128, 0.5), trial(256, 0.31), trial(512, 0.30)]).points == 256
+    assert fallback([trial(128, 0.5), trial(256, 0.4), trial(512, 0.30)]).points == 512
     assert fallback([trial(128, None), trial(256, None)]).points == 256
 
 
 def test_decide_sizing_resolves_auto_and_keeps_given_counts():
     auto = decide_sizing(parse_spec({}), keyframed=False)
     assert auto.points == (128, 256, 512, 1024) and auto.placement == "qdeim"
-    assert auto.select and auto.candidates == 2048
+    assert auto.select and auto.candidates == 512 and auto.grow_candidates
     assert (auto.lights_start, auto.lights_max) == (128, 512) and auto.automatic
     given = decide_sizing(parse_spec({"measurement_points": {"count": 200},
                                       "lights": {"count": 100}}), keyframed=False)
     assert given.points == (200,) and given.placement == "surface" and not given.select
+    assert not given.grow_candidates
     assert (given.lights_start, given.lights_max) == (100, 100) and not given.automatic
     small = decide_sizing(parse_spec({"sizing": {"max_points": 300}}), keyframed=False)
     assert small.points == (128, 256, 300)
@@ -142,8 +146,27 @@ def test_an_auto_bake_reports_what_it_chose(tmp_path):
     assert sizing["lights"] == manifest["fit"]["configurations"]
     assert sizing["trials"] and sizing["reason"]
     assert manifest["spec"]["lights"]["count"] == "auto"
+    assert json.loads((out / "report.json").read_text())["sizing"] == sizing
+    assert (out / "report.txt").read_text().startswith(f"sizing: {sizing['reason']}\n")
     chosen = [t for t in sizing["trials"] if t["points"] == sizing["points"]
               and t["lights"] == sizing["lights"]]
     # the verdict is judged on the same fit sizing measured
     assert chosen and manifest["verdict"]["error"] == pytest.approx(chosen[0]["error"],
                                                                      rel=1e-6)
+
+
+def test_candidates_grow_with_p_and_the_shipped_points_are_the_ones_lit():
+    """P = 512 outgrows the first 512 candidates: 1024 new ones are placed and lit; the
+    shipped points' direct light is theirs (pool and rows kept together)."""
+    _, sz, tr, _, _, sized = _sized(tiny_spec(
+        measurement_points={"supersample": 2}, validate={"target_ratio": 1.0},
+        lights={**tiny_spec()["lights"], "count": 16},
+        sizing={"max_points": 512}))
+    assert sz.grow_candidates and sz.candidates == 512
+    assert [t.points for t in sized.trials] == [128, 256, 512]
+    assert "K = 16 is the most allowed (lights.count)" in sized.stop
+    chosen = sized.chosen.points
+    assert sized.points.count == chosen == sized.data.direct_points.shape[0]
+    lit = direct_at_points(tr.scene, tr.tracer, sized.data.lights, sized.points,
+                           StageTimer(quiet=True))
+    np.testing.assert_array_equal(lit, sized.data.direct_points)

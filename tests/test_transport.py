@@ -413,7 +413,8 @@ def test_column_blocks_and_threads_do_not_change_the_result(block_problem, monke
     whole = solve_indirect(g, albedo, direct, 30, 1e-4, threads=1)[0]
     np.testing.assert_array_equal(solve_indirect(g, albedo, direct, 30, 1e-4, threads=2)[0],
                                   whole)  # rows split over threads: the same sums
-    monkeypatch.setattr(solve_module, "SOLVE_BLOCK_BYTES", 5 * 4 * 3 * g.shape[0])  # 1 light
+    monkeypatch.setattr(solve_module, "SOLVE_BLOCK_BYTES",
+                        solve_module.SOLVE_WORK_ARRAYS * 4 * 3 * g.shape[0])  # 1 light
     blocks = solve_indirect(g, albedo, direct, 30, 1e-4, threads=2)
     assert len(blocks[3]["blocks"]) == direct.shape[1]
     # each block stops on its own convergence test: equal within the tolerance

@@ -13,6 +13,7 @@ install command, never a skip.
 
 from __future__ import annotations
 
+import base64
 import io
 import json
 import os
@@ -180,9 +181,10 @@ def test_direct_view_matches_ray_traced_direct(viewer, bundle):
     page, _ = viewer
     page.evaluate("v => prt.setView(v)", CAMERA)
     _set_light(page, LIGHT)
-    img = np.asarray(page.evaluate("prt.image('direct')"), np.float32).reshape(256, 256, 4)
+    img = np.frombuffer(base64.b64decode(page.evaluate("prt.image('direct')")), "<f4"
+                        ).reshape(256, 256, 4)
     ref = reference_image(load_asset(bundle / "asset.glb"), [light_from_dict(LIGHT)],
-                          camera_from_dict(CAMERA), spp=1)
+                          camera_from_dict(CAMERA), spp=1, max_depth=1)  # direct is used
     seen, drawn = ref.alpha > 0, img[:, :, 3] > 0
     assert (seen != drawn).mean() <= 0.005
     both = seen & drawn
@@ -234,6 +236,45 @@ def test_light_form_relights(viewer):
     start = np.asarray(page.evaluate("prt.x"))
     assert not np.allclose(start, x.ravel())
     _set_light(page, LIGHT)
+
+
+def test_dragging_the_gizmo_moves_the_light(viewer):
+    """A mouse drag from the light's centre on the canvas grabs the gizmo (for this camera,
+    looking down −z, its Z arrow covers the centre), moves the light and relights; a drag
+    elsewhere orbits the camera and leaves the light where it is."""
+    from prtcore.reference.camera import camera_from_dict
+
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    _set_light(page, LIGHT)
+    cam = camera_from_dict(CAMERA)
+    clip = cam.clip_from_view(0.1, 10.0) @ cam.view_from_world() @ np.append(LIGHT["position"], 1)
+    box = page.locator("#view").bounding_box()
+    sx = box["x"] + (clip[0] / clip[3] + 1) / 2 * box["width"]
+    sy = box["y"] + (1 - clip[1] / clip[3]) / 2 * box["height"]
+    x0 = np.asarray(page.evaluate("prt.x"))
+    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
+    page.wait_for_timeout(50)
+    page.mouse.down()
+    for k in range(1, 6):
+        page.mouse.move(sx + 6 * k, sy)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+    moved = page.evaluate("prt.light")["position"]
+    assert np.linalg.norm(np.subtract(moved, LIGHT["position"])) > 0.05
+    assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
+    before = page.locator("#view").screenshot()
+    page.mouse.move(box["x"] + 20, box["y"] + 230)  # the floor's corner, away from the gizmo
+    page.wait_for_timeout(50)
+    page.mouse.down()
+    page.mouse.move(box["x"] + 60, box["y"] + 230)
+    page.wait_for_timeout(30)
+    page.mouse.up()
+    page.wait_for_timeout(100)  # the orbit's frame is drawn on the next animation frame
+    assert page.evaluate("prt.light")["position"] == moved
+    assert page.locator("#view").screenshot() != before
+    _set_light(page, LIGHT)
+    page.evaluate("v => prt.setView(v)", CAMERA)
 
 
 def test_out_of_family_badge(viewer):
@@ -294,6 +335,24 @@ def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, 
         assert img.reshape(-1, 3).std(axis=0).max() > 5
         page.close()
     assert errors == []
+
+
+@pytest.mark.parametrize(("manifest", "says"), [
+    ({"method": "sh_prt"}, "this viewer shows data-driven bundles"),
+    ({"method": "data_driven", "strands": {"texels_per_strand": 10}},
+     "hair bundles (strand textures) are not shown"),
+])
+def test_other_bundles_are_refused_plainly(browser, tmp_path, manifest, says):
+    """Bundles the viewer cannot show (SH-PRT, hair) get one line saying so, not a loader
+    error (only their manifest is read)."""
+    (tmp_path / "manifest.json").write_text(json.dumps(
+        {"schema": "prtcore.bundle", "version": 1, **manifest}))
+    with ViewerServer(tmp_path, quiet=True).start() as server:
+        page = browser.new_page()
+        page.goto(server.url)
+        page.wait_for_function("window.prt && window.prt.error", timeout=30_000)
+        assert says in page.text_content("#message")
+        page.close()
 
 
 def test_no_webgl2_says_so(browser, bundle):

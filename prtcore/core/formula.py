@@ -15,8 +15,8 @@ RUNTIME_FORMULA = (
     "x' = sign(x)|x|^(1/gamma) (identity without gamma); s = ||x'|| (Frobenius); "
     "u_c = transfer[c] @ x'_c + s * offset[c] (c = R, G, B); "
     "plane weights: mean plane of channel c -> s*e_c, mono element i -> (u_R,i, u_G,i, u_B,i), "
-    "rgb element i channel c -> u_c,i*e_c; colour = sum_j plane_j * w_j; "
-    "with gamma: colour = max(colour, 0)^gamma"
+    "rgb element i channel c -> u_c,i*e_c; colour = max(sum_j plane_j * w_j, 0) "
+    "(negative light is clamped); with gamma: colour = colour^gamma"
 )
 
 #: The clause a bundle with a learnt transfer (``fit.transfer: "mlp"``) adds

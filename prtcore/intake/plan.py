@@ -50,6 +50,8 @@ class Sizing:
     lights_start, lights_max : K of the first transport pass and the most it may grow to
         (equal: K is fixed)
     max_seconds : transport time budget for growing K (0: none)
+    grow_candidates : more candidates (2P) are placed when P outgrows them (count "auto"
+        without measurement_points.candidates)
     reason : one line for the plan
     """
 
@@ -61,6 +63,12 @@ class Sizing:
     lights_max: int
     max_seconds: float
     reason: str
+    grow_candidates: bool = False
+
+    @property
+    def candidate_placement(self) -> str:
+        """How candidates are placed: blue noise on the surface for "qdeim"."""
+        return "surface" if self.placement == "qdeim" else self.placement
 
     @property
     def automatic(self) -> bool:
@@ -218,7 +226,10 @@ def decide_sizing(spec: BakeSpec, keyframed: bool) -> Sizing:
             points = (int(mp.count),)
         k0, k1 = (z.lights_start, z.max_lights) if k_auto else (int(lt.count),) * 2
     select = not keyframed and (placement == "qdeim" or len(points) > 1)
-    if select:
+    grow = select and p_auto and not mp.candidates
+    if grow:  # 2P for the first two P tried; more when P outgrows them (prtcore/sizing.py)
+        candidates = 2 * points[min(1, len(points) - 1)]
+    elif select:
         candidates = mp.candidates or (2 * points[-1] if p_auto else 8 * points[-1])
         candidates = max(candidates, points[-1])
     else:
@@ -233,7 +244,8 @@ def decide_sizing(spec: BakeSpec, keyframed: bool) -> Sizing:
                        + (f" (transport budget {z.max_seconds:g} s)" if k1 > k0 else ""))
     return Sizing(placement=placement, candidates=int(candidates), points=points,
                   select=select, lights_start=int(k0), lights_max=int(k1),
-                  max_seconds=float(z.max_seconds), reason="; ".join(why))
+                  max_seconds=float(z.max_seconds), reason="; ".join(why),
+                  grow_candidates=grow)
 
 
 # ---------------------------------------------------------------------------------------
@@ -269,8 +281,9 @@ def plan_asset(scene: Scene, spec: BakeSpec) -> Plan:
         repair, remesh, uv, keyframes,
         StagePlan("texels", "run", f"{R}×{R} atlas, padding {pad}"),
         StagePlan("points", "run", (
-            f"{sizing.candidates} blue-noise candidates, P chosen after transport "
-            f"({sizing.placement})" if sizing.select else
+            f"{sizing.candidates} blue-noise candidates"
+            + (" (2P as P grows)" if sizing.grow_candidates else "")
+            + f", P chosen after transport ({sizing.placement})" if sizing.select else
             f"{sizing.points[0]} measurement points, {sizing.placement}")
             + f", supersample {mp.supersample}"),
         StagePlan("lights", "run", (

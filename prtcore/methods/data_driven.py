@@ -85,9 +85,9 @@ class DataDriven(Method):
             # carry the same noise and are filtered alike, or the table would count that
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
-            with timer.stage("denoise"):
-                I = denoise_lightmaps(texels, I, spec.fit.denoise)
-                Ih = denoise_lightmaps(texels, Ih, spec.fit.denoise)
+            with timer.stage("denoise"):  # one filter for training and held-out lightmaps
+                both = denoise_lightmaps(texels, data.indirect, spec.fit.denoise)
+                I, Ih = both[:, :K], both[:, K:]
             reference += f", denoised (radius {spec.fit.denoise:g} texels)"
         holdout = (Dh, Ih) if len(inputs.hold) else None
         per_group = kfs is not None and kfs.transfer == "per_keyframe"

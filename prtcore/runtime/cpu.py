@@ -89,11 +89,14 @@ def plane_weights(data: RuntimeData, x: np.ndarray, n: int | None = None,
 
 
 def blend(data: RuntimeData, weights: np.ndarray) -> np.ndarray:
-    """Σ_j plane_j · w_j, gamma undone: (h, w, 3) float32 indirect radiance."""
+    """max(Σ_j plane_j · w_j, 0), gamma undone: (h, w, 3) float32 indirect radiance
+    (negative light is clamped: the runtime's negative-value policy, core/formula.py and
+    docs/bundle.md; the fit's own reconstruction stays linear)."""
     h, w, q = data.planes.shape
     out = data.planes.reshape(-1, q).astype(np.float32) @ weights.astype(np.float32)
+    out = np.maximum(out, np.float32(0.0))
     if data.gamma is not None and data.gamma != 1.0:
-        out = np.maximum(out, 0.0) ** np.float32(data.gamma)
+        out = out ** np.float32(data.gamma)
     return out.reshape(h, w, 3)
 
 

@@ -32,7 +32,7 @@ from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, TransportTerm, operator_for
 from prtcore.transport.direct import direct_radiance
-from prtcore.transport.solve import SOLVE_BLOCK_BYTES, solve_indirect
+from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS, solve_indirect
 
 #: The operators a bake runs, in order (registry names, :mod:`prtcore.transport.base`).
 DEFAULT_OPERATORS = ("surface",)
@@ -53,8 +53,8 @@ def operators_for(scene: Scene) -> tuple[str, ...]:
 #: (tests/stability) and rounded up, so that it overestimates by 10–30 %: per covered
 #: texel (texel space, gather bookkeeping, interpreter), per texel and configuration
 #: (texel direct and indirect, (T, K, 3) float32 each, and at most as much again for the
-#: near field's first-bounce correction), plus the solver's working arrays (five more per
-#: configuration, up to SOLVE_BLOCK_BYTES), plus each operator's own
+#: near field's first-bounce correction), plus the solver's working arrays
+#: (SOLVE_WORK_ARRAYS more per configuration, up to SOLVE_BLOCK_BYTES), plus each operator's own
 #: (:mod:`prtcore.transport.surface`: per texel and gather ray, and per ray in flight).
 MEM_PER_TEXEL = 1536
 MEM_PER_TEXEL_CONFIG = 36
@@ -159,8 +159,8 @@ def estimate_bake_bytes(texels: int, configurations: int, transport: TransportSp
     if not isinstance(transport, TransportSpec):
         transport = TransportSpec(gather_rays=int(transport))
     t, k = int(texels), int(configurations)
-    own = t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(5 * t * k * 12,
-                                                                   SOLVE_BLOCK_BYTES)
+    own = t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(
+        SOLVE_WORK_ARRAYS * t * k * 12, SOLVE_BLOCK_BYTES)
     return int(own + sum(operator_for(n).estimate_bytes(t, k, transport) for n in operators))
 
 

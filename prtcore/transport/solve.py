@@ -30,11 +30,14 @@ SPECTRUM_MARGIN = 0.05
 #: The Chebyshev iteration is abandoned for the plain series if the relative change grows
 #: beyond this factor of the smallest one seen (a spectrum outside the interval).
 CHEBYSHEV_DIVERGENCE = 4.0
-#: Bytes for the solver's working arrays (five of T × block × 3 float32 for "chebyshev":
-#: solution, residual, step, source and product, allocated once per block); the K
-#: configurations are solved in column blocks that fit. Fewer, wider blocks are faster:
-#: scipy's sparse × dense kernel amortises each non-zero over all columns of a product.
+#: Bytes for the solver's working arrays (SOLVE_WORK_ARRAYS of T × block × 3 float32 for
+#: "chebyshev", allocated once per block); the K configurations are solved in column
+#: blocks that fit. Fewer, wider blocks are faster: each non-zero of G is read once per
+#: product for all the block's columns.
 SOLVE_BLOCK_BYTES = 2 << 30
+#: The Chebyshev iteration's working arrays: solution, residual, step and ρ∘step, and the
+#: next step and its ρ∘step (the fused step reads the old ones while writing the new).
+SOLVE_WORK_ARRAYS = 6
 #: Solver methods (see :func:`solve_indirect`).
 SOLVE_METHODS = ("chebyshev", "neumann")
 
@@ -180,8 +183,8 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     channel is below ``tolerance`` (``stats["converged"]``), or after ``max_bounces``
     products counting the first bounce. max_bounces = 1 gives exactly the single-bounce
     light; an unconverged "chebyshev" result is the Chebyshev approximant of that degree.
-    Configurations are solved in column blocks so that the working arrays (5 of
-    T × block × 3 float32) stay within SOLVE_BLOCK_BYTES.
+    Configurations are solved in column blocks so that the working arrays
+    (SOLVE_WORK_ARRAYS of T × block × 3 float32) stay within SOLVE_BLOCK_BYTES.
 
     first_bounce : (rows, values (r, K, 3)) added to ``G L_d`` at those rows — the near
     field's correction (:func:`prtcore.transport.direct.near_field_correction`).
@@ -220,7 +223,7 @@ def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extr
         lo, hi = spectrum_interval(product, rho)
         stats["interval"] = {"lo": lo.tolist(), "hi": hi.tolist()}
     stats["seconds_interval"] = time.perf_counter() - t0
-    per_block = max(1, min(k, int(SOLVE_BLOCK_BYTES // max(1, 5 * t * 3 * 4))))
+    per_block = max(1, min(k, int(SOLVE_BLOCK_BYTES // max(1, SOLVE_WORK_ARRAYS * t * 3 * 4))))
     bounces_all, resid_all = 0, 0.0
 
     def first_bounce(k0: int, k1: int) -> np.ndarray:

@@ -80,13 +80,7 @@ def read_usd_hair(path: str | Path, limits: IntakeLimits | None = None,
     file, _ = checked_size(path, limits)
     Usd, UsdGeom = _pxr()
     _refuse_external_layers(file)
-    try:
-        stage = Usd.Stage.Open(file)
-    except Exception as e:  # pxr raises Tf.ErrorException for unreadable layers
-        raise AssetError(file, "", f"not a readable USD stage ({str(e).splitlines()[0]})"
-                         ) from None
-    if stage is None:
-        raise AssetError(file, "", "not a readable USD stage")
+    stage = _opened(file, Usd.Stage.Open, "stage")
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
     up = UsdGeom.GetStageUpAxis(stage)
     to_y_up = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float) if up == "Z" else np.eye(3)
@@ -181,19 +175,25 @@ def read_usd_hair(path: str | Path, limits: IntakeLimits | None = None,
                 name=Path(file).name)
 
 
+def _opened(file: str, open_fn, what: str):
+    """``open_fn(file)``; a failure or None becomes an AssetError naming the file."""
+    try:
+        out = open_fn(file)
+    except Exception as e:  # pxr raises Tf.ErrorException for unreadable layers
+        raise AssetError(file, "", f"not a readable USD {what} ({str(e).splitlines()[0]})"
+                         ) from None
+    if out is None:
+        raise AssetError(file, "", f"not a readable USD {what}")
+    return out
+
+
 def _refuse_external_layers(file: str) -> None:
     """A hair file must be self-contained: sublayers, references and payloads to other
     files (which USD would open from anywhere on disk) are refused before the stage is
     composed."""
     from pxr import Sdf
 
-    try:
-        layer = Sdf.Layer.OpenAsAnonymous(file)
-    except Exception as e:  # pxr raises Tf.ErrorException for unreadable layers
-        raise AssetError(file, "", f"not a readable USD layer ({str(e).splitlines()[0]})"
-                         ) from None
-    if layer is None:
-        raise AssetError(file, "", "not a readable USD layer")
+    layer = _opened(file, Sdf.Layer.OpenAsAnonymous, "layer")
     deps = [str(d) for d in layer.GetCompositionAssetDependencies()]
     if deps:
         raise UnsupportedAsset(file, "", f"the layer composes other files ({', '.join(deps[:3])}"

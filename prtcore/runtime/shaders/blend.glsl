@@ -1,4 +1,4 @@
-// The basis blend: colour = sum_j plane_j * w_j, gamma undone; prtcore.runtime.cpu.blend
+// The basis blend: colour = max(sum_j plane_j * w_j, 0), gamma undone; prtcore.runtime.cpu.blend
 // on the GPU (tests/test_render.py checks the two equal). Included by camera_fs.glsl and
 // atlas_fs.glsl.
 layout(std430, binding = 4) readonly buffer Weights { vec4 w[]; };
@@ -13,6 +13,7 @@ vec3 indirect_at(vec2 uv) {
         mat4x3 W = mat4x3(w[4 * f].xyz, w[4 * f + 1].xyz, w[4 * f + 2].xyz, w[4 * f + 3].xyz);
         c += W * texture(basis, vec3(uv, float(f)));
     }
-    if (gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(gamma));
+    c = max(c, vec3(0.0));  // negative light clamped (the runtime formula's policy)
+    if (gamma > 0.0) c = pow(c, vec3(gamma));
     return c;
 }

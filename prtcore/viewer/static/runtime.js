@@ -61,6 +61,10 @@ export async function loadBundle(base) {
   if ((manifest.method ?? 'data_driven') !== 'data_driven') {
     throw new BundleError(`method ${manifest.method}: this viewer shows data-driven bundles`);
   }
+  if (manifest.strands) {  // docs/hair.md: strand textures over asset.hair
+    throw new BundleError('hair bundles (strand textures) are not shown by this viewer yet; ' +
+                          'use `prtcore relight`');
+  }
   // docs/bundle.md: EXR row 0 is the top row (TEXCOORD_1 v = 0). EXRLoader stores the file's
   // rows bottom-up, so a top-down file is sampled at (u, 1 - v).
   const rowOrder = manifest.atlas.exr_row_order ?? 'top_down';

@@ -12,7 +12,7 @@ export const BLEND_GLSL = `
 uniform highp sampler2DArray u_basis;
 uniform highp sampler2D u_weights;  // (planes, 1) RGBA32F: the RGB weight of every plane
 uniform int u_planes;
-uniform float u_gamma;              // 0: none
+uniform float u_gamma;              // 0: none; < 0: signed, unclamped (one basis element)
 uniform int u_flipV;
 uniform int u_output;               // 0: linear radiance (read-back), 1: display
 uniform float u_exposure;
@@ -28,7 +28,8 @@ vec3 indirect_at(vec2 uv1) {
       if (j < u_planes) c += p[k] * texelFetch(u_weights, ivec2(j, 0), 0).rgb;
     }
   }
-  if (u_gamma > 0.0) c = pow(max(c, vec3(0.0)), vec3(u_gamma));
+  if (u_gamma >= 0.0) c = max(c, vec3(0.0));  // negative light clamped (runtime formula)
+  if (u_gamma > 0.0) c = pow(c, vec3(u_gamma));
   return c;
 }
 vec3 srgb(vec3 c) {

@@ -248,7 +248,7 @@ async function main() {
         for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
         peak = Math.max(peak, 1);
       }
-      view.u_gamma.value = 0;
+      view.u_gamma.value = -1;  // a basis element is signed: shown unclamped
       view.u_elementScale.value = elementScale(state.element);
     } else {
       weights.image.data.set(c.w);
@@ -410,7 +410,8 @@ async function main() {
       return Array.from(out);
     },
     // the canvas in `mode` as linear float RGBA (H, W, 4), row 0 at the top, A = 0 where
-    // no surface is seen
+    // no surface is seen: base64 of the little-endian float32 bytes (a quarter million
+    // numbers travel faster so than as JSON)
     image(mode) {
       const keep = state.mode;
       state.mode = mode;
@@ -420,11 +421,19 @@ async function main() {
       renderer.readRenderTargetPixels(readTarget, 0, 0, W, H, raw);
       const out = new Float32Array(4 * W * H);
       for (let r = 0; r < H; r++) out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
-      return Array.from(out);
+      const bytes = new Uint8Array(out.buffer);
+      let text = '';
+      for (let i = 0; i < bytes.length; i += 0x8000) {
+        text += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+      }
+      return btoa(text);
     },
     // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
     atlas() { return Array.from(readAtlas()); },
   });
+
+  // the current light as a light-file object (where the gizmo has put it)
+  Object.defineProperty(prt, 'light', { get: () => (state.light ? lightDict() : null) });
 
   sync();
   applyLight(start);
