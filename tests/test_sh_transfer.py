@@ -54,6 +54,20 @@ def _band_limited(env, bands):
     return Environment(np.clip(img, 0.0, None), name="band-limited")
 
 
+def _against_map_and_band_limited(scene, tracer, env, args, pred):
+    """Path-trace the samples ``args`` (position, normal, geometric normal, albedo, spp)
+    under the map (seed 4) and its band-limited reconstruction (seed 5). Returns the first
+    reference, the corrected rms error of ``pred`` against each with its noise, and the
+    truncation error (map vs band-limited map, both noises removed)."""
+    ref = reference_environment(scene, tracer, env, *args, seed=4)
+    ref_b = reference_environment(scene, tracer, _band_limited(env, BANDS), *args, seed=5)
+    err, noise = _corrected_rms(pred, ref)
+    err_b, noise_b = _corrected_rms(pred, ref_b)
+    raw_t = ((ref.mean - ref_b.mean) ** 2).mean(axis=1).mean()
+    trunc = math.sqrt(max(0.0, raw_t - ref.noise2.mean() - ref_b.noise2.mean()))
+    return ref, err, noise, err_b, noise_b, trunc
+
+
 def test_unshadowed_is_the_clamped_cosine_and_shadowed_agrees_where_nothing_occludes(setup):
     scene, tx, tracer, samples, env = setup
     un = st.unshadowed_transfer(samples, BANDS)
@@ -80,12 +94,8 @@ def test_shadowed_transfer_matches_the_path_tracer_within_the_truncation_error(s
     t0 = st.shadowed_transfer(scene, tracer, samples, BANDS, 16, seed=3)
     pred = t0.radiance(env.sh_coefficients(BANDS))
     args = (tx.position, tx.normal, tx.geometric_normal, tx.albedo, SPP)
-    ref = reference_environment(scene, tracer, env, *args, seed=4)
-    ref_b = reference_environment(scene, tracer, _band_limited(env, BANDS), *args, seed=5)
-    err, noise = _corrected_rms(pred, ref)
-    err_b, noise_b = _corrected_rms(pred, ref_b)
-    raw_t = ((ref.mean - ref_b.mean) ** 2).mean(axis=1).mean()
-    trunc = math.sqrt(max(0.0, raw_t - ref.noise2.mean() - ref_b.noise2.mean()))
+    ref, err, noise, err_b, noise_b, trunc = _against_map_and_band_limited(
+        scene, tracer, env, args, pred)
     mean = float(ref.mean.mean())
     print(f"\nshadowed SH-PRT (bands {BANDS}) vs path tracer: corrected rms {err:.4f} "
           f"(noise {noise:.4f}); truncation (map vs band-limited map, path-traced) "
@@ -276,12 +286,8 @@ def test_normal_mapped_transfer_texture_matches_the_path_tracer(tmp_path):
     normal = shading_normals(scene, tx.triangle, tx.barycentric)
     spp = 4 * SPP  # a 16² atlas: cheap, and the error sits below the noise at SPP
     args = (tx.position, normal, tx.geometric_normal, tx.albedo, spp)
-    ref = reference_environment(scene, tracer, env, *args, seed=4)
-    ref_b = reference_environment(scene, tracer, _band_limited(env, BANDS), *args, seed=5)
-    err, noise = _corrected_rms(pred, ref)
-    err_b, _ = _corrected_rms(pred, ref_b)
-    raw_t = ((ref.mean - ref_b.mean) ** 2).mean(axis=1).mean()
-    trunc = math.sqrt(max(0.0, raw_t - ref.noise2.mean() - ref_b.noise2.mean()))
+    ref, err, noise, err_b, _, trunc = _against_map_and_band_limited(scene, tracer, env,
+                                                                     args, pred)
     flat_ref = reference_environment(scene, tracer, env, tx.position, tx.geometric_normal,
                                      tx.geometric_normal, tx.albedo, spp, seed=6)
     map_effect, _ = _corrected_rms(ref.mean, flat_ref)
