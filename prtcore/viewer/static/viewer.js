@@ -241,12 +241,10 @@ async function main() {
     prt.s = c.s;
     if (sel) {  // the planes of one element, unit weights per channel
       weights.image.data.fill(0);
-      let peak = 0;
       for (let j = 0; j < bundle.planes; j++) {
         if (bundle.planeElement[j] !== state.element) continue;
         const ch = bundle.planeChannel[j];
         for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
-        peak = Math.max(peak, 1);
       }
       view.u_gamma.value = -1;  // a basis element is signed: shown unclamped
       view.u_elementScale.value = elementScale(state.element);
