@@ -76,7 +76,7 @@ def test_direct_light_matches_the_environment_path_tracer(scene):
 
 
 def test_directions_and_visibility_are_shared_across_the_family(scene):
-    sc, tx, tracer = scene
+    _, tx, tracer = scene
     calls = []
 
     class Counting:
