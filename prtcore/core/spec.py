@@ -221,6 +221,8 @@ class HairSpec:
     albedo: tuple[float, float, float] | None = None
     #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
     fibre: str = "diffuse"
+    #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" (docs/hair.md)
+    harmonics: str = "first_bounce"
 
 
 #: fibre models a hair bake can use
@@ -641,6 +643,8 @@ def _parse(data: Any) -> BakeSpec:
                                lo=1, hi=4096),
         albedo=albedo,
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
+        harmonics=_choice(hs.get("harmonics", "first_bounce"), "hair.harmonics",
+                          ("first_bounce", "all_bounces")),
     )
 
     mats = root.get("materials", {})
