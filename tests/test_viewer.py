@@ -277,6 +277,23 @@ def test_dragging_the_gizmo_moves_the_light(viewer):
     page.evaluate("v => prt.setView(v)", CAMERA)
 
 
+def test_auto_exposure(viewer):
+    """The auto-exposure button brings a far too dark view back: 5 % of the visible pixels
+    at or above ~0.8 before tone mapping (8-bit display level ≥ 150 for the brightest)."""
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    _set_light(page, LIGHT)
+    page.evaluate("o => prt.set(o)", {"mode": "full", "exposure": -10})
+    dark = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("L"))
+    page.click("#auto-exposure")
+    page.wait_for_timeout(100)  # the frame after the change
+    ev = float(page.input_value("#exposure"))
+    shown = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("L"))
+    assert -10 < ev < 10
+    assert np.percentile(dark, 95) < 20 and np.percentile(shown, 95) >= 150
+    page.evaluate("o => prt.set(o)", {"exposure": 0})
+
+
 def test_out_of_family_badge(viewer):
     """A light far outside the box: the badge names it, with the measure."""
     page, _ = viewer
