@@ -152,7 +152,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         train = pool[:sizing.lights_start]
     m = method(spec.method.name)
     kfs, data = None, None
-    record = indirect = None
+    record = indirect = models = None
     if m.needs_dataset:
         kfs = _keyframe_set(intake, len(train), len(hold), timer)
         if kfs is None:
@@ -163,6 +163,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
                                   limit_bytes, timer)
                 intake = dataclasses.replace(intake, points=sized.points)
                 data, train, indirect = sized.data, sized.train, sized.indirect
+                models = sized.models
                 record = sized.to_dict(sizing)
                 if not quiet:
                     print(f"sizing: {sized.stop}")
@@ -173,7 +174,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
             data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
-                        data=data, indirect=indirect, sizing=record)
+                        data=data, indirect=indirect, sizing=record, models=models)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:

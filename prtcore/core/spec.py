@@ -149,7 +149,7 @@ class ValidateSpec:
 class SizingSpec:
     """The budget of automatic sizing (``"auto"`` counts; prtcore/sizing.py)."""
 
-    #: largest P tried (P doubles from 128)
+    #: largest P tried (P doubles from 256)
     max_points: int = 1024
     #: K of the first transport pass, and the most it may grow to (K doubles)
     lights_start: int = 128

@@ -24,7 +24,7 @@ DOCS: dict[str, str] = {
     "prepare.uv": "`auto` (keep a valid TEXCOORD_1, else generate) · `generate` · `keep` "
                   "(refuse when TEXCOORD_1 is missing or invalid)",
     "measurement_points.count": "P, measurement points, 1–1048576, or `auto`: the bake "
-                                "tries P = 128, 256, … up to `sizing.max_points` and "
+                                "tries P = 256, 512, … up to `sizing.max_points` and "
                                 "ships the smallest that meets the verdict's target",
     "measurement_points.placement": "`auto` (`qdeim` when the bake chooses P: count "
                                     "`auto` on a static bake; else `surface`) · "
