@@ -358,10 +358,12 @@ def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, 
     ({"method": "sh_prt"}, "this viewer shows data-driven bundles"),
     ({"method": "data_driven", "strands": {"texels_per_strand": 10}},
      "hair bundles (strand textures) are not shown"),
+    ({"method": "data_driven", "transfer": {"learnt": {"layers": []}}},
+     "bundles with a learnt transfer"),
 ])
 def test_other_bundles_are_refused_plainly(browser, tmp_path, manifest, says):
-    """Bundles the viewer cannot show (SH-PRT, hair) get one line saying so, not a loader
-    error (only their manifest is read)."""
+    """Bundles the viewer cannot show (SH-PRT, hair, learnt transfer) get one line saying
+    so, not a loader error (only their manifest is read)."""
     (tmp_path / "manifest.json").write_text(json.dumps(
         {"schema": "prtcore.bundle", "version": 1, **manifest}))
     with ViewerServer(tmp_path, quiet=True).start() as server:
