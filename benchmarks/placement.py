@@ -1,6 +1,6 @@
 """Measurement points chosen for the transfer vs blue noise, at equal P (issue 13).
 
-Per scene: the intake places 2048 blue-noise candidates; transport lights them once (K
+Per scene: the intake places 2 × the largest P blue-noise candidates; transport lights them once (K
 training + 16 held-out lights of the scene's family); then for each P the same fit is
 judged on the held-out lights with P points chosen two ways from the same candidates:
 
@@ -70,6 +70,7 @@ def main() -> int:
         t0 = time.perf_counter()
         spec = parse_spec({"atlas": {"resolution": args.resolution},
                            "lights": {"families": families, "count": args.lights},
+                           "measurement_points": {"candidates": 2 * max(counts)},
                            "sizing": {"max_points": max(counts)}})
         intake = run_intake(asset, spec, quiet=True)
         cand = intake.points

@@ -60,8 +60,8 @@ def make_spec(resolution: int, lights: int, holdout: int, points: int, walks: in
         "atlas": {"resolution": resolution, "padding": padding},
         "measurement_points": {"count": points},
         "lights": {"count": lights, "holdout": holdout, "families": [
-            {"type": "spot", "position": {"box": [[-3.0, -0.5, -3.0], [3.0, 3.0, 3.0]]},
-             "aim": {"target": [0.0, 0.3, 0.0]}, "intensity": {"log_uniform": [5, 50]}}]},
+            {"type": "spot", "position": {"shell": [1.5, 2.5]}, "aim": {"jitter": 0.2},
+             "intensity": {"log_uniform": [5, 50]}}]},
         "transport": {"gather_rays": rays, "subsurface_walks": walks},
         "fit": {"basis": 16, "gamma": gamma},
     })

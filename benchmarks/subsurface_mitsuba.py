@@ -218,7 +218,7 @@ def main() -> None:
             out = ROOT / "benchmarks" / "results"
             out.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(out / f"subsurface_mitsuba_{kind}_{mfp}.npz", ours=ours,
-                                mitsuba=m, mask=mask)
+                                mitsuba=(a + b) / 2, mask=mask)
     (ROOT / "benchmarks" / "results" / "subsurface_mitsuba.json").write_text(json.dumps(
         {"args": vars(args), "rows": rows}, indent=2))
 

@@ -257,6 +257,8 @@ def _cmd_view(args: argparse.Namespace) -> int:
         webbrowser.open(server.url)
     try:
         server.serve_forever()
+    except KeyboardInterrupt:  # Ctrl-C is how the viewer is stopped: not an error
+        print("viewer: stopped", flush=True)
     finally:
         server.close()
     return 0

@@ -114,11 +114,17 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                       limit_bytes: int) -> int:
     """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
     with the fibre operator, plus the first bounce's harmonics: two more (T, K, 3)
-    float32, plus the fibre tubes) against ``limit_bytes``; returns the estimate."""
+    float32, plus the fibre tubes) against ``limit_bytes``; returns the estimate. With
+    ``hair.harmonics = "all_bounces"``: the (3T, 3T) operator's nine blocks (20 bytes per
+    gather ray and block before they are summed) and a solve over 3T rows (the stacked
+    direct light and five working arrays of (3T, K, 3) float32)."""
     k = spec.lights.count + spec.lights.holdout
+    t = space.count
     segments = space.hair.point_count - space.hair.strand_count
-    est = estimate_bake_bytes(space.count, k, spec.transport, ("fibre",)) \
-        + 2 * space.count * k * 12 + segments * MEM_PER_FIBRE_SEGMENT
+    est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \
+        + 2 * t * k * 12 + segments * MEM_PER_FIBRE_SEGMENT
+    if spec.hair.harmonics == "all_bounces":
+        est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",
@@ -148,7 +154,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         train, hold = sample_configurations(spec.lights, center, radius, ())
     tracer, _ = hair_tracer(space)
     data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                      spec.transport, timer)
+                                      spec.transport, timer, harmonics=spec.hair.harmonics)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=None,
                         data=data)
     m = method(METHOD)

@@ -152,7 +152,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         train = pool[:sizing.lights_start]
     m = method(spec.method.name)
     kfs, data = None, None
-    record = indirect = None
+    record = indirect = models = None
     if m.needs_dataset:
         kfs = _keyframe_set(intake, len(train), len(hold), timer)
         if kfs is None:
@@ -163,6 +163,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
                                   limit_bytes, timer)
                 intake = dataclasses.replace(intake, points=sized.points)
                 data, train, indirect = sized.data, sized.train, sized.indirect
+                models = sized.models
                 record = sized.to_dict(sizing)
                 if not quiet:
                     print(f"sizing: {sized.stop}")
@@ -173,12 +174,14 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
             data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
-                        data=data, indirect=indirect, sizing=record)
+                        data=data, indirect=indirect, sizing=record, models=models)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:
         write_glb(scene, tmp / "asset.glb")
         sections, report = m.write(tmp, inputs, result)
+        if record is not None:
+            report = {**report, "sizing": record}
         _write_run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         common = {
             "asset": {"source": source_name or Path(str(asset)).name,
@@ -252,7 +255,10 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
         tmp = out / f".{name}.tmp"
         tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         os.replace(tmp, out / name)
-    (out / "report.txt").write_text(m.summary(result, seconds) + "\n", encoding="utf-8")
+    text = m.summary(result, seconds)
+    if report.get("sizing"):  # what automatic sizing chose and why (prtcore/sizing.py)
+        text = f"sizing: {report['sizing']['reason']}\n{text}"
+    (out / "report.txt").write_text(text + "\n", encoding="utf-8")
 
 
 def intake_points(points: PointsSpec, sizing: Sizing) -> PointsSpec:

@@ -15,14 +15,43 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core.mlp import transfer_residual, transfer_rows
+from prtcore.core.progress import StageTimer
 from prtcore.fit.model import TransferModel
-from prtcore.fit.transfer import heldout_errors
+from prtcore.fit.transfer import fit_transfer, heldout_errors
 
 TABLE_N = (4, 8, 16, 32, 64)
 #: The CPU blend timing runs on at most this many pixels (512²; 64 elements are then 68 MB,
 #: far beyond the caches, so the product is as memory-bound as at atlas size) and is scaled
 #: linearly to the atlas.
 BLEND_TIMING_PIXELS = 1 << 18
+
+
+def fit_for_table(D: np.ndarray, I: np.ndarray, fit_spec, holdout=None,
+                  timer: StageTimer | None = None, **kw) -> tuple[TransferModel, TransferModel]:
+    """The fit a data-driven bake ships and the one its table uses, from the spec's ``fit``
+    section: (model, full), ``full`` with ≥ max(TABLE_N) elements where the data allows,
+    ``model`` its first n (fit.basis) or the "auto" choice on ``holdout``.
+
+    D : (P, K, 3), I : (T, K, 3) (denoised as the bake fits them); holdout : as
+    :func:`~prtcore.fit.transfer.fit_transfer`; kw : groups, per_group (keyframes).
+    One function for the method's fit and automatic sizing's trials (prtcore/sizing.py),
+    so a trial's figures are the shipped bake's.
+    """
+    from prtcore.fit.mlp import learnt_options
+
+    n_table = max(TABLE_N)
+    fit_kw = {"ridge": fit_spec.ridge, "channels": fit_spec.channels,
+              "gamma": fit_spec.gamma, "timer": timer,  # progress bars
+              "transfer": fit_spec.transfer, "transfer_options": learnt_options(fit_spec),
+              **kw}
+    if fit_spec.basis == "auto":
+        model = fit_transfer(D, I, basis="auto", holdout=holdout, **fit_kw)
+        full = model if model.n_basis >= n_table else fit_transfer(
+            D, I, basis=n_table, **fit_kw)
+    else:
+        full = fit_transfer(D, I, basis=max(fit_spec.basis, n_table), **fit_kw)
+        model = truncate(full, fit_spec.basis)
+    return model, full
 
 
 def truncate(model: TransferModel, n: int) -> TransferModel:

@@ -2,7 +2,7 @@
 training lights K the scene needs, chosen from the data.
 
 The plan (:func:`prtcore.intake.plan.decide_sizing`) fixes what is tried: P doubles from
-128 up to ``sizing.max_points`` (or the spec's P), K starts at ``sizing.lights_start`` and
+256 up to ``sizing.max_points`` (or the spec's P), K starts at ``sizing.lights_start`` and
 may double up to ``sizing.max_lights`` (or the spec's K). The intake places dense
 blue-noise candidates; transport lights them once, with K training and the held-out
 lights. Then, for each P:
@@ -41,7 +41,6 @@ import numpy as np
 from prtcore.core.progress import StageTimer, bar
 from prtcore.core.scene import Light
 from prtcore.core.spec import BakeSpec
-from prtcore.fit.transfer import fit_transfer
 from prtcore.intake.plan import Sizing
 from prtcore.intake.points import MeasurementPoints, place_measurement_points
 from prtcore.intake.sensors import (
@@ -52,7 +51,7 @@ from prtcore.intake.sensors import (
     select_sensors,
 )
 from prtcore.receivers.smoothing import denoise_lightmaps
-from prtcore.report import heldout_metrics
+from prtcore.report import fit_for_table, heldout_metrics
 from prtcore.transport.dataset import (
     LIGHT_STAGES,
     Dataset,
@@ -93,6 +92,7 @@ class Sized:
         (denoised when ``fit.denoise`` > 0), so the method does not filter them again
     trials : every (P, K) tried, in order; chosen : the one that ships
     stop : why the search ended; record : :meth:`to_dict` for the manifest and report
+    models : the chosen trial's (model, full) fit, the one the bake ships
     """
 
     points: MeasurementPoints
@@ -102,6 +102,7 @@ class Sized:
     trials: tuple[Trial, ...]
     chosen: Trial
     stop: str
+    models: tuple = ()
 
     def to_dict(self, sizing: Sizing) -> dict[str, Any]:
         return {"points": self.chosen.points, "lights": self.chosen.lights,
@@ -199,9 +200,10 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
             ensure_candidates(p)
             with timer.stage("select points"):
                 rows = rows_for(p)
+                trial, models = _trial(spec, data, K, I, Ih, rows)
                 # the pool these rows index (candidates may grow later in the scan)
-                rows_of[p] = (candidates, rows, data.direct_points[rows])
-                scan.append(_trial(spec, data, K, I, Ih, rows))
+                rows_of[p] = (candidates, rows, data.direct_points[rows], models)
+                scan.append(trial)
             if scan[-1].ratio is not None and scan[-1].ratio <= target:
                 break  # the smallest P that meets the target ships
         trials.extend(scan)
@@ -240,12 +242,12 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
         I = np.concatenate([I, _denoised(transport, extra.indirect, fit.denoise, timer)],
                            axis=1)
         K = grow
-    pool, rows, direct = rows_of[chosen.points]
+    pool, rows, direct, models = rows_of[chosen.points]
     points = dataclasses.replace(restrict_points(pool, rows), placement=sizing.placement)
     data = dataclasses.replace(data, direct_points=direct)
     data.stats["sizing_seconds"] = time.perf_counter() - t_start
     return Sized(points=points, data=data, train=tuple(train_pool[:K]), indirect=(I, Ih),
-                 trials=tuple(trials), chosen=chosen, stop=stop)
+                 trials=tuple(trials), chosen=chosen, stop=stop, models=models)
 
 
 def _pct(v: float | None) -> str:
@@ -276,15 +278,16 @@ def _rows(candidates: MeasurementPoints, data: Dataset, K: int, p: int, sizing: 
 
 
 def _trial(spec: BakeSpec, data: Dataset, K: int, I: np.ndarray, Ih: np.ndarray,
-           rows: np.ndarray) -> Trial:
+           rows: np.ndarray) -> tuple[Trial, tuple]:
+    """One (P, K): the method's own fit (:func:`prtcore.report.fit_for_table`) of the
+    points ``rows`` and its held-out figures at the shipped n; returns the trial and the
+    (model, full) fit, which the bake ships when the trial is chosen."""
     t0 = time.perf_counter()
     D = data.direct_points[rows]
     Dt, Dh = D[:, :K], D[:, K:]
-    f = spec.fit
-    model = fit_transfer(Dt, I, basis=f.basis, ridge=f.ridge, channels=f.channels,
-                         gamma=f.gamma, holdout=(Dh, Ih) if Ih.shape[1] else None)
+    model, full = fit_for_table(Dt, I, spec.fit, (Dh, Ih) if Ih.shape[1] else None)
     m = heldout_metrics(model, Dh, Ih, [model.n_basis])[0] if Ih.shape[1] else {}
     error, bound = m.get("heldout_rmse_pooled"), m.get("projection_bound_pooled")
     ratio = None if error is None or not bound else error / bound
-    return Trial(points=len(rows), lights=K, n=model.n_basis, error=error, bound=bound,
-                 ratio=ratio, seconds=time.perf_counter() - t0)
+    return (Trial(points=len(rows), lights=K, n=model.n_basis, error=error, bound=bound,
+                  ratio=ratio, seconds=time.perf_counter() - t0), (model, full))

@@ -89,3 +89,59 @@ def bake_sh_prt_bundle(tmp_path, storage: str, *, bounce: bool = True,
     assert main(["bake", str(asset), "--spec", str(tmp_path / "spec.json"), "--out",
                  str(out), "-q"]) == 0
     return out
+
+
+def write_normal_mapped_quad(path, normal_map: np.ndarray, scale: float = 1.0,
+                             albedo=(0.6, 0.6, 0.6)):
+    """A 2 m × 2 m quad at y = 0 facing +y, TEXCOORD_0 = ((x + 1)/2, (z + 1)/2) — so
+    ∂P/∂u = +2x̂, ∂P/∂v = +2ẑ and the image's up is −ẑ — with a glTF
+    ``normalTexture`` (``scale``) whose image is ``normal_map`` (h, w, 3) tangent-space unit
+    normals, stored as 8-bit PNG ``round((n + 1)/2 · 255)``; TEXCOORD_1 (the lightmap) =
+    0.05 + 0.9 · TEXCOORD_0, leaving the atlas a padding border. Written with pygltflib.
+    Returns the path and the stored 8-bit pixels (h, w, 3) uint8."""
+    import io
+    from pathlib import Path
+
+    import pygltflib as gl
+    from PIL import Image
+
+    pix = np.round((np.asarray(normal_map, float) + 1.0) / 2.0 * 255.0).astype(np.uint8)
+    png = io.BytesIO()
+    Image.fromarray(pix, "RGB").save(png, format="PNG")
+    pos = np.array([[-1, 0, -1], [-1, 0, 1], [1, 0, 1], [1, 0, -1]], np.float32)
+    nrm = np.tile(np.array([0, 1, 0], np.float32), (4, 1))
+    uv = np.stack([(pos[:, 0] + 1) / 2, (pos[:, 2] + 1) / 2], 1).astype(np.float32)
+    uv1 = (0.05 + 0.9 * uv).astype(np.float32)
+    idx = np.array([0, 1, 2, 0, 2, 3], np.uint32)
+    chunks = [pos.tobytes(), nrm.tobytes(), uv.tobytes(), idx.tobytes(), png.getvalue(),
+              uv1.tobytes()]
+    data, views, off = b"", [], 0
+    for c in chunks:
+        views.append(gl.BufferView(buffer=0, byteOffset=off, byteLength=len(c)))
+        c = c + b"\0" * (-len(c) % 4)
+        data += c
+        off += len(c)
+    acc = [gl.Accessor(bufferView=0, componentType=5126, count=4, type="VEC3",
+                       min=pos.min(0).tolist(), max=pos.max(0).tolist()),
+           gl.Accessor(bufferView=1, componentType=5126, count=4, type="VEC3"),
+           gl.Accessor(bufferView=2, componentType=5126, count=4, type="VEC2"),
+           gl.Accessor(bufferView=3, componentType=5125, count=6, type="SCALAR"),
+           gl.Accessor(bufferView=5, componentType=5126, count=4, type="VEC2")]
+    doc = gl.GLTF2(
+        asset=gl.Asset(version="2.0"), scene=0, scenes=[gl.Scene(nodes=[0])],
+        nodes=[gl.Node(mesh=0)], buffers=[gl.Buffer(byteLength=len(data))],
+        bufferViews=views, accessors=acc,
+        images=[gl.Image(bufferView=4, mimeType="image/png")],
+        samplers=[gl.Sampler(magFilter=9729, minFilter=9729, wrapS=33071, wrapT=33071)],
+        textures=[gl.Texture(source=0, sampler=0)],
+        materials=[gl.Material(
+            name="bumpy", normalTexture=gl.NormalMaterialTexture(index=0, scale=scale),
+            pbrMetallicRoughness=gl.PbrMetallicRoughness(
+                baseColorFactor=[*albedo, 1.0], metallicFactor=0.0, roughnessFactor=1.0))],
+        meshes=[gl.Mesh(primitives=[gl.Primitive(
+            attributes=gl.Attributes(POSITION=0, NORMAL=1, TEXCOORD_0=2, TEXCOORD_1=4),
+            indices=3, material=0)])])
+    doc.set_binary_blob(data)
+    path = Path(path)
+    doc.save_binary(str(path))
+    return path, pix

@@ -59,7 +59,7 @@ def test_box_without_uv1_plan_text():
                  "uv        generate — TEXCOORD_1 missing",
                  "keyframes skip — asset has no animation",
                  "texels    run — 512×512 atlas, padding 4",
-                 "sizing    run — auto: P ∈ {128, 256, 512, 1024}, K from 128 up to 512 "
+                 "sizing    run — auto: P ∈ {256, 512, 1024}, K from 128 up to 512 "
                  "until the held-out error is within 1.25× the projection bound "
                  "(transport budget 300 s)",
                  "points    run — 512 blue-noise candidates (2P as P grows), P chosen "

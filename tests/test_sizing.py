@@ -46,7 +46,7 @@ def test_choose_ships_the_smallest_p_that_meets_the_target():
 
 def test_decide_sizing_resolves_auto_and_keeps_given_counts():
     auto = decide_sizing(parse_spec({}), keyframed=False)
-    assert auto.points == (128, 256, 512, 1024) and auto.placement == "qdeim"
+    assert auto.points == (256, 512, 1024) and auto.placement == "qdeim"
     assert auto.select and auto.candidates == 512 and auto.grow_candidates
     assert (auto.lights_start, auto.lights_max) == (128, 512) and auto.automatic
     given = decide_sizing(parse_spec({"measurement_points": {"count": 200},
@@ -54,8 +54,8 @@ def test_decide_sizing_resolves_auto_and_keeps_given_counts():
     assert given.points == (200,) and given.placement == "surface" and not given.select
     assert not given.grow_candidates
     assert (given.lights_start, given.lights_max) == (100, 100) and not given.automatic
-    small = decide_sizing(parse_spec({"sizing": {"max_points": 300}}), keyframed=False)
-    assert small.points == (128, 256, 300)
+    small = decide_sizing(parse_spec({"sizing": {"max_points": 600}}), keyframed=False)
+    assert small.points == (256, 512, 600)
     kf = decide_sizing(parse_spec({}), keyframed=True)
     assert kf.points == (256,) and kf.placement == "surface" and not kf.automatic
     assert "keyframe bake" in kf.reason
@@ -146,6 +146,8 @@ def test_an_auto_bake_reports_what_it_chose(tmp_path):
     assert sizing["lights"] == manifest["fit"]["configurations"]
     assert sizing["trials"] and sizing["reason"]
     assert manifest["spec"]["lights"]["count"] == "auto"
+    assert json.loads((out / "report.json").read_text())["sizing"] == sizing
+    assert (out / "report.txt").read_text().startswith(f"sizing: {sizing['reason']}\n")
     chosen = [t for t in sizing["trials"] if t["points"] == sizing["points"]
               and t["lights"] == sizing["lights"]]
     # the verdict is judged on the same fit sizing measured
@@ -161,7 +163,7 @@ def test_candidates_grow_with_p_and_the_shipped_points_are_the_ones_lit():
         lights={**tiny_spec()["lights"], "count": 16},
         sizing={"max_points": 512}))
     assert sz.grow_candidates and sz.candidates == 512
-    assert [t.points for t in sized.trials] == [128, 256, 512]
+    assert [t.points for t in sized.trials] == [256, 512]
     assert "K = 16 is the most allowed (lights.count)" in sized.stop
     chosen = sized.chosen.points
     assert sized.points.count == chosen == sized.data.direct_points.shape[0]

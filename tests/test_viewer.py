@@ -277,6 +277,23 @@ def test_dragging_the_gizmo_moves_the_light(viewer):
     page.evaluate("v => prt.setView(v)", CAMERA)
 
 
+def test_auto_exposure(viewer):
+    """The auto-exposure button brings a far too dark view back: 5 % of the visible pixels
+    at or above ~0.8 before tone mapping (8-bit display level ≥ 150 for the brightest)."""
+    page, _ = viewer
+    page.evaluate("v => prt.setView(v)", CAMERA)
+    _set_light(page, LIGHT)
+    page.evaluate("o => prt.set(o)", {"mode": "full", "exposure": -10})
+    dark = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("L"))
+    page.click("#auto-exposure")
+    page.wait_for_timeout(100)  # the frame after the change
+    ev = float(page.input_value("#exposure"))
+    shown = np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("L"))
+    assert -10 < ev < 10
+    assert np.percentile(dark, 95) < 20 and np.percentile(shown, 95) >= 150
+    page.evaluate("o => prt.set(o)", {"exposure": 0})
+
+
 def test_out_of_family_badge(viewer):
     """A light far outside the box: the badge names it, with the measure."""
     page, _ = viewer
@@ -335,6 +352,26 @@ def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, 
         assert img.reshape(-1, 3).std(axis=0).max() > 5
         page.close()
     assert errors == []
+
+
+@pytest.mark.parametrize(("manifest", "says"), [
+    ({"method": "sh_prt"}, "this viewer shows data-driven bundles"),
+    ({"method": "data_driven", "strands": {"texels_per_strand": 10}},
+     "hair bundles (strand textures) are not shown"),
+    ({"method": "data_driven", "transfer": {"learnt": {"layers": []}}},
+     "bundles with a learnt transfer"),
+])
+def test_other_bundles_are_refused_plainly(browser, tmp_path, manifest, says):
+    """Bundles the viewer cannot show (SH-PRT, hair, learnt transfer) get one line saying
+    so, not a loader error (only their manifest is read)."""
+    (tmp_path / "manifest.json").write_text(json.dumps(
+        {"schema": "prtcore.bundle", "version": 1, **manifest}))
+    with ViewerServer(tmp_path, quiet=True).start() as server:
+        page = browser.new_page()
+        page.goto(server.url)
+        page.wait_for_function("window.prt && window.prt.error", timeout=30_000)
+        assert says in page.text_content("#message")
+        page.close()
 
 
 def test_no_webgl2_says_so(browser, bundle):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import signal
 import subprocess
 import sys
 import urllib.error
@@ -88,6 +89,7 @@ def fake_bundle(tmp_path_factory) -> Path:
     (d / "transfer.bin").write_bytes(b"\0" * 8)
     (d / ".hidden").write_text("no")
     (d.parent / "secret.txt").write_text("outside the bundle")
+    (d / "link.txt").symlink_to(d.parent / "secret.txt")
     return d
 
 
@@ -103,7 +105,7 @@ def test_server_serves_the_page_the_viewer_and_the_bundle(fake_bundle):
         assert status == 200 and body == b"\0" * 8
         for bad in ("bundle/../secret.txt", "bundle/%2e%2e/secret.txt", "bundle/.hidden",
                     "static/../page.py", "static/index.html", "bundle/", "elsewhere",
-                    "bundle/missing.bin"):
+                    "bundle/missing.bin", "bundle/link.txt", "bundle/transfer.bin%00"):
             assert _get(s.url + bad)[0] == 404, bad
 
 
@@ -132,7 +134,8 @@ def test_server_refuses_a_non_bundle(tmp_path):
 
 
 def test_prtcore_view_prints_the_url_and_serves(fake_bundle):
-    """`prtcore view DIR --port 0 --no-browser`: one line with the URL, then serves it."""
+    """`prtcore view DIR --port 0 --no-browser`: one line with the URL, then serves it until
+    Ctrl-C, which ends it with status 0."""
     proc = subprocess.Popen([sys.executable, "-m", "prtcore", "view", str(fake_bundle),
                              "--port", "0", "--no-browser", "-q"], stdout=subprocess.PIPE,
                             text=True)
@@ -140,6 +143,10 @@ def test_prtcore_view_prints_the_url_and_serves(fake_bundle):
         line = proc.stdout.readline()
         url = re.search(r"http://127\.0\.0\.1:\d+/", line).group(0)
         assert _get(url)[0] == 200
+        proc.send_signal(signal.SIGINT)  # Ctrl-C stops it cleanly
+        assert proc.wait(timeout=10) == 0
+        assert "viewer: stopped" in proc.stdout.read()
     finally:
-        proc.terminate()
-        proc.wait(timeout=10)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)

@@ -62,6 +62,36 @@ def sample_texture(tex: Texture, uv: np.ndarray) -> np.ndarray:
     return (top * (1 - fy) + bot * fy).astype(np.float64)
 
 
+def texcoords(scene: Scene, texcoord: int) -> np.ndarray:
+    """(v, 2) float64 vertex UVs of set TEXCOORD_``texcoord`` (TEXCOORD_0 when the scene
+    has no TEXCOORD_1)."""
+    return scene.uv0 if texcoord == 0 or scene.uv1 is None else scene.uv1
+
+
+def texture_uv(scene: Scene, texcoord: int, uv_transform: np.ndarray, triangle: np.ndarray,
+               barycentric: np.ndarray) -> np.ndarray:
+    """Texture coordinates (n, 2) float64 at surface points (triangle (n,), barycentric
+    (n, 3)): set ``texcoord`` interpolated, then ``uv_transform`` (3, 3) applied."""
+    f = scene.faces[triangle]
+    uv = np.einsum("nk,nkj->nj", barycentric, texcoords(scene, texcoord)[f])
+    uvh = np.concatenate([uv, np.ones((len(triangle), 1))], axis=1) @ uv_transform.T
+    return uvh[:, :2]
+
+
+def tangent_space_normals(scene: Scene, material: int, triangle: np.ndarray,
+                          barycentric: np.ndarray) -> np.ndarray:
+    """The normal map of material ``material`` at surface points: unit tangent-space
+    normals (n, 3) float64, ``(2·rgb − 1)`` with X and Y times ``normal_scale``
+    (glTF normalTexture: +X right, +Y up on the image, +Z out of the surface)."""
+    mat = scene.materials[material]
+    uv = texture_uv(scene, mat.normal_texcoord, mat.normal_uv_transform, triangle,
+                    barycentric)
+    v = 2.0 * sample_texture(scene.textures[mat.normal_texture], uv)[:, :3] - 1.0
+    v[:, :2] *= float(mat.normal_scale)
+    ln = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.divide(v, ln, out=np.tile([0.0, 0.0, 1.0], (len(v), 1)), where=ln > 0)
+
+
 def albedo_at(scene: Scene, triangle: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
     """Raw (unclamped) linear RGB albedo at surface points.
 
@@ -84,11 +114,9 @@ def albedo_at(scene: Scene, triangle: np.ndarray, barycentric: np.ndarray) -> np
         mat = scene.materials[int(m)]
         col = np.broadcast_to(mat.base_color_factor[:3], (len(sel), 3)).astype(np.float64)
         if mat.texture >= 0:
-            uvsrc = scene.uv0 if mat.texcoord == 0 or scene.uv1 is None else scene.uv1
-            f = scene.faces[triangle[sel]]
-            uv = np.einsum("nk,nkj->nj", barycentric[sel], uvsrc[f])
-            uvh = np.concatenate([uv, np.ones((len(sel), 1))], axis=1) @ mat.uv_transform.T
-            col = col * sample_texture(scene.textures[mat.texture], uvh[:, :2])[:, :3]
+            uv = texture_uv(scene, mat.texcoord, mat.uv_transform, triangle[sel],
+                            barycentric[sel])
+            col = col * sample_texture(scene.textures[mat.texture], uv)[:, :3]
         if mat.subsurface is not None:
             col = boundary_albedo(mat.subsurface, col)
         out[sel] = col

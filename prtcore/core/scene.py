@@ -15,9 +15,10 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Texture:
-    """A decoded base-colour texture.
+    """A decoded texture (base colour, or a normal map).
 
-    pixels : (h, w, 4) float32, *linear* RGBA (sRGB already decoded), row 0 = image top.
+    pixels : (h, w, 4) float32, *linear* RGBA (sRGB already decoded for colour; a normal
+        map's values as stored, in [0, 1]), row 0 = image top.
     wrap_s, wrap_t : glTF sampler wrap modes (10497 REPEAT, 33071 CLAMP, 33648 MIRRORED).
     """
 
@@ -62,6 +63,12 @@ class Material:
     texcoord : which TEXCOORD_n the base-colour texture reads (0 unless the asset says)
     emissive_factor : (3,) float64 (recorded; transport ignores emission, see README)
     subsurface : the medium inside, when the material is translucent (None: opaque)
+    normal_texture : index into ``Scene.textures`` of the tangent-space normal map
+        (glTF ``normalTexture``, pixels kept *linear*: no sRGB decoding) or -1
+    normal_scale : the normalTexture's ``scale`` (multiplies the map's X and Y)
+    normal_texcoord, normal_uv_transform : which TEXCOORD_n the normal map reads and its
+        KHR_texture_transform (as ``texcoord`` / ``uv_transform``); the tangent frame comes
+        from that UV set (:func:`prtcore.core.geometry.uv_tangent_frames`)
     """
 
     name: str
@@ -72,6 +79,10 @@ class Material:
     emissive_factor: np.ndarray = field(default_factory=lambda: np.zeros(3))
     double_sided: bool = False
     subsurface: Subsurface | None = None
+    normal_texture: int = -1
+    normal_scale: float = 1.0
+    normal_texcoord: int = 0
+    normal_uv_transform: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
 @dataclass(frozen=True)
@@ -82,6 +93,9 @@ class Light:
     position : (3,) float64; direction : (3,) float64 unit, the direction light travels
     inner_cone_angle, outer_cone_angle : radians (spot only)
     range : float or None (None = infinite)
+    environment : type ``environment`` only: ``"sky"`` (the analytic sky about the sun
+        direction −direction) or an equirect map file turned about +y by the azimuth of
+        −direction (:mod:`prtcore.emitters.environment_light`); empty for other types
     """
 
     type: str
@@ -93,6 +107,7 @@ class Light:
     outer_cone_angle: float = np.pi / 4
     range: float | None = None
     name: str = ""
+    environment: str = ""
 
 
 @dataclass(frozen=True)

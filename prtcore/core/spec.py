@@ -68,6 +68,10 @@ class LightFamily:
     range: float | None = None
     #: Seed this family from the asset's KHR_lights_punctual lights ("jitter around these").
     from_asset: bool = False
+    #: type "environment" only: "sky" (an analytic sky whose sun direction is drawn like a
+    #: directional light's) or an equirect map file turned about +y by the drawn direction's
+    #: azimuth (docs/lights.md, prtcore/emitters/environment_light.py)
+    environment: str | None = None
 
 
 @dataclass(frozen=True)
@@ -149,7 +153,7 @@ class ValidateSpec:
 class SizingSpec:
     """The budget of automatic sizing (``"auto"`` counts; prtcore/sizing.py)."""
 
-    #: largest P tried (P doubles from 128)
+    #: largest P tried (P doubles from 256)
     max_points: int = 1024
     #: K of the first transport pass, and the most it may grow to (K doubles)
     lights_start: int = 128
@@ -221,6 +225,8 @@ class HairSpec:
     albedo: tuple[float, float, float] | None = None
     #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
     fibre: str = "diffuse"
+    #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" (docs/hair.md)
+    harmonics: str = "first_bounce"
 
 
 #: fibre models a hair bake can use
@@ -381,7 +387,8 @@ _FAMILY_KEYS = tuple(f.name for f in dataclasses.fields(LightFamily))
 def _family(v: Any, key: str) -> LightFamily:
     d = _obj(v, key, _FAMILY_KEYS)
     base = LightFamily()
-    t = _choice(d.get("type", base.type), f"{key}.type", ("point", "spot", "directional"))
+    t = _choice(d.get("type", base.type), f"{key}.type",
+                ("point", "spot", "directional", "environment"))
     kw: dict[str, Any] = {"type": t}
     kw["weight"] = _num(d.get("weight", base.weight), f"{key}.weight", lo=0.0, lo_open=True)
     kw["position"] = _position(d.get("position", base.position), f"{key}.position")
@@ -406,9 +413,16 @@ def _family(v: Any, key: str) -> LightFamily:
             if d.get(k) is not None:
                 raise SpecError(f"{key}.{k}", f"only spot lights have cone angles, not {t}")
         kw["outer_cone_angle"] = None
+    if t == "environment":
+        env = d.get("environment", "sky")
+        if not isinstance(env, str) or not env:
+            raise SpecError(f"{key}.environment", f'expected "sky" or a map file, got {env!r}')
+        kw["environment"] = env
+    elif d.get("environment") is not None:
+        raise SpecError(f"{key}.environment", f"only environment lights have one, not {t}")
     if d.get("range") is not None:
-        if t == "directional":
-            raise SpecError(f"{key}.range", "directional lights have no range")
+        if t in ("directional", "environment"):
+            raise SpecError(f"{key}.range", f"{t} lights have no range")
         kw["range"] = _num(d["range"], f"{key}.range", lo=0.0, lo_open=True)
     if "from_asset" in d:
         if not isinstance(d["from_asset"], bool):
@@ -641,6 +655,8 @@ def _parse(data: Any) -> BakeSpec:
                                lo=1, hi=4096),
         albedo=albedo,
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
+        harmonics=_choice(hs.get("harmonics", "first_bounce"), "hair.harmonics",
+                          ("first_bounce", "all_bounces")),
     )
 
     mats = root.get("materials", {})

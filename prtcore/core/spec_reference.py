@@ -24,7 +24,7 @@ DOCS: dict[str, str] = {
     "prepare.uv": "`auto` (keep a valid TEXCOORD_1, else generate) · `generate` · `keep` "
                   "(refuse when TEXCOORD_1 is missing or invalid)",
     "measurement_points.count": "P, measurement points, 1–1048576, or `auto`: the bake "
-                                "tries P = 128, 256, … up to `sizing.max_points` and "
+                                "tries P = 256, 512, … up to `sizing.max_points` and "
                                 "ships the smallest that meets the verdict's target",
     "measurement_points.placement": "`auto` (`qdeim` when the bake chooses P: count "
                                     "`auto` on a static bake; else `surface`) · "
@@ -64,6 +64,9 @@ DOCS: dict[str, str] = {
     "hair.albedo": "null (the hair file's colours), or [r, g, b] in [0, 1]: one fibre "
                    "colour for every strand",
     "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged)",
+    "hair.harmonics": "`first_bounce` (the direct light's first azimuthal harmonic in the "
+                      "first bounce) · `all_bounces` (every texel's mean, cos and sin "
+                      "through every bounce: 9× the operator, a slower solve)",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",
@@ -125,7 +128,8 @@ DOCS: dict[str, str] = {
                          "single-scattering albedo is Chiang et al. 2016's inversion",
     "subsurface.mean_free_path": "1/σ_t, world units, a number or [r, g, b], > 0",
     "subsurface.anisotropy": "Henyey–Greenstein g, −0.99–0.99",
-    "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual)",
+    "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual) · "
+                   "`environment` (distant radiance, prtcore/emitters/environment_light.py)",
     "family.weight": "relative probability of this family",
     "family.position": "`{\"shell\": [a, b]}` (radii in units of the asset's bounding "
                        "radius) · `{\"box\": [[x,y,z], [x,y,z]]}` (world) · "
@@ -141,6 +145,10 @@ DOCS: dict[str, str] = {
     "family.range": "KHR range in metres, or null (infinite)",
     "family.from_asset": "jitter around the asset's own KHR_lights_punctual lights of "
                          "this type",
+    "family.environment": "type environment only (default \"sky\"): \"sky\" — an analytic "
+                          "sky whose sun direction is drawn like a directional light's — or "
+                          "an equirect map file turned about +y by the drawn direction's "
+                          "azimuth; direct light = hemisphere integral (docs/lights.md)",
 }
 
 

@@ -42,6 +42,9 @@ class BakeInputs:
     data: Any
     indirect: Any = None
     sizing: dict | None = None
+    #: None, or (model, full) already fitted by automatic sizing on exactly these inputs
+    #: (:func:`prtcore.report.fit_for_table`)
+    models: Any = None
 
 
 class Method:

@@ -22,9 +22,8 @@ from prtcore.core.formula import LEARNT_FORMULA, RUNTIME_FORMULA
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.emitters.lightfile import save_light_file
-from prtcore.fit.mlp import learnt_options
 from prtcore.fit.model import TransferModel
-from prtcore.fit.transfer import fit_transfer, heldout_errors, reconstruct
+from prtcore.fit.transfer import heldout_errors, reconstruct
 from prtcore.io.bundle import (
     basis_planes,
     learnt_files,
@@ -38,13 +37,12 @@ from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
 from prtcore.receivers.smoothing import denoise_lightmaps
 from prtcore.report import (
-    TABLE_N,
     error_vs_runtime,
+    fit_for_table,
     format_table,
     plot,
     plot_atlas,
     plot_worst,
-    truncate,
 )
 from prtcore.runtime.family import direct_span, family_residual, warn_above
 from prtcore.verdict import judge
@@ -95,20 +93,12 @@ class DataDriven(Method):
             holdout = (Dh, Ih, kfs.holdout)
 
         with timer.stage("fit"):
-            n_table = max(TABLE_N)
-            fit_kw = {"ridge": spec.fit.ridge, "channels": spec.fit.channels,
-                      "gamma": spec.fit.gamma, "timer": timer,  # progress bars
-                      "transfer": spec.fit.transfer,
-                      "transfer_options": learnt_options(spec.fit)}
-            if kfs is not None:  # one basis for all keyframes (paper 5.4)
-                fit_kw.update(groups=kfs.train, per_group=per_group)
-            if spec.fit.basis == "auto":
-                model = fit_transfer(D, I, basis="auto", holdout=holdout, **fit_kw)
-                full = model if model.n_basis >= n_table else fit_transfer(
-                    D, I, basis=n_table, **fit_kw)
+            kw = {} if kfs is None else {  # one basis for all keyframes (paper 5.4)
+                "groups": kfs.train, "per_group": per_group}
+            if inputs.models is not None:  # automatic sizing fitted exactly these
+                model, full = inputs.models
             else:
-                full = fit_transfer(D, I, basis=max(spec.fit.basis, n_table), **fit_kw)
-                model = truncate(full, spec.fit.basis)
+                model, full = fit_for_table(D, I, spec.fit, holdout, timer, **kw)
         if per_group and model.group_ids != tuple(range(kfs.count)):
             raise PrtError(f"fit: per-keyframe transfers for keyframes {model.group_ids}, "
                            f"expected all {kfs.count}")

@@ -403,6 +403,8 @@ def _dilation(covered: np.ndarray, padding: int) -> tuple[np.ndarray, np.ndarray
         sx = idx[1][ly, px_].astype(np.int64)
         xs.append(np.stack([px_, py + r0], axis=1))
         srcs.append(sy * w + sx)
+    if not xs:  # every texel within reach is covered: nothing to dilate
+        return np.zeros((0, 2), dtype=np.int32), np.zeros(0, dtype=np.int64)
     return (np.concatenate(xs).astype(np.int32), np.concatenate(srcs))
 
 

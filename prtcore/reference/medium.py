@@ -8,8 +8,10 @@ with probability P_s and passes on (a null collision) otherwise, and channel c i
 ``σ_s,c / (σ̄ P_s)`` or ``(σ̄ − σ_t,c) / (σ̄ (1 − P_s))``. With σ_t shared by the channels
 there are no null collisions and the weight of a scattering event is α_c. Scattering
 follows the Henyey–Greenstein phase function (sampled by inverting its CDF here, written
-out again rather than shared with the operator). A walk ends where it reaches a face: a
-back face of the medium's own material is an exit; any other face ends it with no light.
+out again rather than shared with the operator; the frame about the direction is the
+project's one rule, :func:`prtcore.core.geometry.orthonormal_frame`). A walk ends where
+it reaches a face: a back face of the medium's own material is an exit; any other face
+ends it with no light.
 """
 
 from __future__ import annotations
@@ -18,19 +20,9 @@ import math
 
 import numpy as np
 
+from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Subsurface
-
-
-def _frame(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors completing unit w (n, 3) to an orthonormal basis (Frisvad-style
-    with a branch on the sign of w_z)."""
-    sign = np.where(w[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + w[:, 2])
-    b = w[:, 0] * w[:, 1] * a
-    u = np.stack([1.0 + sign * w[:, 0] ** 2 * a, sign * b, -sign * w[:, 0]], axis=1)
-    v = np.stack([b, sign + w[:, 1] ** 2 * a, -w[:, 1]], axis=1)
-    return u, v
 
 
 def henyey_greenstein(w: np.ndarray, g: float, u: np.ndarray) -> np.ndarray:
@@ -43,7 +35,7 @@ def henyey_greenstein(w: np.ndarray, g: float, u: np.ndarray) -> np.ndarray:
     mu = np.clip(mu, -1.0, 1.0)
     sin = np.sqrt(1.0 - mu * mu)
     phi = 2.0 * math.pi * u[:, 1]
-    a, b = _frame(w)
+    a, b = orthonormal_frame(w)
     out = (sin * np.cos(phi))[:, None] * a + (sin * np.sin(phi))[:, None] * b \
         + mu[:, None] * w
     return out / np.linalg.norm(out, axis=1, keepdims=True)

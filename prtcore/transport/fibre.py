@@ -151,23 +151,29 @@ class FibreTerm:
     texel i that hits texel j; ``harmonics``: 2H more such matrices, the same rays
     weighted by (cos ψ, sin ψ, cos 2ψ, sin 2ψ, …) / M, ψ the azimuth of the hit point on
     fibre j (for the first bounce of the direct light's harmonics,
-    :func:`harmonic_first_bounce`); ``stats``: rays, fibre hits, mesh hits, misses."""
+    :func:`harmonic_first_bounce`); ``block``: with ``all_bounces``, the (3T, 3T) gather
+    on every texel's (mean, cos, sin) harmonics (:func:`harmonic_block`); ``stats``: rays,
+    fibre hits, mesh hits, misses."""
 
     matrix: sp.csr_matrix
     harmonics: tuple[sp.csr_matrix, ...]
+    block: sp.csr_matrix | None = None
     stats: dict = field(default_factory=dict)
 
 
 def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
-                 rays: int, seed: int, harmonics: int = HARMONICS) -> FibreTerm:
+                 rays: int, seed: int, harmonics: int = HARMONICS,
+                 all_bounces: bool = False) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
-    ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``."""
+    ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
+    all_bounces : also build :attr:`FibreTerm.block`, the gather on the (mean, cos, sin)
+    harmonics of every texel (:func:`harmonic_block`)."""
     t = space.count
     hair = space.hair
-    origin, normal, _, _ = space.surface_samples(rays, seed)
-    origin, normal = origin.reshape(-1, 3), normal.reshape(-1, 3)
+    origin, normal, _, phi = space.surface_samples(rays, seed)
+    origin, normal, phi = origin.reshape(-1, 3), normal.reshape(-1, 3), phi.reshape(-1)
     rng = np.random.default_rng([seed, 1])
-    rows_all, cols_all, cs_all = [], [], []
+    rows_all, cols_all, cs_all, po_all = [], [], [], []
     n_fibre = n_mesh = 0
     total = t * rays
     starts = range(0, total, FIBRE_BATCH)
@@ -193,6 +199,8 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
         cols_all.append(space.texel_of(strand, arc).astype(np.int32))
         cs_all.append(cs.astype(np.float32))
+        if all_bounces:
+            po_all.append(phi[a:b][fib].astype(np.float32))
     rows = np.concatenate(rows_all) if rows_all else np.zeros(0, np.int32)
     cols = np.concatenate(cols_all) if cols_all else np.zeros(0, np.int32)
     cs = np.concatenate(cs_all) if cs_all else np.zeros((0, 2), np.float32)
@@ -206,9 +214,35 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     psi = np.arctan2(cs[:, 1], cs[:, 0])
     harm = tuple(csr(f((h + 1) * psi).astype(np.float32)) for h in range(harmonics)
                  for f in (np.cos, np.sin))
+    block = None
+    if all_bounces:
+        po = np.concatenate(po_all) if po_all else np.zeros(0, np.float32)
+        block = harmonic_block(t, rays, rows, cols, po, psi)
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
+                     block=block,
                      stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
                             "misses": total - n_fibre - n_mesh})
+
+
+def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
+                   phi_o: np.ndarray, psi: np.ndarray) -> sp.csr_matrix:
+    """The gather on the first azimuthal harmonics of every texel, (3T, 3T) float32 CSR:
+    row block a ∈ (mean, cos, sin) of the receiving texel, column block b of the source.
+    A ray leaving texel i at azimuth φ_o and hitting texel j at azimuth ψ adds
+    ``w_a(φ_o) v_b(ψ) / M`` with ``w = (1, 2 cos φ_o, 2 sin φ_o)`` (the Fourier
+    coefficients of the irradiance around the receiving fibre, whose ray origins are
+    stratified in azimuth) and ``v = (1, cos ψ, sin ψ)`` (the source's outgoing radiance
+    at the point hit)."""
+    w = np.stack([np.ones_like(phi_o), 2 * np.cos(phi_o), 2 * np.sin(phi_o)])
+    v = np.stack([np.ones_like(psi), np.cos(psi), np.sin(psi)])
+    r = np.concatenate([rows.astype(np.int64) + a * t for a in range(3) for _ in range(3)])
+    c = np.concatenate([cols.astype(np.int64) + b * t for _ in range(3) for b in range(3)])
+    d = np.concatenate([(w[a] * v[b]).astype(np.float32) / np.float32(rays)
+                        for a in range(3) for b in range(3)])
+    m = sp.csr_matrix((d, (r, c)), shape=(3 * t, 3 * t))
+    m.sum_duplicates()
+    m.sort_indices()
+    return m
 
 
 def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect

@@ -10,15 +10,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
+from prtcore.core.fibres import DEFAULT_SIDES, fibre_tubes
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
-from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import Dataset, direct_at_points
-from prtcore.transport.fibre import fibre_direct, harmonic_first_bounce
+from prtcore.transport.fibre import fibre_direct, fibre_gather, harmonic_first_bounce
 from prtcore.transport.solve import solve_indirect
 
 #: the timed stages of :func:`bake_hair_dataset`, in the order they run
@@ -28,17 +30,28 @@ STAGES = ("fibre gather", "direct points", "direct fibres", "indirect solve")
 def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTracer,
                       lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                       spec: TransportSpec | None = None, timer: StageTimer | None = None,
-                      scene: Scene | None = None) -> Dataset:
+                      scene: Scene | None = None, harmonics: str = "first_bounce"
+                      ) -> Dataset:
     """The lighting database of a hair bake (``Dataset``: direct at the points, direct and
     indirect at the strand texels, training lights first). ``tracer`` is
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene`` (the mesh of a
     hair + mesh bake, or None). ``spec.direct_samples`` points per texel (at least 4, so
-    that the first harmonic is resolved)."""
+    that the first harmonic is resolved).
+
+    harmonics (``hair.harmonics``): "first_bounce" — the direct light's first azimuthal
+    harmonic rides the first bounce, later bounces are radially constant; "all_bounces" —
+    every texel carries (mean, cos, sin) through every bounce
+    (:func:`prtcore.transport.fibre.harmonic_block`: 9× the operator, solved by the
+    Neumann series; docs/hair.md has the measured gain and cost)."""
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
+    everything = harmonics == "all_bounces"
     rays0 = tracer.rays_traced
-    term = operator_for("fibre").build(scene, space, tracer, spec, timer)
+    with timer.stage("fibre gather"):
+        term = fibre_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
+                            scene.triangle_count if scene is not None else 0,
+                            spec.gather_rays, spec.seed, all_bounces=everything)
     rays1 = tracer.rays_traced
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
@@ -46,10 +59,22 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
         direct = fibre_direct(space, tracer, lights, max(4, spec.direct_samples),
                               spec.seed + 1)
     rays3 = tracer.rays_traced
-    indirect, bounces, resid, solve_stats = solve_indirect(
-        term.matrix, space.albedo, direct.mean, spec.max_bounces, spec.tolerance, timer,
-        threads=tracer.threads, first_bounce=harmonic_first_bounce(term, direct))
-    stats = {"train": len(lights_train), "fibre": term.stats,
+    t = space.count
+    if everything:
+        stacked = np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]])
+        indirect, bounces, resid, solve_stats = solve_indirect(
+            term.block, np.tile(space.albedo, (3, 1)), stacked, spec.max_bounces,
+            spec.tolerance, timer, method="neumann", threads=tracer.threads)
+        # the truncated azimuthal series of a noisy gather can dip below zero at a few
+        # texels; light cannot: clamped, and counted
+        negative = int((indirect[:t] < 0).sum())
+        indirect = np.maximum(indirect[:t], np.float32(0))
+        solve_stats["negative_clamped"] = negative
+    else:
+        indirect, bounces, resid, solve_stats = solve_indirect(
+            term.matrix, space.albedo, direct.mean, spec.max_bounces, spec.tolerance, timer,
+            threads=tracer.threads, first_bounce=harmonic_first_bounce(term, direct))
+    stats = {"train": len(lights_train), "fibre": term.stats, "harmonics": harmonics,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=direct.mean,

@@ -3,9 +3,11 @@ docs/subsurface.md, paper 6.2).
 
 Light that enters a translucent mesh at one texel, scatters through the medium inside and
 leaves at another. By reciprocity it is traced backwards: from every translucent texel x,
-M = ``transport.subsurface_walks`` walks leave into the medium (cosine about the inward
-shading normal), fly exponential distances with the extinction σ_t, scatter by the
-Henyey–Greenstein phase function and end where they reach the boundary again, at the
+M = ``transport.subsurface_walks`` walks leave into the medium from origins uniform over
+the texel's region (:func:`prtcore.transport.gather.jittered_origins`, the region the
+reference integrates; directions cosine about the inward shading normal), fly
+exponential distances with the extinction σ_t, scatter by the Henyey–Greenstein phase
+function and end where they reach the boundary again, at the
 texel y the light entered through. With the symmetric Lambertian boundary
 (:func:`prtcore.core.materials.albedo_at`) a texel sends ρ_b/π · E into the medium, so
 
@@ -43,13 +45,16 @@ from prtcore.core.spec import TransportSpec
 from prtcore.core.tolerances import offset_origins
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, register
-from prtcore.transport.gather import HitMapper
+from prtcore.transport.gather import HitMapper, jittered_origins
 
-#: Memory of the walks (bytes; part of the bake's model): per translucent texel and walk
-#: in flight (state of the wavefront: position, direction, counts, ids) and per recorded
-#: (receiver, source, count) triple, three channels of CSR after.
-MEM_PER_WALK = 160
-MEM_PER_ENTRY = 48
+#: Memory of the walks (bytes; part of the bake's model): per walk in flight (the
+#: wavefront's state: starts, positions, directions, counts, hits) and per recorded
+#: (receiver, source, count) entry and channel (the COO lists and their CSR). Measured
+#: with tracemalloc on the sphere at 96² (16 and 64 walks per texel): 476–479 B per walk
+#: at the peak, 0.85–0.92 entries per walk; rounded up to 320 + 3 × 80 = 560 B. The
+#: estimate counts every receiver as translucent (an overestimate for mixed scenes).
+MEM_PER_WALK = 320
+MEM_PER_ENTRY = 80
 
 
 @dataclass(frozen=True)
@@ -59,7 +64,8 @@ class SubsurfaceTerm:
     matrix : (T, T) float32 CSR, empty (the walks' light differs per channel)
     channel_matrices : three (T, T) float32 CSR, W_c for R, G, B (rows receive, columns
         sorted), row sums ≤ 1
-    stats : walks traced, exits, absorbed/capped/lost counts, mean scattering events, nnz
+    stats : walks traced, exits, walks ended by roulette, the cap, a front or foreign face
+        or an outward first direction, total scattering events, nnz per channel
     """
 
     matrix: sp.csr_matrix
@@ -99,7 +105,8 @@ def _walks(tracer: RayTracer, mapper: HitMapper, origin: np.ndarray, direction: 
     for _ in it:
         if len(live) == 0:
             break
-        free = -np.log1p(-rng.random(len(live))) / sigma_t
+        u = rng.random(len(live))
+        free = -np.log1p(-u) / sigma_t if sigma_t > 0 else np.full(len(live), np.inf)
         o32 = pos.astype(np.float32)
         d32 = d.astype(np.float32)
         hits = tracer.intersect(o32, d32, tmax=free.astype(np.float32))
@@ -115,7 +122,7 @@ def _walks(tracer: RayTracer, mapper: HitMapper, origin: np.ndarray, direction: 
                 out_i.append(live[good])
                 out_tex.append(tex)
                 out_n.append(count[live[good]])
-        go = np.flatnonzero(~hit)
+        go = np.flatnonzero(~hit & np.isfinite(free))  # a miss at σ_t = 0: lost
         live, pos, d, free = live[go], pos[go], d[go], free[go]
         pos = pos + d * free[:, None]
         count[live] += 1
@@ -154,6 +161,7 @@ def subsurface_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, wal
     stats = {"walks": 0, "exits": 0, "front_or_other": 0, "roulette": 0, "capped": 0,
              "outward_start": 0, "scatter_events": 0, "translucent_texels": 0}
     tri_of = np.asarray(texels.triangle)
+    origins = None
     for mi, mat in enumerate(scene.materials):
         medium = mat.subsurface
         if medium is None:
@@ -165,14 +173,14 @@ def subsurface_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, wal
         allowed = trans & (scene.face_material == mi)
         sigma = np.asarray(medium.sigma_t, np.float64)
         alpha = np.asarray(medium.albedo, np.float64)
-        for s in np.unique(sigma):
+        for s in np.unique(sigma):  # σ_t = 0: the light crosses without scattering
             chans = np.flatnonzero(sigma == s)
-            if s <= 0:
-                continue  # no extinction: the channel's light crosses without scattering
             owner = np.repeat(own, walks)
             geo = np.asarray(texels.geometric_normal, np.float64)[owner]
             shade = np.asarray(texels.normal, np.float64)[owner]
-            start = offset_origins(np.asarray(texels.position, np.float64)[owner], -geo,
+            if origins is None:  # uniform over each texel's region, as the reference
+                origins = jittered_origins(scene, texels, walks, rng)[0]
+            start = offset_origins(origins[own].reshape(-1, 3), -geo,
                                    tracer.scale).astype(np.float64)
             u = rng.random((len(owner), 2))
             d = directions_around(-shade, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)),

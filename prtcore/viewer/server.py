@@ -1,6 +1,7 @@
 """``prtcore view DIR``: the viewer and one bundle on 127.0.0.1 (ES modules do not load from
-``file://``). Serves ``/`` (the page), ``/static/<file>`` (the viewer's files) and
-``/bundle/<name>`` (the files directly in the bundle directory); everything else is 404.
+``file://``). Serves ``/`` (the page), ``/static/<file>`` (the viewer's files),
+``/bundle/<name>`` (plain files directly in the bundle directory, no links) and, when given,
+``/reference/reference.exr`` and ``/reference/light.json``; everything else is 404.
 """
 
 from __future__ import annotations
@@ -37,9 +38,10 @@ def _handler(bundle: Path, quiet: bool, reference: dict[str, Path]
                 return self._file(reference.get(path[len("/reference/"):]))
             if path.startswith("/bundle/"):
                 name = path[len("/bundle/"):]
-                ok = name and "/" not in name and "\\" not in name and not name.startswith(".")
-                f = bundle / name if ok else None
-                return self._file(f if f is not None and f.is_file() else None)
+                ok = name and not any(c in name for c in "/\\\0") and not name.startswith(".")
+                f = bundle / name if ok else None  # a plain file of the bundle, not a link
+                return self._file(f if f is not None and f.is_file() and not f.is_symlink()
+                                  else None)
             return self._file(None)
 
         def _file(self, f: Path | None) -> None:

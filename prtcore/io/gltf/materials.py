@@ -65,11 +65,12 @@ def image_bytes(ctx: Ctx, doc: dict, index: int, buffers: list) -> bytes:
     return bytes(buffer_data(ctx, buffers, b, where)[off: off + length])
 
 
-def decode_image(ctx: Ctx, data: bytes, where: str) -> np.ndarray:
+def decode_image(ctx: Ctx, data: bytes, where: str, srgb: bool = True) -> np.ndarray:
     """PNG/JPEG/WebP bytes → (h, w, 4) float32 linear RGBA, row 0 = image top.
 
     Dimensions come from the header (Pillow opens lazily) and are checked against
-    ``max_texture_pixels`` before any pixel is decoded. Colour is sRGB-decoded, alpha kept.
+    ``max_texture_pixels`` before any pixel is decoded. Colour is sRGB-decoded (unless
+    ``srgb`` is False: data such as a normal map, kept as stored in [0, 1]), alpha kept.
     """
     from PIL import Image
 
@@ -99,6 +100,8 @@ def decode_image(ctx: Ctx, data: bytes, where: str) -> np.ndarray:
     except Exception as e:
         raise ctx.fail(where, f"cannot decode image ({type(e).__name__}: {str(e)[:80]})"
                        ) from None
+    if not srgb:
+        return np.ascontiguousarray(rgba, dtype=np.float32)
     out = np.empty(rgba.shape, dtype=np.float32)
     out[..., :3] = srgb_to_linear(rgba[..., :3])
     out[..., 3] = rgba[..., 3]
@@ -108,10 +111,11 @@ def decode_image(ctx: Ctx, data: bytes, where: str) -> np.ndarray:
 def parse_materials(ctx: Ctx, doc: dict, buffers: list
                     ) -> tuple[list[Material], list[Texture]]:
     """glTF materials → Lambertian :class:`Material` records and their decoded base-colour
-    textures (one :class:`Texture` per distinct image + wrap modes)."""
+    and normal textures (one :class:`Texture` per distinct image + wrap modes + colour
+    decoding; normal maps are not sRGB-decoded)."""
     materials, textures = [], []
-    tex_index: dict[tuple[int, int, int], int] = {}
-    pixels: dict[int, np.ndarray] = {}
+    tex_index: dict[tuple[int, int, int, bool], int] = {}
+    pixels: dict[tuple[int, bool], np.ndarray] = {}
     for i, mj in enumerate(get_items(ctx, doc, "materials")):
         where = f"materials[{i}]"
         ctx.where = where
@@ -135,12 +139,22 @@ def parse_materials(ctx: Ctx, doc: dict, buffers: list
         if info is not None:
             texture, texcoord, uv_transform = _texture_info(ctx, doc, info, tw, buffers,
                                                             textures, tex_index, pixels)
+        normal = get_dict(ctx, mj, "normalTexture", where, default=None)
+        n_tex, n_coord, n_transform, n_scale = -1, 0, np.eye(3), 1.0
+        if normal is not None:
+            nw = f"{where}.normalTexture"
+            n_tex, n_coord, n_transform = _texture_info(ctx, doc, normal, nw, buffers,
+                                                        textures, tex_index, pixels,
+                                                        srgb=False)
+            n_scale = get_num(ctx, normal, "scale", nw, default=1.0)
         materials.append(Material(
             name=get_str(ctx, mj, "name", where, default=""),
             base_color_factor=factor, texture=texture, uv_transform=uv_transform,
             texcoord=texcoord, emissive_factor=emissive,
             double_sided=get_bool(ctx, mj, "doubleSided", where, default=False),
             subsurface=parse_subsurface(ctx, mj, where),
+            normal_texture=n_tex, normal_scale=float(n_scale), normal_texcoord=n_coord,
+            normal_uv_transform=n_transform,
         ))
     return materials, textures
 
@@ -207,8 +221,9 @@ def parse_subsurface(ctx: Ctx, mj: dict, where: str) -> Subsurface | None:
 
 
 def _texture_info(ctx: Ctx, doc: dict, info: dict, where: str, buffers: list,
-                  textures: list, tex_index: dict, pixels: dict):
-    """(Scene texture index, texcoord, uv_transform) of one textureInfo."""
+                  textures: list, tex_index: dict, pixels: dict, srgb: bool = True):
+    """(Scene texture index, texcoord, uv_transform) of one textureInfo (its image
+    sRGB-decoded unless ``srgb`` is False)."""
     t = get_index(ctx, info, "index", where, "textures")
     texcoord = get_int(ctx, info, "texCoord", where, default=0)
     uv_transform = np.eye(3)
@@ -242,14 +257,16 @@ def _texture_info(ctx: Ctx, doc: dict, info: dict, where: str, buffers: list,
         for name, mode in (("wrapS", wrap_s), ("wrapT", wrap_t)):
             if mode not in WRAP_MODES:
                 raise ctx.fail(f"{sw}.{name}", f"unknown wrap mode {mode}")
-    key = (source, wrap_s, wrap_t)
+    key = (source, wrap_s, wrap_t, srgb)
     if key not in tex_index:
-        if source not in pixels:
+        if (source, srgb) not in pixels:
             iw = f"images[{source}]"
             ctx.where = iw
-            pixels[source] = decode_image(ctx, image_bytes(ctx, doc, source, buffers), iw)
+            pixels[source, srgb] = decode_image(ctx, image_bytes(ctx, doc, source, buffers),
+                                                iw, srgb)
         name = get_str(ctx, get_items(ctx, doc, "images")[source], "name", f"images[{source}]",
                        default="")
         tex_index[key] = len(textures)
-        textures.append(Texture(pixels=pixels[source], wrap_s=wrap_s, wrap_t=wrap_t, name=name))
+        textures.append(Texture(pixels=pixels[source, srgb], wrap_s=wrap_s, wrap_t=wrap_t,
+                                name=name))
     return tex_index[key], texcoord, uv_transform

@@ -61,6 +61,14 @@ export async function loadBundle(base) {
   if ((manifest.method ?? 'data_driven') !== 'data_driven') {
     throw new BundleError(`method ${manifest.method}: this viewer shows data-driven bundles`);
   }
+  if (manifest.strands) {  // docs/hair.md: strand textures over asset.hair
+    throw new BundleError('hair bundles (strand textures) are not shown by this viewer yet; ' +
+                          'use `prtcore relight`');
+  }
+  if (manifest.transfer && manifest.transfer.learnt) {  // docs/bundle.md, fit.transfer "mlp"
+    throw new BundleError('bundles with a learnt transfer (fit.transfer "mlp") are not shown ' +
+                          'by this viewer yet; use `prtcore relight` or `prtcore render`');
+  }
   // docs/bundle.md: EXR row 0 is the top row (TEXCOORD_1 v = 0). EXRLoader stores the file's
   // rows bottom-up, so a top-down file is sampled at (u, 1 - v).
   const rowOrder = manifest.atlas.exr_row_order ?? 'top_down';

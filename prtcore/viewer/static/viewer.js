@@ -241,12 +241,10 @@ async function main() {
     prt.s = c.s;
     if (sel) {  // the planes of one element, unit weights per channel
       weights.image.data.fill(0);
-      let peak = 0;
       for (let j = 0; j < bundle.planes; j++) {
         if (bundle.planeElement[j] !== state.element) continue;
         const ch = bundle.planeChannel[j];
         for (let k = 0; k < 3; k++) weights.image.data[4 * j + k] = ch < 0 || ch === k ? 1 : 0;
-        peak = Math.max(peak, 1);
       }
       view.u_gamma.value = -1;  // a basis element is signed: shown unclamped
       view.u_elementScale.value = elementScale(state.element);
@@ -413,15 +411,7 @@ async function main() {
     // no surface is seen: base64 of the little-endian float32 bytes (a quarter million
     // numbers travel faster so than as JSON)
     image(mode) {
-      const keep = state.mode;
-      state.mode = mode;
-      draw(readTarget, 0);
-      state.mode = keep;
-      const W = canvas.width, H = canvas.height, raw = new Float32Array(4 * W * H);
-      renderer.readRenderTargetPixels(readTarget, 0, 0, W, H, raw);
-      const out = new Float32Array(4 * W * H);
-      for (let r = 0; r < H; r++) out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
-      const bytes = new Uint8Array(out.buffer);
+      const bytes = new Uint8Array(readCanvas(mode).buffer);
       let text = '';
       for (let i = 0; i < bytes.length; i += 0x8000) {
         text += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
@@ -432,12 +422,41 @@ async function main() {
     atlas() { return Array.from(readAtlas()); },
   });
 
+  // The canvas in `mode` as linear float RGBA (H, W, 4), row 0 at the top, A = 0 off the
+  // asset.
+  function readCanvas(mode) {
+    const keep = state.mode;
+    state.mode = mode;
+    draw(readTarget, 0);
+    state.mode = keep;
+    const W = canvas.width, H = canvas.height, raw = new Float32Array(4 * W * H);
+    renderer.readRenderTargetPixels(readTarget, 0, 0, W, H, raw);
+    const out = new Float32Array(4 * W * H);
+    for (let r = 0; r < H; r++) out.set(raw.subarray(4 * W * r, 4 * W * (r + 1)), 4 * W * (H - 1 - r));
+    return out;
+  }
+  // Exposure (quarter-EV steps, within the slider's range) that puts the 95th percentile of
+  // the visible radiance (full mode, luminance) at 0.8 before tone mapping.
+  function autoExposure() {
+    const img = readCanvas('full'), lum = [];
+    for (let i = 0; i < img.length; i += 4) {
+      if (img[i + 3] > 0) lum.push(0.2126 * img[i] + 0.7152 * img[i + 1] + 0.0722 * img[i + 2]);
+    }
+    lum.sort((a, b) => a - b);
+    const p = lum.length ? lum[Math.floor(0.95 * (lum.length - 1))] : 0;
+    if (!(p > 0)) return;
+    $('exposure').value = String(Math.min(Math.max(Math.round(4 * Math.log2(0.8 / p)) / 4, -10), 10));
+    sync();
+  }
+  $('auto-exposure').addEventListener('click', autoExposure);
+
   // the current light as a light-file object (where the gizmo has put it)
   Object.defineProperty(prt, 'light', { get: () => (state.light ? lightDict() : null) });
 
   sync();
   applyLight(start);
   frame();
+  autoExposure();
   renderNow();
   $('message').textContent = `${m.asset.source}: ${m.atlas.width}×${m.atlas.height} atlas, ` +
     `${bundle.nBasis} basis elements. Drag the light; T/R: move/aim.`;
