@@ -246,6 +246,17 @@ def test_light_form_relights(viewer):
     _set_light(page, LIGHT)
 
 
+def _drag_gizmo(page, sx: float, sy: float) -> None:
+    """A mouse drag of 30 px to the right from page point (sx, sy)."""
+    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
+    page.wait_for_timeout(50)
+    page.mouse.down()
+    for k in range(1, 6):
+        page.mouse.move(sx + 6 * k, sy)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+
+
 def test_dragging_the_gizmo_moves_the_light(viewer):
     """A mouse drag from the light's centre on the canvas grabs the gizmo (for this camera,
     looking down −z, its Z arrow covers the centre), moves the light and relights; a drag
@@ -261,13 +272,7 @@ def test_dragging_the_gizmo_moves_the_light(viewer):
     sx = box["x"] + (clip[0] / clip[3] + 1) / 2 * box["width"]
     sy = box["y"] + (1 - clip[1] / clip[3]) / 2 * box["height"]
     x0 = np.asarray(page.evaluate("prt.x"))
-    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
-    page.wait_for_timeout(50)
-    page.mouse.down()
-    for k in range(1, 6):
-        page.mouse.move(sx + 6 * k, sy)
-        page.wait_for_timeout(30)
-    page.mouse.up()
+    _drag_gizmo(page, sx, sy)
     moved = page.evaluate("prt.light")["position"]
     assert np.linalg.norm(np.subtract(moved, LIGHT["position"])) > 0.05
     assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
@@ -577,13 +582,7 @@ def test_hair_gizmo_moves_the_light(hair_page):
     x0 = np.asarray(_set_light(page, HAIR_LIGHT)["x"])
     box = page.locator("#view").bounding_box()
     sx, sy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
-    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
-    page.wait_for_timeout(50)
-    page.mouse.down()
-    for k in range(1, 6):
-        page.mouse.move(sx + 6 * k, sy)
-        page.wait_for_timeout(30)
-    page.mouse.up()
+    _drag_gizmo(page, sx, sy)
     moved = np.asarray(page.evaluate("prt.light")["position"])
     assert np.linalg.norm(moved - pos) > 5e-3
     assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
