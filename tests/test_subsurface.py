@@ -167,8 +167,8 @@ def test_matches_reference_sphere(tmp_path, mfp):
     scene, texels, tracer = _sphere(tmp_path, floor=True, res=96, mean_free_path=mfp,
                                     multiscatter=[0.9, 0.7, 0.5])
     # 2048 walks, 1024 gather rays: the spot's small lit patch leaves the fast path's own
-    # noise in the error (measured at ℓ = 0.2 / 2: 512 walks and rays 6.1 % / 7.1 %, 1024
-    # walks and rays 3.3 % / 5.5 %; the point light 2.3 % / 2.7 %)
+    # noise in the error (spot at ℓ = 0.2 / 2: 512 walks and rays 6.1 % / 7.1 %, 1024 3.3 %
+    # / 5.5 %, 2048 walks 3.0 % / 4.2 %; the point light 1.6 % / 1.9 %; biases ≤ 0.3 %)
     fast, ref, err = _versus_reference(scene, texels, tracer, _lights(), 1024, 2048, 1024)
     for k in range(2):
         rmse, bias = compare(fast[:, k], ref[k], err[k])
