@@ -189,9 +189,9 @@ def record_direct_rays(calls: int, store: list) -> None:
     raytrace.RayTracer.occluded = recording
 
 
-def raw_seconds(scene, rays: list, threads: int) -> float:
-    """Seconds of raw embreex occlusion queries on ``rays`` (RayTracer's chunking and
-    threads, arrays prepared beforehand)."""
+def raw_seconds(scene, rays: list, threads: int) -> tuple[float, float]:
+    """Wall and CPU seconds of raw embreex occlusion queries on ``rays`` (RayTracer's
+    chunking and threads, arrays prepared beforehand)."""
     from embreex import mesh_construction, rtcore_scene
 
     from prtcore.core.raytrace import CHUNK
@@ -201,10 +201,10 @@ def raw_seconds(scene, rays: list, threads: int) -> float:
                                    scene.faces.astype(np.int32))
     jobs = [(o[a:a + CHUNK], d[a:a + CHUNK], tm[a:a + CHUNK].copy())
             for o, d, tm in rays for a in range(0, len(o), CHUNK)]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     with ThreadPoolExecutor(threads) as ex:
         list(ex.map(lambda j: raw.run(j[0], j[1], dists=j[2], query="OCCLUDED"), jobs))
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def child_bake(args) -> int:
@@ -250,11 +250,16 @@ def child_bake(args) -> int:
         scene = load_asset(ROOT / "examples" / "cornell_box.glb")
 
         n = sum(len(o) for o, _, _ in rays)
-        raw = min(raw_seconds(scene, rays, default_threads()) for _ in range(2))
-        stage = manifest["timings"]["direct texels"] / max(tr["rays"]["direct_texels"], 1)
+        raw, raw_cpu = min(raw_seconds(scene, rays, default_threads()) for _ in range(2))
+        count = max(tr["rays"]["direct_texels"], 1)
+        stage = manifest["timings"]["direct texels"] / count
+        stage_cpu = cpu_stage.get("direct texels", float("nan")) / count
         result["direct_vs_raw"] = {"recorded_rays": n, "raw_seconds_per_ray": raw / n,
                                    "stage_seconds_per_ray": stage,
-                                   "ratio": stage / max(raw / n, 1e-30)}
+                                   "ratio": stage / max(raw / n, 1e-30),
+                                   "raw_cpu_seconds_per_ray": raw_cpu / n,
+                                   "stage_cpu_seconds_per_ray": stage_cpu,
+                                   "cpu_ratio": stage_cpu / max(raw_cpu / n, 1e-30)}
     print(json.dumps(result, default=float))
     return 0
 
@@ -372,7 +377,10 @@ def report(result: dict, before: dict | None, args) -> None:
         d = small["direct_vs_raw"]
         print(f"  direct texels: {d['stage_seconds_per_ray'] * 1e9:.0f} ns/ray in the stage, "
               f"{d['raw_seconds_per_ray'] * 1e9:.0f} ns/ray raw embreex on the same "
-              f"{d['recorded_rays']:,} rays: ×{d['ratio']:.2f}")
+              f"{d['recorded_rays']:,} rays: ×{d['ratio']:.2f} wall"
+              + (f"; CPU {d['stage_cpu_seconds_per_ray'] * 1e9:.0f} against "
+                 f"{d['raw_cpu_seconds_per_ray'] * 1e9:.0f} ns/ray: ×{d['cpu_ratio']:.2f}"
+                 if "cpu_ratio" in d else ""))
     if big:
         print(f"  {args.big_resolution}² whole bake {big['total']:.1f} s = "
               f"×{result['big_over_small']:.2f} the {args.resolution}² bake; peak RSS "

@@ -37,6 +37,8 @@ _PUBLIC = {
     "canonical_spec_json": "prtcore.core.spec",
     # intake
     "load_asset": "prtcore.io.gltf.loader",
+    "load_hair": "prtcore.io.hair",
+    "is_hair_file": "prtcore.io.hair",
     "plan_asset": "prtcore.intake.plan",
     "run_intake": "prtcore.pipeline",
     # bake and bundle

@@ -25,7 +25,8 @@ from jobs.config import Settings
 
 from .errors import ApiError
 
-ASSET_SUFFIXES = (".glb", ".gltf")
+#: glTF, and hair (docs/hair.md): cyHair .hair and self-contained USD BasisCurves
+ASSET_SUFFIXES = (".glb", ".gltf", ".hair", ".usd", ".usda", ".usdc")
 FIELDS = ("asset", "spec")
 _MULTIPART_OVERHEAD = 64 * 1024
 
@@ -53,7 +54,7 @@ def _safe_suffix(filename: str) -> str:
     if suffix not in ASSET_SUFFIXES:
         raise ApiError(422, "invalid_asset",
                        f"asset {_clean(filename)!r}: unsupported file type "
-                       f"{suffix or '(none)'!r} (expected .glb or .gltf)")
+                       f"{suffix or '(none)'!r} (expected {', '.join(ASSET_SUFFIXES)})")
     return suffix
 
 

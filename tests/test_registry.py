@@ -25,7 +25,7 @@ def test_registry_refuses_a_second_member_of_the_same_name_and_names_known_ones(
 
 
 def test_the_shipped_members_are_registered():
-    assert types() == ("directional", "point", "spot")
+    assert types() == ("directional", "environment", "point", "spot")
     assert [emitter_for(t).gl_code for t in ("point", "spot", "directional")] == [0, 1, 2]
     assert regressor("ridge").name == "ridge"
 

@@ -568,3 +568,22 @@ def test_render_matches_the_camera_space_reference(gl_ctx, tmp_path_factory):
             err = img[:, :, :3][seen] - ref.full[seen]
             rel = np.sqrt((err ** 2).mean() / (ref.full[seen] ** 2).mean())
             assert rel <= 0.08, f"held-out light {light.position}: relative RMSE {rel:.2%}"
+
+
+def test_environment_lights_are_refused_by_the_gl_renderer(gl_ctx):
+    """The GL light table has no environment lights (emitters/environment_light.py): one
+    line, before any GL work, pointing at the CPU relight."""
+    from prtcore.core.errors import PrtError
+    from prtcore.core.scene import Light
+    from prtcore.runtime.shadows import ShadowMaps
+
+    vbo = gl_ctx.buffer(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], "f4").tobytes())
+    maps = ShadowMaps(gl_ctx, vbo, "3f", np.array([[0, 1, 2]]), np.zeros(3), 1.0, 16)
+    sky = Light(type="environment", color=np.ones(3), intensity=1.0,
+                direction=np.array([0.0, -1.0, 0.0]), environment="sky")
+    try:
+        with pytest.raises(PrtError, match=r"environment lights are not drawn.*relight"):
+            maps.upload([sky])
+    finally:
+        maps.release()
+        vbo.release()

@@ -17,6 +17,7 @@ import base64
 import io
 import json
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -58,10 +59,10 @@ def browser():
         b.close()
 
 
-@pytest.fixture(scope="module")
-def viewer(bundle, browser):
-    """(page, log): the viewer of ``bundle`` loaded once; log collects console errors and
-    uncaught exceptions for the whole module."""
+@contextmanager
+def served_page(browser, bundle: Path):
+    """(page, log): ``bundle`` served and loaded in a new page of ``browser``; log collects
+    console errors and uncaught exceptions."""
     log: list[str] = []
     with ViewerServer(bundle, quiet=True).start() as server:
         page = browser.new_page(viewport={"width": 640, "height": 440})
@@ -71,6 +72,13 @@ def viewer(bundle, browser):
         wait_ready(page)
         yield page, log
         page.close()
+
+
+@pytest.fixture(scope="module")
+def viewer(bundle, browser):
+    """(page, log): the viewer of ``bundle`` loaded once, for the whole module."""
+    with served_page(browser, bundle) as (page, log):
+        yield page, log
 
 
 def _set_light(page, light: dict) -> dict:
@@ -238,6 +246,17 @@ def test_light_form_relights(viewer):
     _set_light(page, LIGHT)
 
 
+def _drag_gizmo(page, sx: float, sy: float) -> None:
+    """A mouse drag of 30 px to the right from page point (sx, sy)."""
+    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
+    page.wait_for_timeout(50)
+    page.mouse.down()
+    for k in range(1, 6):
+        page.mouse.move(sx + 6 * k, sy)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+
+
 def test_dragging_the_gizmo_moves_the_light(viewer):
     """A mouse drag from the light's centre on the canvas grabs the gizmo (for this camera,
     looking down −z, its Z arrow covers the centre), moves the light and relights; a drag
@@ -253,13 +272,7 @@ def test_dragging_the_gizmo_moves_the_light(viewer):
     sx = box["x"] + (clip[0] / clip[3] + 1) / 2 * box["width"]
     sy = box["y"] + (1 - clip[1] / clip[3]) / 2 * box["height"]
     x0 = np.asarray(page.evaluate("prt.x"))
-    page.mouse.move(sx, sy)  # hover first: the gizmo picks its handle on hover
-    page.wait_for_timeout(50)
-    page.mouse.down()
-    for k in range(1, 6):
-        page.mouse.move(sx + 6 * k, sy)
-        page.wait_for_timeout(30)
-    page.mouse.up()
+    _drag_gizmo(page, sx, sy)
     moved = page.evaluate("prt.light")["position"]
     assert np.linalg.norm(np.subtract(moved, LIGHT["position"])) > 0.05
     assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
@@ -356,12 +369,13 @@ def test_error_heat_map_against_a_path_traced_reference(browser, bundle, relit, 
 
 @pytest.mark.parametrize(("manifest", "says"), [
     ({"method": "sh_prt"}, "this viewer shows data-driven bundles"),
-    ({"method": "data_driven", "strands": {"texels_per_strand": 10}},
-     "hair bundles (strand textures) are not shown"),
+    ({"method": "data_driven", "strands": {"kind": "ribbons"}}, "strands.kind ribbons"),
+    ({"method": "data_driven", "transfer": {"learnt": {"layers": []}}},
+     "bundles with a learnt transfer"),
 ])
 def test_other_bundles_are_refused_plainly(browser, tmp_path, manifest, says):
-    """Bundles the viewer cannot show (SH-PRT, hair) get one line saying so, not a loader
-    error (only their manifest is read)."""
+    """Bundles the viewer cannot show (SH-PRT, a strand layout it does not know, learnt
+    transfer) get one line saying so, not a loader error (only their manifest is read)."""
     (tmp_path / "manifest.json").write_text(json.dumps(
         {"schema": "prtcore.bundle", "version": 1, **manifest}))
     with ViewerServer(tmp_path, quiet=True).start() as server:
@@ -456,6 +470,167 @@ def test_keyframe_direct_vector_is_the_gl_runtimes(keyframe_page):
     with BundleRenderer(bundle, shadow_resolution=512, time=0.0) as r:
         want, _ = r.shade_points([light_from_dict(light)])
     assert np.linalg.norm(x - want) <= 1e-5 * np.linalg.norm(want)
+
+
+#: The hair bundle of the viewer's hair tests: the tangle of prtcore.scenes.hair, 4 texels per
+#: strand, 8 basis elements (a small tests/test_hairbake.py bake), half basis.
+HAIR_SPEC = {"hair": {"texels_per_strand": 4, "albedo": [0.8, 0.6, 0.4]},
+             "measurement_points": {"count": 24, "supersample": 2},
+             "lights": {"count": 16, "holdout": 2,
+                        "families": [{"type": "point", "position": {"shell": [1.5, 3.0]},
+                                      "intensity": {"uniform": [0.02, 0.1]}}]},
+             "transport": {"gather_rays": 16}, "fit": {"basis": 8},
+             "output": {"dtype": "half"}}
+HAIR_LIGHT = {"type": "point", "position": [0.06, 0.04, 0.02], "intensity": 0.05,
+              "color": [1.0, 0.9, 0.8]}
+
+
+@pytest.fixture(scope="module")
+def hair_page(browser, tmp_path_factory):
+    """(page, bundle, log): a hair bundle (200 strands of the tangle) in its own page."""
+    from prtcore.io.hair import write_hair
+    from prtcore.scenes.hair import tangle
+
+    d = tmp_path_factory.mktemp("hair")
+    bundle = pipeline.bake(write_hair(d / "tangle.hair", tangle(200)), parse_spec(HAIR_SPEC),
+                           d / "bundle", quiet=True)
+    with served_page(browser, bundle) as (page, log):
+        yield page, bundle, log
+
+
+def test_hair_strand_texture_matches_relight(hair_page, tmp_path):
+    """A hair bundle: x at the hull points (no shadow maps: nothing of the hair can shadow a
+    point of its convex hull from a light the point faces) equals the CPU runtime's
+    ray-traced x (fibre tubes as occluders) to 1e-3; the page's strand texture (atlas pass)
+    equals `prtcore relight` texel for texel (relative RMSE and the brightest texels ≤ 1e-3);
+    and what the lines read at their vertices (per-vertex strand index and arc fraction,
+    the manifest's sampling rule in GLSL) equals runtime/strands.py sample_strands on
+    relight's texture at the same (strand, arc) — those computed here from asset.hair — to
+    1e-3 of the peak."""
+    from prtcore.intake.hair import hair_scene
+    from prtcore.io.hair import load_hair
+    from prtcore.runtime.strands import sample_strands
+
+    page, bundle, _ = hair_page
+    m = read_manifest(bundle)
+    assert page.evaluate("prt.bundle.strands") == m["strands"]["strand_count"] == 200
+    assert "200 strands" in page.text_content("#message")
+    x = np.asarray(_set_light(page, HAIR_LIGHT)["x"]).reshape(-1, 3)
+    hair = load_hair(bundle / "asset.hair")
+    scene = hair_scene(hair)
+    want_x = shade_points(load_runtime(bundle), [light_from_dict(HAIR_LIGHT)],
+                          RayTracer(scene.positions, scene.faces, scene.radius))
+    assert (want_x.sum(axis=1) > 0).sum() >= 4  # some points lit
+    assert np.linalg.norm(x - want_x) <= 1e-3 * np.linalg.norm(want_x)
+
+    (tmp_path / "light.json").write_text(json.dumps(HAIR_LIGHT))
+    assert main(["relight", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                 str(tmp_path / "relit.exr")]) == 0
+    want = read_image(tmp_path / "relit.exr")
+    got = np.asarray(page.evaluate("prt.atlas()"), np.float32).reshape(want.shape)
+    cov = want[:, :, 3] > 0
+    assert cov.sum() == 800
+    err = np.sqrt(((got[cov, :3] - want[cov, :3]) ** 2).mean() / (want[cov, :3] ** 2).mean())
+    assert err <= 1e-3, err
+    top = np.argsort(want[cov, :3].sum(axis=1))[-5:]  # the brightest texels
+    assert np.abs(got[cov][top, :3] - want[cov][top, :3]).max() \
+        <= 1e-3 * np.abs(want[cov][top, :3]).max()
+
+    probe = page.evaluate("prt.strands()")
+    coord = np.asarray(probe["coord"]).reshape(-1, 2)
+    strand = np.repeat(hair.strand_of_segment, 2)  # two vertices per segment
+    point = np.stack([hair.segment_start, hair.segment_start + 1], axis=1).ravel()
+    frac = hair.arc_length[point] / hair.strand_length[strand]
+    assert np.array_equal(coord[:, 0], strand)
+    assert np.abs(coord[:, 1] - frac).max() <= 1e-5
+    lines = np.asarray(probe["indirect"]).reshape(-1, 3)
+    ref = sample_strands(want[:, :, :3].astype(np.float64), m["strands"], strand, frac)
+    assert np.abs(lines - ref).max() <= 1e-3 * np.abs(ref).max()
+
+
+def test_hair_is_drawn_as_lines(hair_page):
+    """The camera pass draws the strands (lines) in every mode the page offers for hair, the
+    measurement points as dots, and full = direct + indirect pixel for pixel; UV layout and
+    the heat map are not offered for hair."""
+    page, _, log = hair_page
+    _set_light(page, HAIR_LIGHT)
+    modes = page.eval_on_selector_all("#mode option", "o => o.map((e) => e.value)")
+    assert "uv" not in modes and "error" not in modes
+    w, h = page.evaluate("[document.getElementById('view').width, "
+                         "document.getElementById('view').height]")
+    img = {}
+    for mode in ("full", "direct", "indirect", "points"):
+        raw = base64.b64decode(page.evaluate("m => prt.image(m)", mode))
+        img[mode] = np.frombuffer(raw, "<f4").reshape(h, w, 4)
+    on = img["full"][:, :, 3] > 0
+    print(f"hair: {on.sum()} of {w * h} pixels on strands")
+    assert on.sum() > 500  # the tangle is seen
+    assert img["indirect"][on, :3].max() > 0 and img["direct"][on, :3].max() > 0
+    np.testing.assert_allclose(img["full"][on, :3],
+                               img["direct"][on, :3] + img["indirect"][on, :3],
+                               rtol=1e-4, atol=1e-6 * img["full"][on, :3].max())
+    assert log == []
+
+
+def test_hair_gizmo_moves_the_light(hair_page):
+    """The light gizmo works on a hair page as on a surface one: a drag from the light's
+    centre (the camera looks down −z at it) moves the light and relights (x changes)."""
+    page, _, log = hair_page
+    pos = np.asarray(HAIR_LIGHT["position"])
+    page.evaluate("v => prt.setView(v)", {"position": [pos[0], pos[1], pos[2] + 0.15],
+                                          "target": pos.tolist(), "up": [0, 1, 0]})
+    x0 = np.asarray(_set_light(page, HAIR_LIGHT)["x"])
+    box = page.locator("#view").bounding_box()
+    sx, sy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    _drag_gizmo(page, sx, sy)
+    moved = np.asarray(page.evaluate("prt.light")["position"])
+    assert np.linalg.norm(moved - pos) > 5e-3
+    assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
+    assert log == []
+
+
+@pytest.fixture(scope="module")
+def translucent_bundle(tmp_path_factory) -> Path:
+    """A translucent (subsurface, docs/subsurface.md) bundle: the sphere of
+    prtcore.scenes.translucent with its medium, tiny (as tests/test_subsurface.py's bake)."""
+    from prtcore.scenes.translucent import write_translucent_sphere
+
+    d = tmp_path_factory.mktemp("translucent")
+    asset = write_translucent_sphere(d / "s.glb", subdivisions=2, mean_free_path=0.3)
+    spec = {"atlas": {"resolution": 32, "padding": 2},
+            "measurement_points": {"count": 8, "supersample": 2},
+            "lights": {"count": 12, "holdout": 3, "families": [
+                {"type": "point", "position": {"box": [[-1.5, 1.5, -1.5], [1.5, 2.5, 1.5]]}}]},
+            "transport": {"gather_rays": 8, "subsurface_walks": 8}, "fit": {"basis": 4},
+            "output": {"dtype": "half"}}
+    return pipeline.bake(asset, parse_spec(spec), d / "bundle", quiet=True)
+
+
+def test_translucent_bundle_relights_like_relight(browser, translucent_bundle, tmp_path):
+    """A subsurface bake is a surface bundle (asset.glb keeps the medium): the page shows it
+    and, for two lights, its indirect lightmap equals `prtcore relight` (relative RMSE
+    ≤ 1e-3) and differs between the lights; no console errors."""
+    from prtcore.io.gltf.loader import load_asset as load
+
+    assert load(translucent_bundle / "asset.glb").materials[0].subsurface is not None
+    lights = [{"type": "point", "intensity": 10.0, "position": [0.0, 2.0, -0.5]},
+              {"type": "point", "intensity": 6.0, "color": [1.0, 0.8, 0.6],
+               "position": [1.0, 1.8, 0.7]}]
+    got = []
+    with served_page(browser, translucent_bundle) as (page, log):
+        for k, light in enumerate(lights):
+            _set_light(page, light)
+            (tmp_path / "light.json").write_text(json.dumps(light))
+            assert main(["relight", str(translucent_bundle), "--light",
+                         str(tmp_path / "light.json"), "--out", str(tmp_path / f"{k}.exr")]) == 0
+            want = read_image(tmp_path / f"{k}.exr")
+            got.append(np.asarray(page.evaluate("prt.atlas()"), np.float32).reshape(want.shape))
+            cov = want[:, :, 3] > 0
+            err = np.sqrt(((got[k][cov, :3] - want[cov, :3]) ** 2).mean()
+                          / (want[cov, :3] ** 2).mean())
+            assert err <= 1e-3, (k, err)
+    assert np.abs(got[0] - got[1]).max() > 1e-2 * np.abs(got[0]).max()
+    assert log == []
 
 
 def test_no_console_errors(viewer):

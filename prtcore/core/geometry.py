@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from prtcore.core.materials import tangent_space_normals, texcoords
@@ -130,3 +132,20 @@ def directions_around(axes: np.ndarray, cos_theta: np.ndarray, phi: np.ndarray) 
     d = ((sin_theta * np.cos(phi))[:, None] * t + (sin_theta * np.sin(phi))[:, None] * s
          + cos_theta[:, None] * axes)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def stratified_cosine_directions(normals: np.ndarray, strata: int, rng: np.random.Generator
+                                 ) -> np.ndarray:
+    """(m, strata², 3) cosine-distributed unit directions about unit ``normals`` (m, 3):
+    one jittered sample per cell of a strata × strata grid on the unit square (Malley's
+    method), the jitter drawn from ``rng``."""
+    m = len(normals)
+    s = strata * strata
+    cell = np.arange(s)
+    u = (np.stack([cell // strata, cell % strata], axis=1)[None, :, :]
+         + rng.random((m, s, 2))) / strata
+    axes = np.repeat(normals, s, axis=0)
+    u = u.reshape(-1, 2)
+    d = directions_around(axes, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)),
+                          2.0 * math.pi * u[:, 1])
+    return d.reshape(m, s, 3)

@@ -93,6 +93,9 @@ class Light:
     position : (3,) float64; direction : (3,) float64 unit, the direction light travels
     inner_cone_angle, outer_cone_angle : radians (spot only)
     range : float or None (None = infinite)
+    environment : type ``environment`` only: ``"sky"`` (the analytic sky about the sun
+        direction −direction) or an equirect map file turned about +y by the azimuth of
+        −direction (:mod:`prtcore.emitters.environment_light`); empty for other types
     """
 
     type: str
@@ -104,6 +107,7 @@ class Light:
     outer_cone_angle: float = np.pi / 4
     range: float | None = None
     name: str = ""
+    environment: str = ""
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,10 @@ class LightFamily:
     range: float | None = None
     #: Seed this family from the asset's KHR_lights_punctual lights ("jitter around these").
     from_asset: bool = False
+    #: type "environment" only: "sky" (an analytic sky whose sun direction is drawn like a
+    #: directional light's) or an equirect map file turned about +y by the drawn direction's
+    #: azimuth (docs/lights.md, prtcore/emitters/environment_light.py)
+    environment: str | None = None
 
 
 @dataclass(frozen=True)
@@ -383,7 +387,8 @@ _FAMILY_KEYS = tuple(f.name for f in dataclasses.fields(LightFamily))
 def _family(v: Any, key: str) -> LightFamily:
     d = _obj(v, key, _FAMILY_KEYS)
     base = LightFamily()
-    t = _choice(d.get("type", base.type), f"{key}.type", ("point", "spot", "directional"))
+    t = _choice(d.get("type", base.type), f"{key}.type",
+                ("point", "spot", "directional", "environment"))
     kw: dict[str, Any] = {"type": t}
     kw["weight"] = _num(d.get("weight", base.weight), f"{key}.weight", lo=0.0, lo_open=True)
     kw["position"] = _position(d.get("position", base.position), f"{key}.position")
@@ -408,9 +413,16 @@ def _family(v: Any, key: str) -> LightFamily:
             if d.get(k) is not None:
                 raise SpecError(f"{key}.{k}", f"only spot lights have cone angles, not {t}")
         kw["outer_cone_angle"] = None
+    if t == "environment":
+        env = d.get("environment", "sky")
+        if not isinstance(env, str) or not env:
+            raise SpecError(f"{key}.environment", f'expected "sky" or a map file, got {env!r}')
+        kw["environment"] = env
+    elif d.get("environment") is not None:
+        raise SpecError(f"{key}.environment", f"only environment lights have one, not {t}")
     if d.get("range") is not None:
-        if t == "directional":
-            raise SpecError(f"{key}.range", "directional lights have no range")
+        if t in ("directional", "environment"):
+            raise SpecError(f"{key}.range", f"{t} lights have no range")
         kw["range"] = _num(d["range"], f"{key}.range", lo=0.0, lo_open=True)
     if "from_asset" in d:
         if not isinstance(d["from_asset"], bool):

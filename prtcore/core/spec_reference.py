@@ -128,7 +128,8 @@ DOCS: dict[str, str] = {
                          "single-scattering albedo is Chiang et al. 2016's inversion",
     "subsurface.mean_free_path": "1/σ_t, world units, a number or [r, g, b], > 0",
     "subsurface.anisotropy": "Henyey–Greenstein g, −0.99–0.99",
-    "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual)",
+    "family.type": "`point` · `spot` · `directional` (KHR_lights_punctual) · "
+                   "`environment` (distant radiance, prtcore/emitters/environment_light.py)",
     "family.weight": "relative probability of this family",
     "family.position": "`{\"shell\": [a, b]}` (radii in units of the asset's bounding "
                        "radius) · `{\"box\": [[x,y,z], [x,y,z]]}` (world) · "
@@ -144,6 +145,10 @@ DOCS: dict[str, str] = {
     "family.range": "KHR range in metres, or null (infinite)",
     "family.from_asset": "jitter around the asset's own KHR_lights_punctual lights of "
                          "this type",
+    "family.environment": "type environment only (default \"sky\"): \"sky\" — an analytic "
+                          "sky whose sun direction is drawn like a directional light's — or "
+                          "an equirect map file turned about +y by the drawn direction's "
+                          "azimuth; direct light = hemisphere integral (docs/lights.md)",
 }
 
 

@@ -6,4 +6,4 @@ light evaluation, :mod:`~prtcore.emitters.lightfile` the light-file contract and
 :mod:`~prtcore.emitters.families` the random families of the bake spec.
 """
 
-from prtcore.emitters import directional, point, spot  # noqa: F401  (registration)
+from prtcore.emitters import directional, environment_light, point, spot  # noqa: F401  (registration)

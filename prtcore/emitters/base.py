@@ -43,6 +43,22 @@ class Emitter:
         (inf for lights at infinity)."""
         raise NotImplementedError
 
+    def irradiance(self, light: Light, points: np.ndarray, normals: np.ndarray,
+                   tracer: RayTracer | None) -> np.ndarray:
+        """Direct irradiance (n, 3) at points (n, 3) with unit shading normals (n, 3),
+        shadowed when ``tracer`` is given. Lights with one direction per point (the
+        punctual kinds): :meth:`unshadowed` times one :meth:`visible` ray from the points
+        the light reaches; an emitter that integrates over directions (an environment)
+        overrides this."""
+        e, w, _ = self.unshadowed(light, points, normals)
+        if tracer is None:
+            return e
+        lit = np.flatnonzero(e[:, 0] + e[:, 1] + e[:, 2] > 0)  # e ≥ 0: any channel lit
+        if len(lit):
+            vis = self.visible(light, tracer, points[lit], normals[lit], w[lit])
+            e[lit[~vis]] = 0.0
+        return e
+
     def visible(self, light: Light, tracer: RayTracer, points: np.ndarray,
                 normals: np.ndarray, to_light: np.ndarray) -> np.ndarray:
         """(n,) bool: an occlusion ray from each point reaches the light."""

@@ -86,6 +86,8 @@ def sample_light(family: LightFamily, center: np.ndarray, radius: float,
     color = _color(family.color, rng)
     kw: dict[str, Any] = {"type": family.type, "color": color, "intensity": intensity,
                           "position": pos, "direction": direction, "range": family.range}
+    if family.environment is not None:
+        kw["environment"] = family.environment
     if emitter_for(family.type).coned:
         outer = _scalar(family.outer_cone_angle, rng)
         inner = _scalar(family.inner_cone_angle, rng) if family.inner_cone_angle else 0.0

@@ -31,7 +31,8 @@ def light_from_dict(d: Any, where: str = "light", file: str = "<light>") -> Ligh
     """Validate one light object of the light-file contract and build a :class:`Light`."""
     if not isinstance(d, dict):
         raise LightFileError(f"{file}: {where}: expected an object")
-    allowed = {"type", "color", "intensity", "position", "direction", "spot", "range", "name"}
+    allowed = {"type", "color", "intensity", "position", "direction", "spot", "range", "name",
+               "environment"}
     unknown = sorted(set(d) - allowed)
     if unknown:
         raise LightFileError(f"{file}: {where}.{unknown[0]}: unknown key")
@@ -50,6 +51,12 @@ def light_from_dict(d: Any, where: str = "light", file: str = "<light>") -> Ligh
                              f"got {inten!r}")
     kw: dict[str, Any] = {"type": t, "color": color, "intensity": float(inten),
                           "name": str(d.get("name", ""))}
+    if "environment" in d:
+        if t != "environment" or not isinstance(d["environment"], str) or \
+                not d["environment"]:
+            raise LightFileError(f"{file}: {where}.environment: only an environment light "
+                                 f"has one: \"sky\" or a map file")
+        kw["environment"] = d["environment"]
     if em.positioned:
         if "position" not in d:
             raise LightFileError(f"{file}: {where}.position: required for a {t} light")
@@ -100,6 +107,8 @@ def light_to_dict(light: Light) -> dict:
         d["range"] = float(light.range)
     if light.name:
         d["name"] = light.name
+    if light.environment:
+        d["environment"] = light.environment
     return d
 
 

@@ -41,14 +41,8 @@ def irradiance(light: Light, points: np.ndarray, normals: np.ndarray,
                tracer: RayTracer | None) -> np.ndarray:
     """Direct irradiance with shadows (occlusion rays) when ``tracer`` is given.
 
-    points, normals : (n, 3) float64. Returns (n, 3) float64. Only points that receive
-    light at all are traced.
+    points, normals : (n, 3) float64. Returns (n, 3) float64. Dispatched to the light's
+    emitter (:meth:`prtcore.emitters.base.Emitter.irradiance`): for punctual lights only
+    points that receive light at all are traced.
     """
-    e, w, _ = unshadowed_irradiance(light, points, normals)
-    if tracer is None:
-        return e
-    lit = np.flatnonzero(e[:, 0] + e[:, 1] + e[:, 2] > 0)  # e ≥ 0: any channel lit
-    if len(lit):
-        vis = emitter_for(light).visible(light, tracer, points[lit], normals[lit], w[lit])
-        e[lit[~vis]] = 0.0
-    return e
+    return emitter_for(light).irradiance(light, points, normals, tracer)

@@ -97,6 +97,9 @@ class ShadowMaps:
         self._views = []
         for i, lt in enumerate(lights):
             t = emitter_for(lt).gl_code
+            if t < 0:
+                raise PrtError(f"render: {lt.type} lights are not drawn by the GL renderer "
+                               "(relight them on the CPU: prtcore relight)")
             views, texel = self.light_views(lt)
             self._views.append(views)
             d = np.asarray(lt.direction, np.float64)

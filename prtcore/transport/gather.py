@@ -159,7 +159,7 @@ def _uv_frames(tri_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return tri_uv[:, 0], inv
 
 
-def _jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
+def jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
                       rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Origins jittered over each texel's region: its square ∩ its own triangle
     (:func:`~prtcore.receivers.texels.texel_regions`), the region the reference integrates.
@@ -294,7 +294,7 @@ def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: i
     → bit-identical operator).
 
     Per texel: S = max(1, M // RAYS_PER_ORIGIN) origins on a shifted Fibonacci lattice
-    over the texel square, kept on the texel's triangle (:func:`_jittered_origins`),
+    over the texel square, kept on the texel's triangle (:func:`jittered_origins`),
     offset along the geometric normal turned to the shading side
     (:func:`prtcore.core.tolerances.offset_origins`); ray i leaves origin i mod S along point i
     of a shifted Fibonacci lattice mapped to the cosine hemisphere about the shading
@@ -335,7 +335,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     t = texels.count
     s = max(1, m // RAYS_PER_ORIGIN)
     rng = np.random.default_rng(seed)
-    origins, jittered = _jittered_origins(scene, texels, s, rng)
+    origins, jittered = jittered_origins(scene, texels, s, rng)
     dir_shift = rng.random((t, 2), dtype=np.float32)
     shade = np.asarray(texels.normal, dtype=np.float64)
     geo = np.asarray(texels.geometric_normal, dtype=np.float64)

@@ -28,7 +28,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from prtcore.core import sh
-from prtcore.core.geometry import directions_around, shading_normals
+from prtcore.core.geometry import (
+    directions_around,
+    shading_normals,
+    stratified_cosine_directions,
+)
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene
@@ -110,22 +114,6 @@ def unshadowed_transfer(samples: SurfaceSamples, bands: int) -> ShTransfer:
     return ShTransfer(rho[:, :, None] / math.pi * k[:, None, :], "unshadowed", bands, 0)
 
 
-def _stratified_cosine(normals: np.ndarray, strata: int, rng: np.random.Generator
-                       ) -> np.ndarray:
-    """(m, strata², 3) cosine-distributed directions about ``normals`` (m, 3): one jittered
-    sample per cell of a strata × strata grid on the unit square (Malley's method)."""
-    m = len(normals)
-    s = strata * strata
-    cell = np.arange(s)
-    u = (np.stack([cell // strata, cell % strata], axis=1)[None, :, :]
-         + rng.random((m, s, 2))) / strata
-    axes = np.repeat(normals, s, axis=0)
-    u = u.reshape(-1, 2)
-    d = directions_around(axes, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)),
-                          2.0 * math.pi * u[:, 1])
-    return d.reshape(m, s, 3)
-
-
 def shadowed_transfer(scene: Scene, tracer: RayTracer, samples: SurfaceSamples, bands: int,
                       strata: int, seed: int, *, bounce_lookup=None) -> ShTransfer:
     """Shadowed transfer T⁰ from ``strata²`` stratified cosine rays per point; with
@@ -144,7 +132,7 @@ def shadowed_transfer(scene: Scene, tracer: RayTracer, samples: SurfaceSamples, 
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(start,)))
         nrm, gn = samples.normal[rows], samples.geometric_normal[rows]
         m = len(nrm)
-        d = _stratified_cosine(nrm, strata, rng)
+        d = stratified_cosine_directions(nrm, strata, rng)
         above = np.einsum("msj,mj->ms", d, gn) > 0
         origin = samples.position[rows] + gn * tracer.offset
         owner = np.repeat(np.arange(m), s)

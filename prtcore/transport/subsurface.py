@@ -3,9 +3,11 @@ docs/subsurface.md, paper 6.2).
 
 Light that enters a translucent mesh at one texel, scatters through the medium inside and
 leaves at another. By reciprocity it is traced backwards: from every translucent texel x,
-M = ``transport.subsurface_walks`` walks leave into the medium (cosine about the inward
-shading normal), fly exponential distances with the extinction σ_t, scatter by the
-Henyey–Greenstein phase function and end where they reach the boundary again, at the
+M = ``transport.subsurface_walks`` walks leave into the medium from origins uniform over
+the texel's region (:func:`prtcore.transport.gather.jittered_origins`, the region the
+reference integrates; directions cosine about the inward shading normal), fly
+exponential distances with the extinction σ_t, scatter by the Henyey–Greenstein phase
+function and end where they reach the boundary again, at the
 texel y the light entered through. With the symmetric Lambertian boundary
 (:func:`prtcore.core.materials.albedo_at`) a texel sends ρ_b/π · E into the medium, so
 
@@ -43,7 +45,7 @@ from prtcore.core.spec import TransportSpec
 from prtcore.core.tolerances import offset_origins
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, register
-from prtcore.transport.gather import HitMapper
+from prtcore.transport.gather import HitMapper, jittered_origins
 
 #: Memory of the walks (bytes; part of the bake's model): per walk in flight (the
 #: wavefront's state: starts, positions, directions, counts, hits) and per recorded
@@ -62,7 +64,8 @@ class SubsurfaceTerm:
     matrix : (T, T) float32 CSR, empty (the walks' light differs per channel)
     channel_matrices : three (T, T) float32 CSR, W_c for R, G, B (rows receive, columns
         sorted), row sums ≤ 1
-    stats : walks traced, exits, absorbed/capped/lost counts, mean scattering events, nnz
+    stats : walks traced, exits, walks ended by roulette, the cap, a front or foreign face
+        or an outward first direction, total scattering events, nnz per channel
     """
 
     matrix: sp.csr_matrix
@@ -158,6 +161,7 @@ def subsurface_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, wal
     stats = {"walks": 0, "exits": 0, "front_or_other": 0, "roulette": 0, "capped": 0,
              "outward_start": 0, "scatter_events": 0, "translucent_texels": 0}
     tri_of = np.asarray(texels.triangle)
+    origins = None
     for mi, mat in enumerate(scene.materials):
         medium = mat.subsurface
         if medium is None:
@@ -174,7 +178,9 @@ def subsurface_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, wal
             owner = np.repeat(own, walks)
             geo = np.asarray(texels.geometric_normal, np.float64)[owner]
             shade = np.asarray(texels.normal, np.float64)[owner]
-            start = offset_origins(np.asarray(texels.position, np.float64)[owner], -geo,
+            if origins is None:  # uniform over each texel's region, as the reference
+                origins = jittered_origins(scene, texels, walks, rng)[0]
+            start = offset_origins(origins[own].reshape(-1, 3), -geo,
                                    tracer.scale).astype(np.float64)
             u = rng.random((len(owner), 2))
             d = directions_around(-shade, np.sqrt(np.clip(1.0 - u[:, 0], 0.0, None)),

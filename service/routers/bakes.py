@@ -36,7 +36,8 @@ _MULTIPART_BODY = {
             "required": ["asset"],
             "properties": {
                 "asset": {"type": "string", "format": "binary",
-                          "description": ".glb or self-contained .gltf"},
+                          "description": ".glb or self-contained .gltf; hair: .hair "
+                                         "or self-contained .usd/.usda/.usdc"},
                 "spec": {"type": "string", "description": "bake spec JSON (docs/spec.md); "
                          "every key optional, unknown keys rejected"},
             },
@@ -60,7 +61,9 @@ def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
         IntakeLimits,
         SpecError,
         canonical_spec_json,
+        is_hair_file,
         load_asset,
+        load_hair,
         parse_spec,
         spec_hash,
     )
@@ -80,7 +83,10 @@ def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
         raise ApiError(422, "invalid_spec", str(e)) from None
     assert up.asset_path is not None
     try:
-        load_asset(up.asset_path, limits)
+        if is_hair_file(up.asset_path):  # hair: the strand bake (docs/hair.md)
+            load_hair(up.asset_path, limits)
+        else:
+            load_asset(up.asset_path, limits)
     except AssetError as e:
         parts = ["asset"] + ([e.where] if e.where else [])
         if os.path.realpath(e.file) != os.path.realpath(up.asset_path):

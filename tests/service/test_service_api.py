@@ -325,3 +325,31 @@ def test_readyz_reports_an_unreachable_database(app_client):
     c.app.state.store.engine = sa.create_engine("postgresql+psycopg://nobody@127.0.0.1:1/x")
     r = c.get("/readyz")
     assert r.status_code == 503 and r.json()["checks"]["database"].startswith("error")
+
+
+def test_hair_uploads_are_validated_by_the_hair_readers(app_client, tmp_path):
+    """.hair and USD hair are bake assets (docs/hair.md): a good one is queued, a broken
+    one is 422 with the reader's one-line message, naming the field."""
+    import numpy as np
+
+    from prtcore.core.hair import make_hair
+    from prtcore.io.hair import write_hair
+
+    c = app_client()
+    good = write_hair(tmp_path / "ball.hair", make_hair(
+        [np.array([[0, 0, 0], [0, 0.1, 0]]), np.array([[0.01, 0, 0], [0.01, 0.1, 0]])],
+        2e-4))
+    r = post(c, good)
+    assert r.status_code == 202, r.text
+    assert (c.settings.artifacts / r.json()["id"] / "input" / "asset.hair").is_file()
+    raw = bytearray(good.read_bytes())
+    raw[132:136] = np.array([np.nan], "<f4").tobytes()  # points[0].x
+    bad = tmp_path / "nan.hair"
+    bad.write_bytes(bytes(raw))
+    r = post(c, bad)
+    assert r.status_code == 422 and r.json()["error"]["message"].startswith(
+        "asset: points[0]: is not finite"), r.text
+    outer = tmp_path / "outer.usda"
+    outer.write_text('#usda 1.0\ndef "x" (references = @./inner.usda@) {}\n')
+    r = post(c, outer)
+    assert r.status_code == 422 and "composes other files" in r.json()["error"]["message"]

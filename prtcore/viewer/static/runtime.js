@@ -12,6 +12,7 @@
 import * as THREE from 'three';
 import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { hairSphere, parseHair, strandGeometry } from './strands.js';
 
 // prtcore/runtime/shadows.py: normal offset and depth bias, in shadow texels at the point.
 export const SHADOW_NORMAL_OFFSET = 1.5;
@@ -52,7 +53,9 @@ async function loadRaw(base, desc) {
   return out;
 }
 
-// Everything the viewer needs from a bundle directory served at `base` (ends with '/').
+// Everything the viewer needs from a bundle directory served at `base` (ends with '/'):
+// a surface bundle's meshes (asset.glb), or a hair bundle's strands (asset.hair, `hair`, and
+// their line geometry, `strandGeometry`; `meshes` empty).
 export async function loadBundle(base) {
   const manifest = await (await fetchOk(base + 'manifest.json')).json();
   if (manifest.schema !== 'prtcore.bundle') {
@@ -61,9 +64,13 @@ export async function loadBundle(base) {
   if ((manifest.method ?? 'data_driven') !== 'data_driven') {
     throw new BundleError(`method ${manifest.method}: this viewer shows data-driven bundles`);
   }
-  if (manifest.strands) {  // docs/hair.md: strand textures over asset.hair
-    throw new BundleError('hair bundles (strand textures) are not shown by this viewer yet; ' +
-                          'use `prtcore relight`');
+  const strands = manifest.strands ?? null;  // docs/hair.md: strand textures over asset.hair
+  if (strands && strands.kind !== 'strands') {
+    throw new BundleError(`strands.kind ${strands.kind}: expected strands`);
+  }
+  if (manifest.transfer && manifest.transfer.learnt) {  // docs/bundle.md, fit.transfer "mlp"
+    throw new BundleError('bundles with a learnt transfer (fit.transfer "mlp") are not shown ' +
+                          'by this viewer yet; use `prtcore relight` or `prtcore render`');
   }
   // docs/bundle.md: EXR row 0 is the top row (TEXCOORD_1 v = 0). EXRLoader stores the file's
   // rows bottom-up, so a top-down file is sampled at (u, 1 - v).
@@ -72,8 +79,10 @@ export async function loadBundle(base) {
     throw new BundleError(`atlas.exr_row_order ${rowOrder}: expected top_down or bottom_up`);
   }
   const exr = new EXRLoader().setDataType(THREE.HalfFloatType);
-  const [gltf, layers, coverage, M, b, clusters, owner, points, holdout] = await Promise.all([
-    new GLTFLoader().loadAsync(base + manifest.asset.file),
+  const [asset, layers, coverage, M, b, clusters, owner, points, holdout] = await Promise.all([
+    strands ? fetchOk(base + manifest.asset.file).then((r) => r.arrayBuffer())
+      .then((buf) => parseHair(buf, manifest.asset.file))
+      : new GLTFLoader().loadAsync(base + manifest.asset.file),
     Promise.all(manifest.basis.files.map((f) => exr.loadAsync(base + f))),
     exr.loadAsync(base + manifest.atlas.coverage),
     loadRaw(base, manifest.transfer.matrix),
@@ -111,8 +120,10 @@ export async function loadBundle(base) {
   const [nB, P] = manifest.transfer.matrix.shape.slice(-2);
   const perKeyframe = manifest.transfer.matrix.shape.length === 4;
   const meshes = [];
-  gltf.scene.updateMatrixWorld(true);
-  gltf.scene.traverse((o) => { if (o.isMesh) meshes.push(o); });
+  if (!strands) {
+    asset.scene.updateMatrixWorld(true);
+    asset.scene.traverse((o) => { if (o.isMesh) meshes.push(o); });
+  }
   for (const m of meshes) {
     if (!m.geometry.attributes.uv1) {
       throw new BundleError(`${manifest.asset.file}: mesh ${m.name} has no TEXCOORD_1`);
@@ -125,9 +136,10 @@ export async function loadBundle(base) {
                             `vertices per keyframe, ${manifest.asset.file} has ${rows}`);
     }
   }
-  const { center, radius } = boundingSphere(meshes);
+  const hair = strands ? asset : null;
+  const { center, radius } = hair ? hairSphere(hair) : boundingSphere(meshes);
   return {
-    manifest, meshes, basis, coverage, W, H, flipV: rowOrder === 'top_down',
+    manifest, meshes, hair, strands, strandGeometry: hair ? strandGeometry(hair) : null, basis, coverage, W, H, flipV: rowOrder === 'top_down',
     layers: layers.length, planes: manifest.basis.planes,
     planeElement: manifest.basis.plane_element, planeChannel: manifest.basis.plane_channel,
     nBasis: manifest.basis.count, M, b, nB, P, perKeyframe, keyframes, gamma: manifest.fit.gamma,
@@ -357,6 +369,11 @@ void main() { f_dist = vec4(u_lightType == 2 ? dot(v_pos, u_lightDir) : length(v
       s.frustumCulled = false;
       this.shadowScene.add(s);
     }
+    if (bundle.strandGeometry) {  // hair: the fibres' axes as lines (a 1-texel-wide occluder)
+      const lines = new THREE.LineSegments(bundle.strandGeometry, this.shadowMaterial);
+      lines.frustumCulled = false;
+      this.shadowScene.add(lines);
+    }
     // clusters: one pixel each, row by row from the bottom of the target
     const n = bundle.clusterCount, rows = Math.ceil(n / CLUSTER_ROW);
     const g = new THREE.BufferGeometry();
@@ -370,7 +387,12 @@ void main() { f_dist = vec4(u_lightType == 2 ? dot(v_pos, u_lightDir) : length(v
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter });
     const clusterPoints = new THREE.Points(g, new THREE.RawShaderMaterial({
       glslVersion: THREE.GLSL3, depthTest: false, depthWrite: false, uniforms: {
-        ...this.uniforms, u_size: { value: new THREE.Vector2(CLUSTER_ROW, rows) } },
+        ...this.uniforms, u_size: { value: new THREE.Vector2(CLUSTER_ROW, rows) },
+        // Hair bundles' points lie on the convex hull of the fibre tubes with the hull's
+        // normals (docs/hair.md): a light they face is outside the hull, so nothing of the
+        // hair can shadow them (the CPU runtime's ray-traced x agrees; tests/test_viewer.py).
+        // The line shadow maps, made for the fibres, would shadow them wrongly.
+        u_useShadows: { value: bundle.strands ? 0 : 1 } },
       vertexShader: `${HEADER}uniform vec2 u_size;
 in vec3 position; in vec3 c_normal; in vec3 c_albedo;
 out vec3 v_pos; out vec3 v_nrm; out vec3 v_albedo;

@@ -135,3 +135,83 @@ void main() { v_color = color; gl_Position = projectionMatrix * modelViewMatrix 
 export const POINTS_FS = `${HEADER}${BLEND_GLSL}
 in vec3 v_color; out vec4 f_color;
 void main() { vec2 d = gl_PointCoord - 0.5; if (dot(d, d) > 0.25) discard; f_color = display(v_color); }`;
+
+// Hair bundles: the strand texture's sampling rule (the manifest's strands.sample,
+// prtcore/receivers/strands.py StrandSpace.layout): strand s at arc fraction a is read at
+// px = (s % r)·n + clamp(a·n, 0.5, n − 0.5), py = s / r + 0.5 (from the top row), bilinear;
+// the row's centre line and the clamp keep it within the strand's own texels.
+export const STRAND_GLSL = `
+uniform int u_texelsPerStrand;  // n
+uniform int u_strandsPerRow;    // r
+uniform vec2 u_atlasSize;
+// the strand-texture coordinate as a TEXCOORD_1-like uv (v = 0 at the top row)
+vec2 strand_uv(int s, float a) {
+  float n = float(u_texelsPerStrand);
+  int row = s / u_strandsPerRow;
+  float px = float(s - row * u_strandsPerRow) * n + clamp(a * n, 0.5, n - 0.5);
+  return vec2(px, float(row) + 0.5) / u_atlasSize;
+}
+`;
+
+// Strands drawn as lines (THREE.LineSegments of strands.js strandGeometry).
+export const STRAND_VS = `${HEADER}
+uniform mat4 modelMatrix; uniform mat4 viewMatrix; uniform mat4 projectionMatrix;
+in vec3 position; in vec3 s_tangent; in vec3 s_albedo; in float s_strand; in float s_arc;
+out vec3 v_pos; out vec3 v_tan; out vec3 v_albedo; flat out int v_strand; out float v_arc;
+void main() {
+  vec4 wp = modelMatrix * vec4(position, 1.0);
+  v_pos = wp.xyz; v_tan = mat3(modelMatrix) * s_tangent; v_albedo = s_albedo;
+  v_strand = int(s_strand + 0.5); v_arc = s_arc;
+  gl_Position = projectionMatrix * viewMatrix * wp;
+}`;
+
+// The fibre seen at a line's pixel is the diffuse cylinder's side facing the eye: direct light
+// albedo/π · E with the radial normal towards the eye (prtcore/runtime/strands.py takes the
+// normal of the tube's hit point; a one-pixel line sees the fibre's middle), shadowed by the
+// line shadow maps; indirect from the blended strand texture by the sampling rule.
+export const STRAND_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}${STRAND_GLSL}
+uniform vec3 u_eye;
+uniform int u_mode;          // MODES of viewer.js (no UV layout or heat map for hair)
+uniform float u_elementScale;
+in vec3 v_pos; in vec3 v_tan; in vec3 v_albedo; flat in int v_strand; in float v_arc;
+out vec4 f_color;
+void main() {
+  vec2 uv = strand_uv(v_strand, v_arc);
+  if (u_mode == 6) {  // texel density: alternate strand texels
+    ivec2 t = ivec2(floor(uv * u_atlasSize));
+    f_color = vec4(vec3(((t.x + t.y) & 1) == 0 ? 0.85 : 0.35), 1.0);
+    return;
+  }
+  if (u_mode == 3) { f_color = u_output == 0 ? vec4(v_albedo, 1.0) : vec4(srgb(v_albedo), 1.0); return; }
+  if (u_mode == 4) {
+    vec3 v = indirect_at(uv) * u_elementScale;
+    float neg = max(-(v.r + v.g + v.b) / 3.0, 0.0);
+    f_color = u_output == 0 ? vec4(indirect_at(uv), 1.0)
+                            : vec4(srgb(max(v, 0.0) + vec3(0.0, 0.0, neg)), 1.0);
+    return;
+  }
+  vec3 t = normalize(v_tan), e = u_eye - v_pos;
+  vec3 n = e - dot(e, t) * t;
+  n = dot(n, n) > 0.0 ? normalize(n) : vec3(0.0);
+  vec3 col = vec3(0.0);
+  if (u_mode != 2) col += v_albedo / PI * irradiance(v_pos, n, n);
+  if (u_mode != 1) col += indirect_at(uv);
+  f_color = display(col);
+}`;
+
+// Test hook: every strand vertex's indirect (by its strand-texture coordinate) into one
+// pixel of a float target, row by row from the bottom (as the cluster pass).
+export const STRAND_PROBE_VS = `${HEADER}
+uniform vec2 u_size;
+in vec3 position; in float s_strand; in float s_arc;
+flat out int v_strand; out float v_arc;
+void main() {
+  v_strand = int(s_strand + 0.5); v_arc = s_arc;
+  int row = gl_VertexID / int(u_size.x);
+  vec2 px = vec2(float(gl_VertexID - row * int(u_size.x)), float(row)) + 0.5;
+  gl_Position = vec4(px / u_size * 2.0 - 1.0, 0.0, 1.0);
+  gl_PointSize = 1.0;
+}`;
+export const STRAND_PROBE_FS = `${HEADER}${BLEND_GLSL}${STRAND_GLSL}
+flat in int v_strand; in float v_arc; out vec4 f_color;
+void main() { f_color = vec4(indirect_at(strand_uv(v_strand, v_arc)), 1.0); }`;

@@ -11,7 +11,8 @@ import {
   LightPass, coefficients, familyResidual, loadBundle, normaliseLight, poseKeyframe,
 } from './runtime.js';
 import {
-  ATLAS_FS, ATLAS_VS, POINTS_FS, POINTS_VS, SURFACE_FS, SURFACE_VS,
+  ATLAS_FS, ATLAS_VS, POINTS_FS, POINTS_VS, STRAND_FS, STRAND_PROBE_FS, STRAND_PROBE_VS,
+  STRAND_VS, SURFACE_FS, SURFACE_VS,
 } from './shaders.js';
 
 const MODES = { full: 0, direct: 1, indirect: 2, albedo: 3, element: 4, points: 0, checker: 6,
@@ -51,7 +52,8 @@ async function main() {
   const bundle = await loadBundle(document.body.dataset.bundle);
   const m = bundle.manifest;
   const reference = await loadReference(document.body.dataset.reference, bundle);
-  if (!reference) $('mode').querySelector('option[value=error]').remove();
+  if (!reference || bundle.hair) $('mode').querySelector('option[value=error]').remove();
+  if (bundle.hair) $('mode').querySelector('option[value=uv]').remove();  // no TEXCOORD_1
   poseKeyframe(bundle, 0);  // keyframe bundles: the first keyframe (as relight without --time)
   const pass = new LightPass(renderer, bundle);
   const weights = new THREE.DataTexture(new Float32Array(4 * bundle.planes), bundle.planes, 1,
@@ -66,6 +68,8 @@ async function main() {
     u_reference: { value: reference ? reference.texture : null },
     u_referenceScale: { value: reference ? 1 / (reference.mean * ERROR_FULL_SCALE) : 1 },
     u_atlasSize: { value: new THREE.Vector2(bundle.W, bundle.H) },
+    u_texelsPerStrand: { value: bundle.strands ? bundle.strands.texels_per_strand : 1 },
+    u_strandsPerRow: { value: bundle.strands ? bundle.strands.strands_per_row : 1 },
   };
   const defines = { N_LAYERS: bundle.layers };
   const scene = new THREE.Scene();
@@ -89,6 +93,41 @@ async function main() {
     mesh.matrix.copy(src.matrixWorld);
     scene.add(mesh);
     meshes.push(mesh);
+  }
+  let strandProbe = null;
+  if (bundle.hair) {  // hair: the strands as lines sampling the strand texture
+    const lines = new THREE.LineSegments(bundle.strandGeometry, new THREE.RawShaderMaterial({
+      glslVersion: THREE.GLSL3, defines, uniforms: { ...pass.uniforms, ...view },
+      vertexShader: STRAND_VS, fragmentShader: STRAND_FS }));
+    lines.frustumCulled = false;
+    scene.add(lines);
+    strandProbe = makeStrandProbe();
+  }
+  // The test hook's read-back of the lines' sampling: each line vertex's indirect at its
+  // strand-texture coordinate, one pixel per vertex.
+  function makeStrandProbe() {
+    const n = bundle.strandGeometry.attributes.position.count, cols = 256;
+    const rows = Math.ceil(n / cols);
+    const target = new THREE.WebGLRenderTarget(cols, rows, {
+      type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: false,
+      minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter });
+    const points = new THREE.Points(bundle.strandGeometry, new THREE.RawShaderMaterial({
+      glslVersion: THREE.GLSL3, defines, depthTest: false, depthWrite: false,
+      uniforms: { ...view, u_output: { value: 0 }, u_size: { value: new THREE.Vector2(cols, rows) } },
+      vertexShader: STRAND_PROBE_VS, fragmentShader: STRAND_PROBE_FS }));
+    points.frustumCulled = false;
+    const probeScene = new THREE.Scene().add(points), raw = new Float32Array(4 * cols * rows);
+    return () => {
+      renderer.setRenderTarget(target);
+      renderer.setClearColor(0x000000, 0);
+      renderer.clear(true, false, false);
+      renderer.render(probeScene, new THREE.Camera());
+      renderer.readRenderTargetPixels(target, 0, 0, cols, rows, raw);
+      renderer.setRenderTarget(null);
+      const out = new Float32Array(3 * n);
+      for (let i = 0; i < n; i++) for (let c = 0; c < 3; c++) out[3 * i + c] = raw[4 * i + c];
+      return out;
+    };
   }
   // measurement points as dots, coloured by their direct light, lifted off the surface
   const P = bundle.P;
@@ -380,7 +419,8 @@ async function main() {
     type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: true });
   Object.assign(prt, {
     bundle: { P: bundle.P, nB: bundle.nB, nBasis: bundle.nBasis, W: bundle.W, H: bundle.H,
-              flipV: bundle.flipV, keyframes: bundle.keyframes ? bundle.keyframes.count : 0 },
+              flipV: bundle.flipV, keyframes: bundle.keyframes ? bundle.keyframes.count : 0,
+              strands: bundle.hair ? bundle.hair.strands : 0 },
     setLight(dict) { applyLight(dict); renderNow(); return { x: prt.x, u: prt.u, s: prt.s }; },
     setView({ position, target, up = [0, 1, 0], fov_y_deg = 40 }) {
       camera.position.set(...position);
@@ -420,6 +460,14 @@ async function main() {
     },
     // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
     atlas() { return Array.from(readAtlas()); },
+    // hair bundles: the indirect (v, 3) that the lines read at their vertices (two per
+    // segment, strands in file order), and those vertices' (strand, arc fraction) (v, 2)
+    strands() {
+      if (!strandProbe) return null;
+      const a = bundle.strandGeometry.attributes, n = a.s_strand.count, coord = new Float64Array(2 * n);
+      for (let i = 0; i < n; i++) { coord[2 * i] = a.s_strand.array[i]; coord[2 * i + 1] = a.s_arc.array[i]; }
+      return { indirect: Array.from(strandProbe()), coord: Array.from(coord) };
+    },
   });
 
   // The canvas in `mode` as linear float RGBA (H, W, 4), row 0 at the top, A = 0 off the
@@ -458,7 +506,10 @@ async function main() {
   frame();
   autoExposure();
   renderNow();
-  $('message').textContent = `${m.asset.source}: ${m.atlas.width}×${m.atlas.height} atlas, ` +
+  const texture = bundle.hair
+    ? `${bundle.hair.strands} strands, ${m.atlas.width}×${m.atlas.height} strand texture`
+    : `${m.atlas.width}×${m.atlas.height} atlas`;
+  $('message').textContent = `${m.asset.source}: ${texture}, ` +
     `${bundle.nBasis} basis elements. Drag the light; T/R: move/aim.`;
   window.addEventListener('keydown', (e) => {
     if (e.key === 't') { $('gizmo').value = 'translate'; sync(); }
