@@ -122,10 +122,10 @@ def choose(trials: list[Trial], target_ratio: float) -> Trial | None:
 
 def fallback(trials: list[Trial]) -> Trial:
     """The trial that ships when none meets the target: the smallest P within
-    :data:`CLOSE_TO_BEST` of the lowest error (the largest P without held-out light)."""
+    :data:`CLOSE_TO_BEST` of the lowest error (the smallest P when none could be judged)."""
     judged = [t for t in trials if t.error is not None]
     if not judged:
-        return max(trials, key=lambda t: t.points)
+        return min(trials, key=lambda t: t.points)
     best = min(t.error for t in judged)
     return min((t for t in judged if t.error <= best * (1 + CLOSE_TO_BEST)),
                key=lambda t: t.points)
@@ -206,7 +206,15 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
                 scan.append(trial)
             if scan[-1].ratio is not None and scan[-1].ratio <= target:
                 break  # the smallest P that meets the target ships
+            if scan[-1].error is None:
+                break  # nothing to judge a larger P by
         trials.extend(scan)
+        if scan[-1].error is None:  # no held-out light gives indirect light at the texels
+            chosen = scan[0]
+            stop = (f"P = {chosen.points}, K = {K}: no held-out light gives indirect light "
+                    "(a convex object, or lights.holdout = 0), so there is nothing to size "
+                    "on; the smallest P ships")
+            break
         chosen = choose(scan, target)
         if chosen is not None:
             stop = (f"P = {chosen.points}, K = {K}: held-out error {_pct(chosen.error)} is "

@@ -41,7 +41,7 @@ def test_choose_ships_the_smallest_p_that_meets_the_target():
     # nothing meets the target: the smallest P close (5 %) to the lowest error
     assert fallback([trial(128, 0.5), trial(256, 0.31), trial(512, 0.30)]).points == 256
     assert fallback([trial(128, 0.5), trial(256, 0.4), trial(512, 0.30)]).points == 512
-    assert fallback([trial(128, None), trial(256, None)]).points == 256
+    assert fallback([trial(128, None), trial(256, None)]).points == 128
 
 
 def test_decide_sizing_resolves_auto_and_keeps_given_counts():
@@ -170,3 +170,22 @@ def test_candidates_grow_with_p_and_the_shipped_points_are_the_ones_lit():
     lit = direct_at_points(tr.scene, tr.tracer, sized.data.lights, sized.points,
                            StageTimer(quiet=True))
     np.testing.assert_array_equal(lit, sized.data.direct_points)
+
+
+def test_nothing_to_judge_stops_at_once(tmp_path):
+    """A convex box lit from outside has no indirect light: sizing must not grow P and K
+    to their limits for nothing (BoxTextured took 35x the fixed sizes' time)."""
+    from prtcore.scenes.parts import block, material_scene, write_glb
+
+    box = write_glb(material_scene({"box": block((0, 0, 0), (1, 1, 1))},
+                                   {"box": (0.8, 0.8, 0.8)}), tmp_path / "box.glb")
+    spec = parse_spec({"atlas": {"resolution": 32, "padding": 2},
+                       "measurement_points": {"supersample": 2},
+                       "lights": {"holdout": 4, "families": [
+                           {"type": "point", "position": {"shell": [1.5, 3.0]}}]},
+                       "transport": {"gather_rays": 8},
+                       "sizing": {"lights_start": 16, "max_lights": 64}})
+    out = pipeline.bake(box, spec, tmp_path / "b", quiet=True)
+    sizing = json.loads((out / "manifest.json").read_text())["sizing"]
+    assert [(t["points"], t["lights"]) for t in sizing["trials"]] == [(256, 16)]
+    assert "nothing to size on" in sizing["reason"]
