@@ -34,6 +34,18 @@ SUN = [{"type": "directional", "position": {"shell": [2.0, 2.0]},
         "aim": {"jitter": 0.2}, "intensity": {"uniform": [1.0, 3.0]}}]
 
 
+def pct(x: float | None, digits: int = 1) -> str:
+    """A fraction as a percentage for the printed tables; "—" for None."""
+    return "—" if x is None else f"{100 * x:.{digits}f}%"
+
+
+def write_rows(rows: list[dict], out: str) -> None:
+    """The benchmark's rows as JSON at ``out`` (its folder made)."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps(rows, indent=2) + "\n")
+    print(f"wrote {out}")
+
+
 def scenes(tmp: Path) -> dict[str, tuple[Path, list]]:
     return {
         "cornell": (write_cornell_box(tmp / "cornell.glb"),
@@ -90,9 +102,6 @@ def main() -> int:
                    "sizing": m.get("sizing", {}).get("reason"),
                    "stage_seconds": m.get("timings")}
             rows.append(row)
-
-            def pct(x):
-                return "—" if x is None else f"{100 * x:.1f}%"
             print(f"{name:<16s} {kind:<9s} {row['P']:>4d} {row['K']:>4d} {row['n']:>3d} "
                   f"{pct(row['error']):>7s} {pct(row['bound']):>7s} "
                   f"{row['ratio'] if row['ratio'] is None else round(row['ratio'], 2)!s:>6s} "
@@ -101,9 +110,7 @@ def main() -> int:
             a, f = rows[-2]["seconds"], rows[-1]["seconds"]
             print(f"  {name}: automatic sizing takes {a / f:.2f}× the fixed sizes' time",
                   flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_rows(rows, args.out)
     return 0
 
 

@@ -18,7 +18,6 @@ writes benchmarks/results/placement.json.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -28,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from default_bakes import scenes  # noqa: E402
+from default_bakes import pct, scenes, write_rows  # noqa: E402
 
 from prtcore.core.spec import parse_spec  # noqa: E402
 from prtcore.emitters.families import sample_configurations  # noqa: E402
@@ -90,19 +89,14 @@ def main() -> int:
                 row[how] = judge(spec, data, K, I, Ih, picked)
             rows.append(row)
 
-            def pct(x):
-                return "—" if x is None else f"{100 * x:.2f}%"
-
             def rat(x):
                 return "—" if x is None else f"{x:.2f}"
             q, b = row["qdeim"], row["surface"]
-            print(f"{name:<16s} {p:>5d} {K:>4d} {pct(q['error']):>8s} {pct(b['error']):>8s} "
-                  f"{pct(q['bound']):>7s} {rat(q['ratio']):>8s} {rat(b['ratio']):>8s}",
+            print(f"{name:<16s} {p:>5d} {K:>4d} {pct(q['error'], 2):>8s} {pct(b['error'], 2):>8s} "
+                  f"{pct(q['bound'], 2):>7s} {rat(q['ratio']):>8s} {rat(b['ratio']):>8s}",
                   flush=True)
         print(f"  ({name}: {time.perf_counter() - t0:.0f} s)", flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_rows(rows, args.out)
     return 0
 
 

@@ -13,13 +13,15 @@ path-traced reference). Writes benchmarks/results/validate_bundles.json.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from default_bakes import pct, write_rows  # noqa: E402
 
 from prtcore.core.progress import StageTimer  # noqa: E402
 from prtcore.io.bundle import read_manifest  # noqa: E402
@@ -53,15 +55,10 @@ def main() -> int:
                "ratio": ratio, "fast_transport_error": fast.get("heldout_rmse_mean"),
                "seconds": seconds}
         rows.append(out)
-
-        def pct(x):
-            return "—" if x is None else f"{100 * x:.1f}%"
         print(f"{Path(b).name:<24s} {out['P']:>5d} {out['K']:>4d} {n:>3d} "
               f"{pct(out['reference_noise']):>7s} {pct(err):>7s} {pct(bound):>7s} "
               f"{'—' if ratio is None else f'{ratio:.2f}':>6s} {seconds:>7.1f}", flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(rows, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_rows(rows, args.out)
     return 0
 
 

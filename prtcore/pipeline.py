@@ -271,16 +271,17 @@ def intake_points(points: PointsSpec, sizing: Sizing) -> PointsSpec:
 def _select_points(intake: IntakeResult, data, n_train: int, timer: StageTimer):
     """Placement "qdeim": choose the spec's P of the candidates by pivoted QR on their
     training direct light (intake/sensors.py), after transport, whose direct values at the
-    candidates are the chosen points' own (each point is its cluster's average)."""
-    from prtcore.intake.sensors import restrict_points, select_sensors
+    candidates are the chosen points' own (each point is its cluster's average); the same
+    selection automatic sizing makes (:func:`prtcore.sizing.select_points`)."""
+    from prtcore.intake.sensors import restrict_points
+    from prtcore.sizing import select_points
 
-    mp = intake.spec.measurement_points
     with timer.stage("select points"):
-        p = intake.plan.sizing.points[0]
-        sel = select_sensors(data.direct_points[:, :n_train], min(p, intake.points.count),
-                             positions=intake.points.position, seed=mp.seed)
-        points = restrict_points(intake.points, sel.indices)
-        data = dataclasses.replace(data, direct_points=data.direct_points[sel.indices])
+        rows = select_points(intake.points, data.direct_points[:, :n_train],
+                             intake.plan.sizing.points[0], "qdeim",
+                             intake.spec.measurement_points.seed)
+        points = restrict_points(intake.points, rows)
+        data = dataclasses.replace(data, direct_points=data.direct_points[rows])
     return dataclasses.replace(intake, points=points), data
 
 

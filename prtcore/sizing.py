@@ -252,8 +252,8 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
         K = grow
     pool, rows, direct, models = rows_of[chosen.points]
     points = dataclasses.replace(restrict_points(pool, rows), placement=sizing.placement)
-    data = dataclasses.replace(data, direct_points=direct)
-    data.stats["sizing_seconds"] = time.perf_counter() - t_start
+    data = dataclasses.replace(data, direct_points=direct, stats={
+        **data.stats, "sizing_seconds": time.perf_counter() - t_start})
     return Sized(points=points, data=data, train=tuple(train_pool[:K]), indirect=(I, Ih),
                  trials=tuple(trials), chosen=chosen, stop=stop, models=models)
 
