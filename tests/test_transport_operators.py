@@ -20,6 +20,7 @@ from prtcore.transport.dataset import (
     DEFAULT_OPERATORS,
     MEM_PER_TEXEL,
     MEM_PER_TEXEL_CONFIG,
+    MEM_PROCESS,
     STAGES,
     Traced,
     estimate_bake_bytes,
@@ -80,7 +81,7 @@ def test_registry():
 def test_memory_estimate_is_the_stage_plus_each_operator():
     t, k, rays = 12345, 37, 16
     surface = MEM_PER_TEXEL_RAY * t * rays + GATHER_BATCH * MEM_PER_GATHER_RAY_IN_FLIGHT
-    own = t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(
+    own = MEM_PROCESS + t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(
         SOLVE_WORK_ARRAYS * t * k * 12, SOLVE_BLOCK_BYTES)
     assert operator_for("surface").estimate_bytes(t, k, TransportSpec(gather_rays=rays)) \
         == surface
