@@ -64,6 +64,12 @@ class Emitter:
         """(n,) bool: an occlusion ray from each point reaches the light."""
         raise NotImplementedError
 
+    def kernel_row(self, light: Light) -> np.ndarray | None:
+        """The light's constants for the compiled evaluation (:mod:`prtcore.emitters.
+        compiled`, :func:`~prtcore.emitters.compiled.light_row`), or None: evaluate with
+        :meth:`irradiance` (the default, for kinds the kernels do not know)."""
+        return None
+
     def sample_rays(self, light: Light, rng: np.random.Generator, n: int,
                     disk_centre: np.ndarray, disk_radius: float
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -77,6 +83,11 @@ class Emitter:
         """(n,) area density of :meth:`sample_rays`' first hits at surface points the light
         reaches unoccluded."""
         raise NotImplementedError
+
+
+def color_intensity(light: Light) -> np.ndarray:
+    """(3,) float64 ``color × intensity`` of a light."""
+    return np.asarray(light.color, dtype=np.float64) * float(light.intensity)
 
 
 def light_axis(light: Light) -> np.ndarray:

@@ -10,7 +10,8 @@ import numpy as np
 from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
-from prtcore.emitters.base import Emitter, light_axis, register
+from prtcore.emitters.base import Emitter, color_intensity, light_axis, register
+from prtcore.emitters.compiled import KIND_DIRECTIONAL, light_row
 
 
 @register
@@ -23,12 +24,21 @@ class DirectionalEmitter(Emitter):
 
     def unshadowed(self, light, points, normals):
         points = np.asarray(points, dtype=np.float64)
-        color = np.asarray(light.color, dtype=np.float64) * float(light.intensity)
-        d = np.asarray(light.direction, dtype=np.float64)
-        w = np.broadcast_to(-d / np.linalg.norm(d), points.shape).copy()
+        color = color_intensity(light)
+        w = np.broadcast_to(self.toward(light), points.shape).copy()
         cos = np.einsum("ij,ij->i", normals, w)
         e = np.clip(cos, 0.0, None)[:, None] * color
         return e, w, np.full(len(points), np.inf)
+
+    @staticmethod
+    def toward(light: Light) -> np.ndarray:
+        """(3,) float64 unit direction toward the light (against ``direction``)."""
+        d = np.asarray(light.direction, dtype=np.float64)
+        return -d / np.linalg.norm(d)
+
+    def kernel_row(self, light):
+        return light_row(KIND_DIRECTIONAL, axis=self.toward(light),
+                         color=color_intensity(light))
 
     def visible(self, light: Light, tracer: RayTracer, points, normals, to_light):
         return tracer.unoccluded_towards(points, normals, to_light)

@@ -9,7 +9,8 @@ import numpy as np
 from prtcore.core.geometry import directions_around
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
-from prtcore.emitters.base import Emitter, register
+from prtcore.emitters.base import Emitter, color_intensity, register
+from prtcore.emitters.compiled import KIND_POSITIONED, light_row
 
 
 def range_window(light: Light, dist: np.ndarray) -> np.ndarray:
@@ -31,7 +32,7 @@ class PointEmitter(Emitter):
 
     def unshadowed(self, light, points, normals):
         points = np.asarray(points, dtype=np.float64)
-        color = np.asarray(light.color, dtype=np.float64) * float(light.intensity)
+        color = color_intensity(light)
         delta = np.asarray(light.position, dtype=np.float64) - points
         r2 = np.einsum("ij,ij->i", delta, delta)
         dist = np.sqrt(r2)
@@ -43,6 +44,10 @@ class PointEmitter(Emitter):
             att = att * cone
         att = np.divide(att, r2, out=np.zeros_like(att), where=r2 > 0)
         return att[:, None] * color, w, dist
+
+    def kernel_row(self, light):
+        return light_row(KIND_POSITIONED, light.position, color=color_intensity(light),
+                         light_range=light.range)
 
     def visible(self, light: Light, tracer: RayTracer, points, normals, to_light):
         target = np.broadcast_to(np.asarray(light.position, dtype=np.float64),

@@ -25,6 +25,8 @@ from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
+from prtcore.emitters import compiled
+from prtcore.emitters.base import emitter_for
 from prtcore.emitters.punctual import irradiance
 from prtcore.transport.gather import NearField
 
@@ -47,24 +49,42 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
     :attr:`prtcore.transport.gather.Gather.direct_position`);
     normals : (n, 3) float64 unit shading normals; albedo : (n, 3) raw albedo (clamped
     here with :func:`prtcore.core.materials.clamp_albedo`).
-    E is :func:`prtcore.emitters.punctual.irradiance` with shadow rays. Lights are evaluated on
-    ``tracer.threads`` threads (embreex and numpy release the GIL), one light per task,
-    points in chunks of DIRECT_CHUNK, so memory stays at the (n, K, 3) float32 result
-    plus O(DIRECT_CHUNK) per thread.
+    E is :func:`prtcore.emitters.punctual.irradiance` with shadow rays, compiled for the
+    punctual lights (:mod:`prtcore.emitters.compiled`: one pass sets up the shadow rays, one
+    shades; same numbers). Lights are evaluated on ``tracer.threads`` threads (embreex and
+    the kernels release the GIL), one light per task, points in chunks of DIRECT_CHUNK, so
+    memory stays at the (n, K, 3) float32 result plus O(DIRECT_CHUNK) per thread.
     Returns (n, K, 3) float32.
     """
     del scene  # the tracer holds the geometry; kept for a uniform stage signature
     positions = np.asarray(positions, dtype=np.float64)
-    normals = np.asarray(normals, dtype=np.float64)
+    normals = np.ascontiguousarray(normals, dtype=np.float64)
     if positions.ndim == 3 and positions.shape[1] == 1:
         positions = positions[:, 0]
     per = 1 if positions.ndim == 2 else positions.shape[1]
+    flat = np.ascontiguousarray(positions.reshape(-1, 3))
     rho, _ = clamp_albedo(np.asarray(albedo, dtype=np.float64))
     scale = rho / math.pi
-    out = np.empty((len(positions), len(lights), 3), dtype=np.float32)
+    out = np.empty((len(normals), len(lights), 3), dtype=np.float32)
     step = max(1, DIRECT_CHUNK // per)
 
     def one(k: int) -> None:
+        row = emitter_for(lights[k]).kernel_row(lights[k])
+        if row is None:
+            return numpy_light(k)
+        m = min(len(normals), step) * per
+        e = np.empty((m, 3))
+        origin, direction = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+        tmax, index = np.empty(m, np.float32), np.empty(m, np.int64)
+        for a in range(0, len(normals), step):
+            b = min(a + step, len(normals))
+            c = compiled.shadow_rays(row, flat[a * per:b * per], normals[a:b], per,
+                                     tracer.offset, tracer.tfar, e, origin, direction,
+                                     tmax, index)
+            occluded = tracer.occluded(origin[:c], direction[:c], tmax[:c])
+            compiled.shade(e, index[:c], occluded, per, scale[a:b], out[a:b, k])
+
+    def numpy_light(k: int) -> None:
         for a in range(0, len(positions), step):
             b = a + step
             if per == 1:
@@ -72,8 +92,7 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
             else:
                 e = irradiance(lights[k], positions[a:b].reshape(-1, 3),
                                np.repeat(normals[a:b], per, axis=0), tracer)
-                # the mean over each row's J points, by slices: numpy's mean over a short
-                # middle axis is slow, and a BLAS product would oversubscribe the threads
+                # the mean over each row's J points, by slices (the kernels' order)
                 e = e.reshape(-1, per, 3)
                 acc = e[:, 0].copy()
                 for j in range(1, per):
