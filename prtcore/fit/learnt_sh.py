@@ -20,9 +20,11 @@ UVs to store transfer in can still be shaded with PRT.
 * **Training.** :func:`prtcore.fit.train.train_network`: AdamW on seeded minibatches,
   deterministic; a seeded tenth of the samples is held back and its error reported.
 
-The method that writes it into a bundle is :mod:`prtcore.methods.learnt_sh`; its GLSL
-evaluation :mod:`prtcore.runtime.learnt_sh`. Not here (issue 18's note): SDF input,
-sub-scene splitting, avoiding vertex neighbourhoods when sampling.
+SDF scenes (:mod:`prtcore.core.sdf`): the samples of the marching-cubes mesh are projected
+onto the zero level set, with the field's gradient as normal. The method that writes the
+network into a bundle is :mod:`prtcore.methods.learnt_sh`; its GLSL evaluation
+:mod:`prtcore.runtime.learnt_sh`. Not here (issue 18's note): sub-scene splitting,
+avoiding vertex neighbourhoods when sampling.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.mlp import Mlp, forward, positional_encoding
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene
+from prtcore.core.sdf import SdfScene
 from prtcore.fit.train import train_network
 from prtcore.intake.points import sample_surface
 from prtcore.io.bundle import load_raw, raw_file
@@ -114,13 +117,20 @@ def visibility_of(model: LearntSh, outputs: np.ndarray) -> np.ndarray:
     return outputs[:, model.bands ** 2:]
 
 
-def area_samples(scene: Scene, count: int, seed: int) -> SurfaceSamples:
+def area_samples(scene: Scene, count: int, seed: int, sdf: SdfScene | None = None
+                 ) -> SurfaceSamples:
     """``count`` area-uniform surface samples with their shading and geometric normals and
-    albedo (seeded)."""
+    albedo (seeded). With ``sdf`` (``scene`` its marching-cubes mesh) the samples are
+    projected onto the field's zero level set and their shading normal is the field's
+    gradient (thesis 4.1.3); the geometric normal stays the mesh face's (rays are traced
+    against the mesh)."""
     tri, bary = sample_surface(scene, count, np.random.default_rng(seed))
     v = scene.positions[scene.faces[tri]]
     position = np.einsum("nk,nkj->nj", bary, v)
     gn = face_normals(scene, tri)
+    if sdf is not None:
+        position = sdf.project(position)
+        return SurfaceSamples(position, sdf.normal(position), gn, albedo_at(scene, tri, bary))
     return SurfaceSamples(position, shading_normals(scene, tri, bary, gn), gn,
                           albedo_at(scene, tri, bary))
 
@@ -141,12 +151,14 @@ def _holdout_mse(net: Mlp, x: np.ndarray, target: np.ndarray, scale: np.ndarray)
 
 def fit_learnt_sh(scene: Scene, tracer: RayTracer, *, samples: int = 20000, bands: int = 4,
                   strata: int = 8, width: int = 64, layers: int = 4, steps: int = 3000,
-                  batch: int = 1024, seed: int = 0, glossy: bool = False) -> LearntSh:
+                  batch: int = 1024, seed: int = 0, glossy: bool = False,
+                  sdf: SdfScene | None = None) -> LearntSh:
     """Train σ(p, n̂) for ``scene`` (module docstring): ``samples`` area-uniform points,
     ``strata²`` rays each, ``steps`` AdamW steps on minibatches of ``batch``; ``glossy``
-    adds the visibility outputs."""
+    adds the visibility outputs; ``sdf``: the samples lie on its zero level set
+    (:func:`area_samples`)."""
     t0 = time.perf_counter()
-    pts = area_samples(scene, samples, seed)
+    pts = area_samples(scene, samples, seed, sdf)
     blocks = [unit_albedo_transfer(scene, tracer, pts, bands, strata, seed)]
     if glossy:
         blocks.append(visibility_transfer(tracer, pts, bands, strata, seed))

@@ -45,6 +45,7 @@ from prtcore.core.materials import (
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
+from prtcore.core.sdf import SdfScene, sdf_t_max, sphere_trace
 from prtcore.emitters.environment import light_sh, sky_with_sun
 from prtcore.fit.learnt_sh import (
     WEIGHTS_FILE,
@@ -57,6 +58,7 @@ from prtcore.fit.learnt_sh import (
     write_network,
 )
 from prtcore.io.imageio import read_image, write_exr, write_png
+from prtcore.io.sdf import is_sdf_file, load_sdf
 from prtcore.methods.base import BakeInputs, DirectMethod, register
 from prtcore.methods.sh_prt import (
     TEXTURE_BYTES,
@@ -72,6 +74,8 @@ from prtcore.reference.camera import Camera, orbit_cameras
 from prtcore.reference.pathtracer import default_tracer
 from prtcore.transport.sh_transfer import visibility_transfer
 
+#: the SDF scene file in a bundle baked from one
+SDF_FILE = "scene.sdf.json"
 #: how an engine evaluates a learnt_sh bundle (the manifest's runtime.formula)
 LEARNT_SH_FORMULA = (
     "outgoing radiance, channel c = albedo_c(uv1) * sum_i T_i * l[i, c] (+ specular * "
@@ -102,6 +106,8 @@ class LearntShBake:
     strip: np.ndarray | None
     spec: Any
     seconds: float
+    #: the SDF scene file's path when the asset is one (``*.sdf.json``), else None
+    sdf_file: str | None = None
 
 
 # ---------------------------------------------------------------------------------------
@@ -173,6 +179,23 @@ def shade_view(model: LearntSh, albedo_image: np.ndarray, hits: ViewHits, camera
         model, sample_atlas(albedo_image, hits.uv1), hits.position, hits.normal, light,
         eye=camera.position, specular=specular, exponent=exponent)
     img[hits.pixels, 3] = 1.0
+    return img.reshape(camera.height, camera.width, 4)
+
+
+def shade_sdf_view(model: LearntSh, sdf: SdfScene, camera: Camera, light: np.ndarray, *,
+                   specular: float = 0.0, exponent: float = 8.0) -> np.ndarray:
+    """The CPU equivalent of the GL pass of an SDF bundle: each pixel centre's ray
+    sphere-traced through the field (:func:`prtcore.core.sdf.sphere_trace`), the network
+    at the hit with the field's normal, the scene's albedo: (h, w, 4) float64, A = 1 on
+    hits."""
+    origins, dirs = camera.primary_rays()
+    hit, t = sphere_trace(sdf, origins, dirs, sdf_t_max(sdf, camera.position))
+    p = origins[hit] + t[hit, None] * dirs[hit]
+    img = np.zeros((len(dirs), 4))
+    img[hit, :3] = shade_points(model, np.broadcast_to(np.asarray(sdf.albedo), p.shape), p,
+                                sdf.normal(p), light, eye=camera.position,
+                                specular=specular, exponent=exponent)
+    img[hit, 3] = 1.0
     return img.reshape(camera.height, camera.width, 4)
 
 
@@ -328,12 +351,14 @@ class LearntShMethod(DirectMethod):
         spec = inputs.spec.learnt_sh
         scene, texels = inputs.intake.scene, inputs.intake.texels
         tracer = default_tracer(scene)
+        sdf_file = inputs.intake.source if is_sdf_file(inputs.intake.source) else None
         with timer.stage("fit"):
             t0 = time.perf_counter()
             model = fit_learnt_sh(scene, tracer, samples=spec.samples, bands=spec.bands,
                                   strata=spec.strata, width=spec.width, layers=spec.layers,
                                   steps=spec.steps, batch=spec.batch, seed=spec.seed,
-                                  glossy=spec.specular > 0)
+                                  glossy=spec.specular > 0,
+                                  sdf=load_sdf(sdf_file) if sdf_file else None)
             seconds = time.perf_counter() - t0
         with timer.stage("report"):
             rho, albedo_image = albedo_atlas(scene, texels)
@@ -348,7 +373,7 @@ class LearntShMethod(DirectMethod):
                     strata=spec.baseline_strata, seed=spec.seed, specular=spec.specular,
                     exponent=spec.exponent)
         return LearntShBake(model, albedo_image, preview, texels.to_image(preview), metrics,
-                            strip, spec, seconds)
+                            strip, spec, seconds, sdf_file)
 
     def write(self, directory: Path, inputs: BakeInputs, result: LearntShBake
               ) -> tuple[dict, dict]:
@@ -366,6 +391,12 @@ class LearntShMethod(DirectMethod):
                    "training": model.diagnostics,
                    "weights_bytes": (directory / WEIGHTS_FILE).stat().st_size,
                    "convention": "prtcore.core.sh (docs/sh_prt.md); docs/learnt_sh.md"}
+        if result.sdf_file is not None:  # the field the GL pass sphere-traces
+            sdf = load_sdf(result.sdf_file)
+            (directory / SDF_FILE).write_bytes(Path(result.sdf_file).read_bytes())
+            section["sdf"] = {"file": SDF_FILE, "primitives": len(sdf.primitives),
+                              "smooth": sdf.smooth, "albedo": list(sdf.albedo),
+                              "format": "docs/learnt_sh.md, SDF scenes"}
         sections = {"learnt_sh": section, "runtime": {"formula": LEARNT_SH_FORMULA}}
         report = {"learnt_sh": section, "metrics": result.metrics,
                   "training_seconds": result.seconds}

@@ -10,16 +10,21 @@ constant arrays, llvmpipe's compiler had not finished after 10 minutes.
 * :class:`LearntShRenderer` — the camera pass of a ``learnt_sh`` bundle
   (docs/learnt_sh.md): the mesh rasterised (``sh_vs.glsl``), σ(p, n̂) per fragment,
   ``albedo(uv1) · (T · l)`` per channel, and with a glossy network ``+ ρ_s · TP`` of the
-  network's visibility block (``sh_glossy.glsl``, shared with the sh_prt runtime).
+  network's visibility block (``sh_glossy.glsl``, shared with the sh_prt runtime); for an
+  SDF scene a full-screen pass that sphere-traces the field per pixel
+  (``learnt_sh_sdf_fs.glsl``) and shades the hit the same way.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from prtcore.core.errors import PrtError
+from prtcore.core.sdf import GRADIENT_STEP, HIT_EPSILON, MAX_STEPS, sdf_t_max
+from prtcore.core.sdf import packed as packed_sdf
 from prtcore.fit.learnt_sh import LearntSh
 from prtcore.reference.camera import Camera
 from prtcore.runtime.gl import RenderResult
@@ -32,6 +37,8 @@ GROUP = 64
 #: the network's storage-buffer bindings in learnt_sh_net.glsl: weights, biases, layer
 #: table, output scales
 NET_BINDINGS = (10, 11, 12, 13)
+#: the SDF primitives' binding in learnt_sh_sdf.glsl
+SDF_BINDING = 14
 
 
 def _blocks(w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,17 +141,25 @@ class LearntShRenderer(DistantPass):
         from prtcore.fit.learnt_sh import read_network
         from prtcore.io.bundle import read_manifest
         from prtcore.io.imageio import read_image
+        from prtcore.io.sdf import load_sdf
 
         manifest = read_manifest(Path(bundle))
         sec = manifest.get("learnt_sh")
         if manifest.get("method") != "learnt_sh" or sec is None:
             raise PrtError(f"{bundle}: not a learnt_sh bundle")
         self.model = read_network(Path(bundle), sec["network"])
-        super().__init__(bundle, "learnt_sh", shader_source(
-            "learnt_sh_fs.glsl", **_defines(self.model)), ctx)
+        self.sdf = load_sdf(Path(bundle) / sec["sdf"]["file"]) if sec.get("sdf") else None
+        if self.sdf is None:
+            fragment = shader_source("learnt_sh_fs.glsl", **_defines(self.model))
+        else:
+            fragment = shader_source("learnt_sh_sdf_fs.glsl", MAX_STEPS=MAX_STEPS,
+                                     **_defines(self.model))
+        super().__init__(bundle, "learnt_sh", fragment, ctx, fullscreen=self.sdf is not None)
         self.bands = self.model.bands
         self.specular = float(sec["specular"]) if self.model.glossy else 0.0
         c = self.ctx
+        self._sdf = self._keep(c.buffer(packed_sdf(self.sdf).tobytes() if self.sdf
+                                        else np.zeros(12, "<f4").tobytes()))
         albedo = read_image(self.bundle / sec["albedo"])[:, :, :3]
         h, w = albedo.shape[:2]
         self._albedo = self._keep(c.texture((w, h), 3, np.ascontiguousarray(
@@ -173,6 +188,8 @@ class LearntShRenderer(DistantPass):
         set_uniform(prog, "specular", self.specular)
         set_uniform(prog, "albedo_tex", 0)
         set_network_uniforms(prog, self.model)
+        if self.sdf is not None:
+            self._set_sdf_uniforms(camera)
         self._albedo.use(location=0)
         for binding, b in zip(NET_BINDINGS, self._net, strict=True):
             b.bind_to_storage_buffer(binding)
@@ -180,7 +197,26 @@ class LearntShRenderer(DistantPass):
         self._product.bind_to_storage_buffer(7)
         self._kernel.bind_to_storage_buffer(8)
         self._norm.bind_to_storage_buffer(9)
-        return self._draw(camera, "learnt_sh")
+        self._sdf.bind_to_storage_buffer(SDF_BINDING)
+        return self._draw(camera, "learnt_sh" if self.sdf is None else "learnt_sh_sdf")
+
+    def _set_sdf_uniforms(self, camera: Camera) -> None:
+        """The sphere-tracing pass's uniforms: the field (prtcore.core.sdf), the camera's
+        frame as :meth:`prtcore.reference.camera.Camera.primary_rays` builds its rays, and
+        the march's limits (:func:`prtcore.core.sdf.sphere_trace`)."""
+        prog, sdf = self._prog, self.sdf
+        r, u, f = camera.frame()
+        for name, v in (("cam_right", r), ("cam_up", u), ("cam_forward", f)):
+            set_uniform(prog, name, tuple(float(x) for x in v))
+        set_uniform(prog, "tan_half_fov", math.tan(math.radians(camera.fov_y_deg) / 2.0))
+        set_uniform(prog, "aspect", camera.aspect)
+        set_uniform(prog, "viewport", (float(camera.width), float(camera.height)))
+        set_uniform(prog, "t_max", sdf_t_max(sdf, camera.position))
+        set_uniform(prog, "hit_eps", HIT_EPSILON * sdf.radius)
+        set_uniform(prog, "grad_h", GRADIENT_STEP * sdf.radius)
+        set_uniform(prog, "n_prims", len(sdf.primitives))
+        set_uniform(prog, "smooth_k", sdf.smooth)
+        set_uniform(prog, "sdf_albedo", tuple(float(a) for a in sdf.albedo))
 
 
 def render_learnt_sh_to_file(bundle: str | Path, light_path: str | Path,

@@ -71,9 +71,12 @@ class DistantPass:
     """A camera pass over a bundle's asset under distant lighting (the sh_prt and
     learnt_sh runtimes): the manifest checked for ``method``, the asset's positions,
     normals and TEXCOORD_1 in a vertex array drawn with ``sh_vs.glsl`` and ``fragment``
-    (a shader source), one framebuffer per image size, GL objects released together."""
+    (a shader source) — or with ``fullscreen`` one triangle over the viewport
+    (``atlas_vs.glsl``, for a fragment shader that finds its own surface) — one
+    framebuffer per image size, GL objects released together."""
 
-    def __init__(self, bundle: str | Path, method: str, fragment: str, ctx=None):
+    def __init__(self, bundle: str | Path, method: str, fragment: str, ctx=None, *,
+                 fullscreen: bool = False):
         import moderngl
 
         from prtcore.io.bundle import read_manifest
@@ -96,8 +99,13 @@ class DistantPass:
         self._fbos: dict = {}
         make_current(self.ctx)
         sc, c = self.scene, self.ctx
-        self._prog = self._keep(c.program(vertex_shader=shader_source("sh_vs.glsl"),
-                                          fragment_shader=fragment))
+        self._fullscreen = fullscreen
+        self._prog = self._keep(c.program(
+            vertex_shader=shader_source("atlas_vs.glsl" if fullscreen else "sh_vs.glsl"),
+            fragment_shader=fragment))
+        if fullscreen:
+            self._vao = self._keep(c.vertex_array(self._prog, []))
+            return
         verts = np.concatenate([sc.positions, sc.normals, sc.uv1], axis=1)
         vbo = self._keep(c.buffer(np.ascontiguousarray(verts, dtype="<f4").tobytes()))
         ibo = self._keep(c.buffer(np.ascontiguousarray(sc.faces, dtype="<u4").tobytes()))
@@ -151,8 +159,9 @@ class DistantPass:
             self._fbos[key] = self._keep(c.framebuffer(color_attachments=[tex],
                                                        depth_attachment=depth))
         fbo = self._fbos[key]
-        clip = scene_clip_from_world(camera, self.center, self.radius)
-        set_uniform(self._prog, "clip_from_world", matrix_bytes(clip))
+        if not self._fullscreen:
+            clip = scene_clip_from_world(camera, self.center, self.radius)
+            set_uniform(self._prog, "clip_from_world", matrix_bytes(clip))
         set_uniform(self._prog, "eye", tuple(float(v) for v in camera.position))
         self._timer.reset()
         with self._timer.timed(name):
@@ -161,7 +170,7 @@ class DistantPass:
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             c.enable(mgl.DEPTH_TEST)
             c.disable(mgl.CULL_FACE | mgl.BLEND)
-            self._vao.render(mgl.TRIANGLES)
+            self._vao.render(mgl.TRIANGLES, vertices=3 if self._fullscreen else -1)
             c.disable(mgl.DEPTH_TEST)
         h, w = camera.height, camera.width
         img = np.frombuffer(fbo.read(components=4, dtype="f4"), "<f4").reshape(h, w, 4)
