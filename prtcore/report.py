@@ -24,6 +24,9 @@ TABLE_N = (4, 8, 16, 32, 64)
 #: far beyond the caches, so the product is as memory-bound as at atlas size) and is scaled
 #: linearly to the atlas.
 BLEND_TIMING_PIXELS = 1 << 18
+#: Runs of the blend timing per basis size (the median is reported): 3, not more — each
+#: run streams up to 68 MB, and the report stage is held to about a second (issue 20).
+BLEND_TIMING_REPEATS = 3
 
 
 def fit_for_table(D: np.ndarray, I: np.ndarray, fit_spec, holdout=None,
@@ -205,7 +208,7 @@ def error_vs_runtime(model: TransferModel, holdout_direct: np.ndarray,
         # pixels): a 4096² atlas of 64 elements would otherwise allocate 9 GB here
         img = img_all[:px * planes].reshape(px, planes)
         w = rng.random((planes, 3)).astype(np.float32)
-        blend_s = _time(lambda img=img, w=w: img @ w, 5) * (atlas_pixels / px)
+        blend_s = _time(lambda img=img, w=w: img @ w, BLEND_TIMING_REPEATS) * (atlas_pixels / px)
         files = -(-planes // 4)
         storage = int(files * 4 * planes_bytes_per_element + M.size * 4 * (
             1 if model.transfer.ndim == 3 else model.transfer.shape[0]))

@@ -262,8 +262,10 @@ def heldout_errors(model: TransferModel, X: np.ndarray, R: np.ndarray, ns,
     (1 ≤ n ≤ model.n_basis); groups : (H,) keyframe id of each configuration (per-group
     models). Numbers equal the one-configuration functions' up to float64 round-off
     (:func:`reconstruct` rounds to float32 first; here everything stays float64). Without
-    gamma the projection's error is closed-form, ``‖r‖² − 2cᵀp + cᵀGc`` with
-    ``r = ref − s·m``, ``p = Uᵀr``, ``G = UᵀU`` and c the least-squares coefficients.
+    gamma both errors are closed-form, ``‖r‖² − 2cᵀp + cᵀGc`` with ``r = ref − s·m``,
+    ``p = Uᵀr``, ``G = UᵀU`` (U the basis) and c the least-squares coefficients (the
+    projection) or the runtime's (the reconstruction); the pass over the texels then only
+    counts negative texels.
     """
     ns = tuple(sorted(int(n) for n in ns))
     nbs = [_resolve_n(model, n) for n in ns]
@@ -309,7 +311,11 @@ def heldout_errors(model: TransferModel, X: np.ndarray, R: np.ndarray, ns,
             if nb > done:
                 y = y + expand(ub, U, done, nb)
                 done = nb
-            rec = gamma_decode(y, model.gamma) if model.gamma is not None else y
+            if model.gamma is None:  # the errors are closed-form (below); count negatives
+                low = np.minimum(np.minimum(y[..., 0], y[..., 1]), y[..., 2])
+                neg[i] += np.count_nonzero(low < 0, axis=0)
+                continue
+            rec = gamma_decode(y, model.gamma)
             d = rec - ref
             sse[i] += np.einsum("thc,thc->h", d, d)
             neg[i] += (rec < 0).any(axis=2).sum(axis=0)
@@ -322,11 +328,14 @@ def heldout_errors(model: TransferModel, X: np.ndarray, R: np.ndarray, ns,
                                                         proj[:nb, :, c])[0]
     bound = np.zeros((N, H))
     if model.gamma is None:
+        def closed(c, nb):  # ‖r − U_b c‖² for coefficients c (nb, H, 3)
+            gc = (np.einsum("ij,jhc->ihc", gram[0, :nb, :nb], c) if mono
+                  else np.einsum("cij,jhc->ihc", gram[:, :nb, :nb], c))
+            return np.maximum(r_ss - np.einsum("ihc,ihc->h", c, 2 * proj[:nb] - gc), 0.0)
+
         for i, nb in enumerate(nbs):
-            ci, p = coef[i, :nb], proj[:nb]
-            gc = (np.einsum("ij,jhc->ihc", gram[0, :nb, :nb], ci) if mono
-                  else np.einsum("cij,jhc->ihc", gram[:, :nb, :nb], ci))
-            bound[i] = np.maximum(r_ss - np.einsum("ihc,ihc->h", ci, 2 * p - gc), 0.0)
+            bound[i] = closed(coef[i, :nb], nb)
+            sse[i] = closed(U[:nb], nb)  # the runtime's coefficients: its reconstruction
     else:  # the projection decoded through gamma, as at run time: a second pass
         for sl in blocks(T, rows):
             ub = model.basis[sl, :nb_max].astype(np.float64)
