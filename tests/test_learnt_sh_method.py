@@ -91,6 +91,8 @@ def test_bake_writes_a_learnt_sh_bundle(bundle, capsys):
     assert f"{rows[0]['psnr']:.2f}" in out and f"{rows[2]['ssim']:.3f}" in out
     assert "weights" in out and "transfer textures" in out
     assert main(["report", str(bundle), "--reference-spp", "4"]) == 2
+    assert main(["report", str(bundle), "--gpu"]) == 0
+    assert "(learnt_sh pass)" in capsys.readouterr().out
 
 
 def test_relight_is_the_network_at_the_texels(bundle, tmp_path, capsys):

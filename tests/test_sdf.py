@@ -98,9 +98,11 @@ def test_scene_files_parse_and_errors_name_the_key(tmp_path):
     assert np.abs(load_sdf(path).distance(scene.positions)).max() < 0.02
 
 
-def small_sdf_bundle(tmp_path):
+@pytest.fixture(scope="module")
+def sdf_bundle(tmp_path_factory):
     """A learnt_sh bundle of a coarse bunny (marching cubes at 20 cells) with a tiny
-    glossy network, baked through the CLI."""
+    glossy network, baked through the CLI: (folder of the asset, bundle)."""
+    tmp_path = tmp_path_factory.mktemp("sdf")
     from prtcore.cli import main
     from prtcore.scenes.sdf_scenes import write_sdf
 
@@ -114,10 +116,10 @@ def small_sdf_bundle(tmp_path):
     out = tmp_path / "b"
     assert main(["bake", str(asset), "--spec", str(tmp_path / "spec.json"), "--out",
                  str(out), "-q"]) == 0
-    return out
+    return tmp_path, out
 
 
-def test_sdf_bake_samples_on_the_level_set_and_gl_sphere_tracing(tmp_path, gl_ctx):
+def test_sdf_bake_samples_on_the_level_set_and_gl_sphere_tracing(sdf_bundle, gl_ctx):
     """The bake keeps the field (scene.sdf.json, manifest learnt_sh.sdf); training
     samples lie on the zero level set; the GL full-screen pass (sphere tracing, network at
     the hit) covers the same pixels as the CPU sphere tracer and matches its colour."""
@@ -127,7 +129,7 @@ def test_sdf_bake_samples_on_the_level_set_and_gl_sphere_tracing(tmp_path, gl_ct
     from prtcore.reference.camera import orbit_cameras
     from prtcore.runtime.learnt_sh import LearntShRenderer
 
-    out = small_sdf_bundle(tmp_path)
+    tmp_path, out = sdf_bundle
     m = read_manifest(out)
     assert m["learnt_sh"]["sdf"]["primitives"] == len(BUNNY["primitives"])
     sdf = load_sdf(out / m["learnt_sh"]["sdf"]["file"])
@@ -148,3 +150,13 @@ def test_sdf_bake_samples_on_the_level_set_and_gl_sphere_tracing(tmp_path, gl_ct
           f"{np.abs(cpu).max():.3g}")
     # float32 marching and central differences on the GPU (measured ≈ 4e-5 relative)
     assert err.max() < 1e-3 * np.abs(cpu[..., :3]).max()
+
+
+def test_report_times_the_sphere_tracing_pass(sdf_bundle, capsys):
+    from prtcore.cli import main
+
+    _, out = sdf_bundle
+    capsys.readouterr()
+    assert main(["report", str(out), "--gpu"]) == 0
+    assert "(learnt_sh_sdf pass)" in capsys.readouterr().out
+    assert json.loads((out / "report.json").read_text())["gpu_frame"]["median_ms"] > 0

@@ -319,8 +319,8 @@ def format_metrics(metrics: dict, gpu: dict | None = None) -> str:
     lines.append(f"frame time: CPU (numpy) {metrics['cpu_ms_per_view']:.1f} ms per view")
     if gpu:
         lines.append(f"frame time: GL {gpu['median_ms']:.2f} ms median wall clock of "
-                     f"{gpu['frames']} frames at {gpu['width']}×{gpu['height']} on "
-                     f"{gpu['renderer']}")
+                     f"{gpu['frames']} frames at {gpu['width']}×{gpu['height']} "
+                     f"({gpu.get('pass', 'learnt_sh')} pass) on {gpu['renderer']}")
     else:
         lines.append("frame time: GL not measured (`prtcore report --gpu`)")
     lines.append("(baseline_reseeded: the same textures from independent rays — the "
@@ -470,7 +470,7 @@ def gpu_frame_time(bundle: Path, metrics: dict, frames: int = 5) -> dict:
         cam = orbit_cameras(r.scene.center, r.scene.radius, 1, int(metrics["width"]),
                             int(metrics["height"]))[0]
         r.render(light, cam)
-        wall = [r.render(light, cam).wall_milliseconds["learnt_sh"] for _ in range(frames)]
-        label = renderer_label(r.ctx)
+        wall = [r.render(light, cam).wall_milliseconds[r.pass_name] for _ in range(frames)]
+        label, name = renderer_label(r.ctx), r.pass_name
     return {"median_ms": float(np.median(wall)), "frames": frames, "renderer": label,
-            "width": cam.width, "height": cam.height}
+            "width": cam.width, "height": cam.height, "pass": name}

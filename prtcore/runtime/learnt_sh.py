@@ -198,7 +198,12 @@ class LearntShRenderer(DistantPass):
         self._kernel.bind_to_storage_buffer(8)
         self._norm.bind_to_storage_buffer(9)
         self._sdf.bind_to_storage_buffer(SDF_BINDING)
-        return self._draw(camera, "learnt_sh" if self.sdf is None else "learnt_sh_sdf")
+        return self._draw(camera, self.pass_name)
+
+    @property
+    def pass_name(self) -> str:
+        """The timed pass's name: "learnt_sh" (mesh) or "learnt_sh_sdf" (sphere tracing)."""
+        return "learnt_sh" if self.sdf is None else "learnt_sh_sdf"
 
     def _set_sdf_uniforms(self, camera: Camera) -> None:
         """The sphere-tracing pass's uniforms: the field (prtcore.core.sdf), the camera's
