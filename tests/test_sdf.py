@@ -123,7 +123,7 @@ def test_sdf_bake_samples_on_the_level_set_and_gl_sphere_tracing(sdf_bundle, gl_
     """The bake keeps the field (scene.sdf.json, manifest learnt_sh.sdf); training
     samples lie on the zero level set; the GL full-screen pass (sphere tracing, network at
     the hit) covers the same pixels as the CPU sphere tracer and matches its colour."""
-    from prtcore.fit.learnt_sh import area_samples
+    from prtcore.fit.learnt_sh import level_set_samples
     from prtcore.io.bundle import read_manifest
     from prtcore.methods import learnt_sh
     from prtcore.reference.camera import orbit_cameras
@@ -133,8 +133,12 @@ def test_sdf_bake_samples_on_the_level_set_and_gl_sphere_tracing(sdf_bundle, gl_
     m = read_manifest(out)
     assert m["learnt_sh"]["sdf"]["primitives"] == len(BUNNY["primitives"])
     sdf = load_sdf(out / m["learnt_sh"]["sdf"]["file"])
-    samples = area_samples(load_asset(tmp_path / "bunny.sdf.json"), 300, 0, sdf)
-    assert np.abs(sdf.distance(samples.position)).max() < 1e-6 * sdf.radius
+    mesh = load_asset(tmp_path / "bunny.sdf.json")
+    traced, on_level_set = level_set_samples(mesh, 300, 0, sdf)
+    assert np.abs(sdf.distance(on_level_set)).max() < 1e-6 * sdf.radius
+    # rays start on the mesh, a marching-cubes cell at most from the level set
+    gap = np.linalg.norm(traced.position - on_level_set, axis=1)
+    assert 0 < gap.max() < 2 * (sdf.bounds()[1] - sdf.bounds()[0]).max() / 20
     model, _ = learnt_sh.load_model(out, m)
     light, _ = learnt_sh.metrics_lighting(3, 0)
     lo, hi = sdf.bounds()

@@ -117,22 +117,29 @@ def visibility_of(model: LearntSh, outputs: np.ndarray) -> np.ndarray:
     return outputs[:, model.bands ** 2:]
 
 
-def area_samples(scene: Scene, count: int, seed: int, sdf: SdfScene | None = None
-                 ) -> SurfaceSamples:
+def area_samples(scene: Scene, count: int, seed: int) -> SurfaceSamples:
     """``count`` area-uniform surface samples with their shading and geometric normals and
-    albedo (seeded). With ``sdf`` (``scene`` its marching-cubes mesh) the samples are
-    projected onto the field's zero level set and their shading normal is the field's
-    gradient (thesis 4.1.3); the geometric normal stays the mesh face's (rays are traced
-    against the mesh)."""
+    albedo (seeded)."""
     tri, bary = sample_surface(scene, count, np.random.default_rng(seed))
     v = scene.positions[scene.faces[tri]]
     position = np.einsum("nk,nkj->nj", bary, v)
     gn = face_normals(scene, tri)
-    if sdf is not None:
-        position = sdf.project(position)
-        return SurfaceSamples(position, sdf.normal(position), gn, albedo_at(scene, tri, bary))
     return SurfaceSamples(position, shading_normals(scene, tri, bary, gn), gn,
                           albedo_at(scene, tri, bary))
+
+
+def level_set_samples(scene: Scene, count: int, seed: int, sdf: SdfScene
+                      ) -> tuple[SurfaceSamples, np.ndarray]:
+    """Training samples of an SDF scene (``scene`` its marching-cubes mesh, thesis 4.1.3):
+    area-uniform samples of the mesh, projected onto the field's zero level set. Returns
+    the samples rays are traced from — on the mesh (so that no origin starts inside it,
+    where the level set bulges inward between vertices) with the field's normal at the
+    projected point as shading normal — and the projected points (count, 3), the network's
+    input positions."""
+    pts = area_samples(scene, count, seed)
+    on_level_set = sdf.project(pts.position)
+    return (SurfaceSamples(pts.position, sdf.normal(on_level_set), pts.geometric_normal,
+                           pts.albedo), on_level_set)
 
 
 def unit_albedo_transfer(scene: Scene, tracer: RayTracer, samples: SurfaceSamples,
@@ -155,17 +162,21 @@ def fit_learnt_sh(scene: Scene, tracer: RayTracer, *, samples: int = 20000, band
                   sdf: SdfScene | None = None) -> LearntSh:
     """Train σ(p, n̂) for ``scene`` (module docstring): ``samples`` area-uniform points,
     ``strata²`` rays each, ``steps`` AdamW steps on minibatches of ``batch``; ``glossy``
-    adds the visibility outputs; ``sdf``: the samples lie on its zero level set
-    (:func:`area_samples`)."""
+    adds the visibility outputs; ``sdf``: the network's samples lie on its zero level set
+    (:func:`level_set_samples`)."""
     t0 = time.perf_counter()
-    pts = area_samples(scene, samples, seed, sdf)
+    if sdf is None:
+        pts = area_samples(scene, samples, seed)
+        position = pts.position
+    else:
+        pts, position = level_set_samples(scene, samples, seed, sdf)
     blocks = [unit_albedo_transfer(scene, tracer, pts, bands, strata, seed)]
     if glossy:
         blocks.append(visibility_transfer(tracer, pts, bands, strata, seed))
     target = np.concatenate(blocks, axis=1)
     t1 = time.perf_counter()
     centre, radius = np.asarray(scene.center, np.float64), float(scene.radius) or 1.0
-    x = encode(pts.position, pts.normal, centre, radius, POSITION_FREQUENCIES,
+    x = encode(position, pts.normal, centre, radius, POSITION_FREQUENCIES,
                NORMAL_FREQUENCIES)
     scale = np.concatenate([np.full(b.shape[1], SCALE_MARGIN * float(np.abs(b).max()) or 1.0)
                             for b in blocks])
