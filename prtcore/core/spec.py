@@ -111,9 +111,11 @@ class FitSpec:
     ridge: float | str = "auto"  # float ≥ 0 or "auto"
     channels: str = "mono"  # "mono" | "rgb"
     gamma: float | None = None
-    #: radius in texels of the seam-aware filter applied to the training lightmaps before
-    #: the basis is fitted (0: off); keeps the gather's per-texel noise out of the basis
-    denoise: float = 1.5
+    #: radius in texels of the seam-aware filter applied to the lightmaps before the basis
+    #: is fitted (0: off); keeps the gather's per-texel noise out of the basis. "auto":
+    #: the radius with the least error against the noiseless lightmaps, measured with a
+    #: second, independent transport of the held-out lights (prtcore/transport/noise.py)
+    denoise: float | str = "auto"
     #: the transfer regressor: "ridge" | "mlp" (ridge + a learnt residual, issue 18)
     transfer: str = "ridge"
     mlp_width: int = 64
@@ -587,7 +589,8 @@ def _parse(data: Any) -> BakeSpec:
         # gamma < 1 expands the dynamic range (|v|^(1/g) overflows float64 for radiance
         # ~1e6 at g = 0.05, and the float32 model long before): refused, see fit.py
         gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=1.0, hi=10.0),
-        denoise=_num(f.get("denoise", FitSpec().denoise), "fit.denoise", lo=0.0, hi=8.0),
+        denoise="auto" if f.get("denoise", "auto") == "auto" else _num(
+            f["denoise"], "fit.denoise", lo=0.0, hi=8.0),
         transfer=_choice(f.get("transfer", "ridge"), "fit.transfer", ("ridge", "mlp")),
         mlp_width=_int(f.get("mlp_width", 64), "fit.mlp_width", lo=1, hi=256),
         mlp_layers=_int(f.get("mlp_layers", 2), "fit.mlp_layers", lo=1, hi=8),
