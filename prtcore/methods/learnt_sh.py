@@ -47,15 +47,13 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
 from prtcore.core.sdf import SdfScene, sdf_t_max, sphere_trace
 from prtcore.emitters.environment import light_sh, sky_with_sun
-from prtcore.fit.learnt_sh import (
-    WEIGHTS_FILE,
-    LearntSh,
-    evaluate,
-    fit_learnt_sh,
-    read_network,
-    transfer_of,
-    visibility_of,
-    write_network,
+from prtcore.fit.learnt_sh import transfer_of, visibility_of
+from prtcore.fit.subscenes import (
+    LearntShScenes,
+    evaluate_scenes,
+    fit_scenes,
+    read_scenes,
+    write_scenes,
 )
 from prtcore.io.imageio import read_image, write_exr, write_png
 from prtcore.io.sdf import is_sdf_file, load_sdf
@@ -98,7 +96,7 @@ class LearntShBake:
     seconds : training time
     """
 
-    model: LearntSh
+    model: LearntShScenes
     albedo_image: np.ndarray
     preview: np.ndarray
     preview_image: np.ndarray
@@ -128,14 +126,14 @@ def albedo_atlas(scene: Scene, texels: TexelSpace) -> tuple[np.ndarray, np.ndarr
     return rho, texels.to_image(rho)[:, :, :3].astype(np.float64)
 
 
-def shade_points(model: LearntSh, albedo: np.ndarray, position: np.ndarray,
+def shade_points(model: LearntShScenes, albedo: np.ndarray, position: np.ndarray,
                  normal: np.ndarray, light: np.ndarray, *, eye: np.ndarray | None = None,
                  specular: float = 0.0, exponent: float = 8.0) -> np.ndarray:
     """Outgoing radiance (m, 3) float64 at surface points (m, 3) with unit shading normals
     (m, 3) and albedo (m, 3), under light SH (L², 3): ``albedo · (T · l)``, plus with
     ``specular`` > 0 (a glossy network; ``eye`` (3,) the viewer) the Phong layer by the
     triple product (:func:`prtcore.methods.sh_prt.glossy_tp`)."""
-    y = evaluate(model, position, normal)
+    y = evaluate_scenes(model, position, normal)
     out = np.asarray(albedo, np.float64) * (transfer_of(model, y) @ light)
     if specular > 0:
         view = np.asarray(eye, np.float64) - position
@@ -169,7 +167,7 @@ def view_hits(scene: Scene, tracer: RayTracer, camera: Camera) -> ViewHits:
                     shading_normals(scene, tri, bary, tracer.face_normals[tri]))
 
 
-def shade_view(model: LearntSh, albedo_image: np.ndarray, hits: ViewHits, camera: Camera,
+def shade_view(model: LearntShScenes, albedo_image: np.ndarray, hits: ViewHits, camera: Camera,
                light: np.ndarray, *, specular: float = 0.0, exponent: float = 8.0
                ) -> np.ndarray:
     """The CPU equivalent of the GL camera pass: (h, w, 4) float64, A = 1 where a pixel
@@ -182,7 +180,7 @@ def shade_view(model: LearntSh, albedo_image: np.ndarray, hits: ViewHits, camera
     return img.reshape(camera.height, camera.width, 4)
 
 
-def shade_sdf_view(model: LearntSh, sdf: SdfScene, camera: Camera, light: np.ndarray, *,
+def shade_sdf_view(model: LearntShScenes, sdf: SdfScene, camera: Camera, light: np.ndarray, *,
                    specular: float = 0.0, exponent: float = 8.0) -> np.ndarray:
     """The CPU equivalent of the GL pass of an SDF bundle: each pixel centre's ray
     sphere-traced through the field (:func:`prtcore.core.sdf.sphere_trace`), the network
@@ -218,7 +216,7 @@ def display(rgb: np.ndarray, exposure: float) -> np.ndarray:
     return linear_to_srgb(np.clip(np.asarray(rgb) * exposure, 0.0, 1.0)).astype(np.float64)
 
 
-def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: LearntSh,
+def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: LearntShScenes,
                  albedo_image: np.ndarray, *, views: int, width: int, height: int,
                  strata: int, seed: int, specular: float, exponent: float
                  ) -> tuple[dict, np.ndarray]:
@@ -272,8 +270,9 @@ def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: Lea
         exposure = 0.9 / max(float(np.percentile(np.stack(linear[f"baseline/{m}"]), 99.5)),
                              1e-12)
         ref = [display(im, exposure) for im in linear[f"baseline/{m}"]]
+        cells = "" if model.grid.count == 1 else f"×{model.grid.count}"
         for who, name in (("learnt", f"learnt k{model.net.widths[0]}_l"
-                                     f"{len(model.net.widths)}"),
+                                     f"{len(model.net.widths)}{cells}"),
                           ("reseeded", "baseline_reseeded")):
             per = [compare_images(display(im, exposure), r)
                    for im, r in zip(linear[f"{who}/{m}"], ref, strict=True)]
@@ -291,8 +290,8 @@ def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: Lea
                      "rays_per_texel": strata * strata, "atlas": [w, h],
                      "seconds": baseline_seconds},
         "rows": rows,
-        "weights_bytes": int(4 * sum(a.size for a in (*model.net.weights,
-                                                      *model.net.biases))),
+        "weights_bytes": int(4 * sum(a.size for m in model.models
+                                     for a in (*m.net.weights, *m.net.biases))),
         "texture_bytes": int(h * w * 3 * bands * bands * TEXTURE_BYTES
                              + (h * w * bands * bands * TEXTURE_BYTES if specular > 0
                                 else 0)),
@@ -354,16 +353,16 @@ class LearntShMethod(DirectMethod):
         sdf_file = inputs.intake.source if is_sdf_file(inputs.intake.source) else None
         with timer.stage("fit"):
             t0 = time.perf_counter()
-            model = fit_learnt_sh(scene, tracer, samples=spec.samples, bands=spec.bands,
-                                  strata=spec.strata, width=spec.width, layers=spec.layers,
-                                  steps=spec.steps, batch=spec.batch, seed=spec.seed,
-                                  glossy=spec.specular > 0,
-                                  sdf=load_sdf(sdf_file) if sdf_file else None)
+            model = fit_scenes(scene, tracer, cells=spec.cells, overlap=spec.overlap,
+                               samples=spec.samples, bands=spec.bands, strata=spec.strata,
+                               width=spec.width, layers=spec.layers, steps=spec.steps,
+                               batch=spec.batch, seed=spec.seed, glossy=spec.specular > 0,
+                               sdf=load_sdf(sdf_file) if sdf_file else None)
             seconds = time.perf_counter() - t0
         with timer.stage("report"):
             rho, albedo_image = albedo_atlas(scene, texels)
-            preview = rho * (transfer_of(model, evaluate(model, texels.position,
-                                                         texels.normal))
+            preview = rho * (transfer_of(model, evaluate_scenes(model, texels.position,
+                                                                texels.normal))
                              @ _uniform_sky(model.bands))
             metrics = strip = None
             if spec.views > 0:
@@ -383,13 +382,14 @@ class LearntShMethod(DirectMethod):
                   channel_names=("R", "G", "B"))
         write_exr(directory / "coverage.exr", result.preview_image[:, :, -1:], dtype="half",
                   channel_names=("Y",))
-        network = write_network(directory, model)
+        networks = write_scenes(directory, model)
         section = {"bands": model.bands, "coefficients": model.bands ** 2,
-                   "network": network, "albedo": "albedo.exr",
+                   "networks": networks, "albedo": "albedo.exr",
                    "specular": spec.specular if model.glossy else 0.0,
                    "exponent": spec.exponent, "width": spec.width, "layers": spec.layers,
                    "training": model.diagnostics,
-                   "weights_bytes": (directory / WEIGHTS_FILE).stat().st_size,
+                   "weights_bytes": sum((directory / d["file"]).stat().st_size
+                                        for d in networks["networks"]),
                    "convention": "prtcore.core.sh (docs/sh_prt.md); docs/learnt_sh.md"}
         if result.sdf_file is not None:  # the field the GL pass sphere-traces
             sdf = load_sdf(result.sdf_file)
@@ -406,6 +406,7 @@ class LearntShMethod(DirectMethod):
                 with_verdict: bool = True) -> str:
         m, d = result.model, result.model.diagnostics
         lines = [f"learnt_sh: k = {m.net.widths[0]}, l = {len(m.net.widths)}, {m.bands} bands"
+                 f"{'' if m.grid.count == 1 else f', {m.grid.count} sub-scenes'}"
                  f"{' + visibility (glossy)' if m.glossy else ''}; {d['samples']} samples × "
                  f"{d['strata']}² rays, {d['steps']} steps; held-out MSE "
                  f"{d['holdout_mse']:.3g} (untrained {d['holdout_mse_zero']:.3g}); "
@@ -430,10 +431,10 @@ class LearntShMethod(DirectMethod):
             write_preview_png(path, result.preview_image)
 
 
-def load_model(bundle: Path, manifest: dict) -> tuple[LearntSh, np.ndarray]:
+def load_model(bundle: Path, manifest: dict) -> tuple[LearntShScenes, np.ndarray]:
     """The network and the albedo atlas (H, W, 3) float64 of a learnt_sh bundle."""
     sec = manifest["learnt_sh"]
-    return (read_network(bundle, sec["network"]),
+    return (read_scenes(bundle, sec["networks"]),
             read_image(bundle / sec["albedo"])[:, :, :3].astype(np.float64))
 
 
