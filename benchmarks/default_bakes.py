@@ -7,6 +7,8 @@ ratio, the verdict and the bake time; writes benchmarks/results/default_bakes.js
         [--baseline]          # also bake with the fixed sizes used before automatic
                               # sizing (P = 256 blue noise, K = 128), same run: time ratio
         [--resolution R]      # atlas resolution (default: the spec's default)
+        [--fixed-denoise R]   # also bake with fit.denoise = R instead of "auto", same run
+        [--reference-lights L]  # held-out lights path-traced (default: the spec's)
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ def main() -> int:
     ap.add_argument("--reference-spp", type=int, default=0)
     ap.add_argument("--baseline", action="store_true")
     ap.add_argument("--resolution", type=int, default=0)
+    ap.add_argument("--fixed-denoise", type=float, default=None)
+    ap.add_argument("--reference-lights", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" /
                                         "default_bakes.json"))
     args = ap.parse_args()
@@ -74,11 +78,14 @@ def main() -> int:
         todo = {k: v for k, v in todo.items() if k in args.scenes.split(",")}
     rows = []
     print(f"{'scene':<16s} {'sizes':<9s} {'P':>4s} {'K':>4s} {'n':>3s} {'error':>7s} "
-          f"{'bound':>7s} {'ratio':>6s} {'verdict':>8s} {'time s':>7s}")
+          f"{'bound':>7s} {'ratio':>6s} {'verdict':>8s} {'t.noise':>7s} {'radius':>6s} "
+          f"{'time s':>7s}")
     kinds = {"auto": {}}
     if args.baseline:
         kinds["fixed"] = {"measurement_points": {"count": 256, "placement": "surface"},
                           "lights_count": 128}
+    if args.fixed_denoise is not None:
+        kinds[f"r{args.fixed_denoise:g}"] = {"fit": {"denoise": args.fixed_denoise}}
     for name, (asset, families) in todo.items():
         for kind, extra in kinds.items():
             spec = {"lights": {"families": families}}
@@ -88,8 +95,12 @@ def main() -> int:
                 spec["measurement_points"] = extra["measurement_points"]
             if args.resolution:
                 spec["atlas"] = {"resolution": args.resolution}
+            if "fit" in extra:
+                spec["fit"] = extra["fit"]
             if args.reference_spp:
                 spec["validate"] = {"reference_spp": args.reference_spp}
+                if args.reference_lights:
+                    spec["validate"]["reference_lights"] = args.reference_lights
             t0 = time.perf_counter()
             out = bake(asset, parse_spec(spec), tmp / f"{name}-{kind}", quiet=True)
             seconds = time.perf_counter() - t0
@@ -100,16 +111,22 @@ def main() -> int:
                    "bound": v["bound"], "ratio": v["ratio"], "verdict": v["status"],
                    "against": v["against"], "seconds": seconds, "causes": v["causes"],
                    "sizing": m.get("sizing", {}).get("reason"),
+                   "transport_noise": m.get("transport_noise"),
+                   "denoise": m["spec"]["fit"]["denoise"] if "transport_noise" not in m
+                   else m["transport_noise"]["radius"],
                    "stage_seconds": m.get("timings")}
             rows.append(row)
             print(f"{name:<16s} {kind:<9s} {row['P']:>4d} {row['K']:>4d} {row['n']:>3d} "
                   f"{pct(row['error']):>7s} {pct(row['bound']):>7s} "
                   f"{row['ratio'] if row['ratio'] is None else round(row['ratio'], 2)!s:>6s} "
-                  f"{row['verdict']:>8s} {seconds:>7.1f}", flush=True)
-        if args.baseline:
-            a, f = rows[-2]["seconds"], rows[-1]["seconds"]
-            print(f"  {name}: automatic sizing takes {a / f:.2f}× the fixed sizes' time",
-                  flush=True)
+                  f"{row['verdict']:>8s} "
+                  f"{pct((row['transport_noise'] or {}).get('transport_noise')):>7s} "
+                  f"{row['denoise']!s:>6s} {seconds:>7.1f}", flush=True)
+        mine = {r["sizes"]: r["seconds"] for r in rows if r["scene"] == name}
+        for kind in kinds:
+            if kind != "auto":
+                print(f"  {name}: the defaults take {mine['auto'] / mine[kind]:.2f}× the "
+                      f"time of {kind}", flush=True)
     write_rows(rows, args.out)
     return 0
 

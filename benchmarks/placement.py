@@ -37,6 +37,7 @@ from prtcore.receivers.smoothing import denoise_lightmaps  # noqa: E402
 from prtcore.report import heldout_metrics  # noqa: E402
 from prtcore.sizing import select_points  # noqa: E402
 from prtcore.transport.dataset import light_configurations, open_transport  # noqa: E402
+from prtcore.transport.noise import DENOISE_FALLBACK, with_denoise  # noqa: E402
 
 
 def judge(spec, data, K, I, Ih, rows) -> dict:
@@ -78,7 +79,8 @@ def main() -> int:
         tr = open_transport(intake.scene, intake.texels, cand, spec.transport)
         data = light_configurations(tr, (*train, *hold), len(train))
         K = len(train)
-        both = denoise_lightmaps(intake.texels, data.indirect, spec.fit.denoise)
+        radius = with_denoise(spec, DENOISE_FALLBACK).fit.denoise  # as the bake's fallback
+        both = denoise_lightmaps(intake.texels, data.indirect, radius)
         I, Ih = both[:, :K], both[:, K:]
         for p in counts:
             p = min(p, cand.count)

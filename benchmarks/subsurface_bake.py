@@ -50,6 +50,7 @@ from prtcore.methods.data_driven import DataDriven  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
 from prtcore.scenes.translucent import write_translucent_fin  # noqa: E402
 from prtcore.transport.dataset import bake_dataset  # noqa: E402
+from prtcore.transport.noise import DENOISE_FALLBACK, with_denoise  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "results"
 
@@ -138,9 +139,10 @@ def gamma_comparison(intake, train, hold, data, args, log) -> dict:
     h = int(np.argmax(norms))
     x = data.direct_points[:, k0 + h].astype(np.float64)
     ref = data.indirect[:, k0 + h:k0 + h + 1].astype(np.float32)
-    if intake.spec.fit.denoise > 0:
+    radius = with_denoise(intake.spec, DENOISE_FALLBACK).fit.denoise
+    if radius > 0:
         ref = smooth_texels(intake.texels, ref, operator=smoothing_operator(
-            intake.texels, radius=intake.spec.fit.denoise))
+            intake.texels, radius=radius))
     ref = np.asarray(ref[:, 0], np.float64)
     rec = {k: reconstruct(m, x, n=16).astype(np.float64) for k, m in models.items()}
     views = [camera_view(intake, v) for v in (ref, rec["linear"], rec["gamma"])]

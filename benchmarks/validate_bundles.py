@@ -3,8 +3,10 @@
 For each bundle: path-trace ``--lights`` of its held-out lights at ``--spp`` samples per
 texel (:func:`prtcore.validate.validate_bundle`, two independent half-sample estimates, so
 the reference's noise is estimated and subtracted), and print the noise-corrected error at
-the shipped n against the projection bound at that n (the verdict's ratio with a
-path-traced reference). Writes benchmarks/results/validate_bundles.json.
+the shipped n against the projection bound at that n of the same path-traced references,
+noise removed alike (the verdict's ratio with a path-traced reference), beside the fast
+transport's own error and bound and its measured noise. Writes
+benchmarks/results/validate_bundles.json.
 
     .venv/bin/python benchmarks/validate_bundles.py BUNDLE [BUNDLE ...] [--spp 64]
         [--lights 4]
@@ -38,7 +40,8 @@ def main() -> int:
     args = ap.parse_args()
     rows = []
     print(f"{'bundle':<24s} {'P':>5s} {'K':>4s} {'n':>3s} {'noise':>7s} {'error':>7s} "
-          f"{'bound':>7s} {'ratio':>6s} {'time s':>7s}")
+          f"{'bound':>7s} {'ratio':>6s} {'fast':>7s} {'f.bound':>7s} {'t.noise':>7s} "
+          f"{'time s':>7s}")
     for b in args.bundles:
         m = read_manifest(Path(b))
         n = m["verdict"]["n"]
@@ -47,17 +50,22 @@ def main() -> int:
         seconds = time.perf_counter() - t0
         row = next(r for r in v["rows"] if r["n"] == n)
         fast = next(r for r in m["metrics"]["error_vs_runtime"] if r["n"] == n)
-        err, bound = row.get("rmse_noise_corrected_mean"), fast.get("projection_bound_mean")
+        err = row.get("rmse_noise_corrected_mean")
+        bound = row.get("projection_bound_noise_corrected_mean")
         ratio = err / bound if err is not None and bound else None
         out = {"bundle": str(b), "P": m["points"]["count"], "K": m["fit"]["configurations"],
                "n": n, "spp": args.spp, "lights": args.lights,
                "reference_noise": v.get("reference_noise_mean"), "error": err, "bound": bound,
                "ratio": ratio, "fast_transport_error": fast.get("heldout_rmse_mean"),
+               "fast_transport_bound": fast.get("projection_bound_mean"),
+               "transport_noise": (m.get("transport_noise") or {}).get("transport_noise"),
                "seconds": seconds}
         rows.append(out)
         print(f"{Path(b).name:<24s} {out['P']:>5d} {out['K']:>4d} {n:>3d} "
               f"{pct(out['reference_noise']):>7s} {pct(err):>7s} {pct(bound):>7s} "
-              f"{'—' if ratio is None else f'{ratio:.2f}':>6s} {seconds:>7.1f}", flush=True)
+              f"{'—' if ratio is None else f'{ratio:.2f}':>6s} "
+              f"{pct(out['fast_transport_error']):>7s} {pct(out['fast_transport_bound']):>7s} "
+              f"{pct(out['transport_noise']):>7s} {seconds:>7.1f}", flush=True)
     write_rows(rows, args.out)
     return 0
 

@@ -27,7 +27,8 @@ INTAKE_STAGES = ("load", "plan", "repair", "remesh", "uv", "texels", "points")
 
 #: every timed stage of :func:`bake`, in the order they run: the one list progress reports
 #: (the service's workers) and benchmarks use
-STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "select points", "denoise",
+STAGES = (*INTAKE_STAGES, "lights", "keyframes", *TRANSPORT_STAGES, "transport noise",
+          "select points", "denoise",
           "fit", "report", "export", "validate")
 
 
@@ -124,6 +125,12 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         open_transport,
         operators_for,
     )
+    from prtcore.transport.noise import (
+        DENOISE_FALLBACK,
+        measure_noise,
+        noise_line,
+        with_denoise,
+    )
 
     if is_hair_file(asset):  # strands instead of a lightmap (docs/hair.md)
         from prtcore.hairbake import bake_hair
@@ -152,14 +159,20 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         train = pool[:sizing.lights_start]
     m = method(spec.method.name)
     kfs, data = None, None
-    record = indirect = models = None
+    record = indirect = models = noise = None
+    fit_spec = with_denoise(spec, DENOISE_FALLBACK)  # unless measured below
     if m.needs_dataset:
         kfs = _keyframe_set(intake, len(train), len(hold), timer)
         if kfs is None:
             transport = open_transport(scene, texels, points, spec.transport, timer)
             data = light_configurations(transport, (*train, *hold), len(train), timer)
+            if spec.fit.denoise == "auto" and len(hold):
+                noise = measure_noise(transport, hold, data.indirect[:, len(train):], timer)
+                fit_spec = with_denoise(spec, noise.radius)
+                if not quiet:
+                    print(f"transport noise: {noise_line(noise.to_dict())}")
             if sizing.automatic:
-                sized = size_bake(spec, sizing, transport, data, pool, len(hold),
+                sized = size_bake(fit_spec, sizing, transport, data, pool, len(hold),
                                   limit_bytes, timer)
                 intake = dataclasses.replace(intake, points=sized.points)
                 data, train, indirect = sized.data, sized.train, sized.indirect
@@ -173,7 +186,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             from prtcore.keyframes.pose import bake_keyframe_dataset
 
             data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
-    inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=kfs,
+    inputs = BakeInputs(spec=fit_spec, intake=intake, train=train, hold=hold, keyframes=kfs,
                         data=data, indirect=indirect, sizing=record, models=models)
     result = m.fit(inputs, timer)
 
@@ -182,6 +195,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         sections, report = m.write(tmp, inputs, result)
         if record is not None:
             report = {**report, "sizing": record}
+        if noise is not None:
+            report = {**report, "transport_noise": noise.to_dict()}
         _write_run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         common = {
             "asset": {"source": source_name or Path(str(asset)).name,
@@ -208,6 +223,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         }
         if record is not None:
             run["sizing"] = record
+        if noise is not None:
+            run["transport_noise"] = noise.to_dict()
         return manifest_base(method=m.name, **common, **sections, **run,
                              run_files=list(RUN_FILES))
 
@@ -258,6 +275,10 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
     text = m.summary(result, seconds)
     if report.get("sizing"):  # what automatic sizing chose and why (prtcore/sizing.py)
         text = f"sizing: {report['sizing']['reason']}\n{text}"
+    if report.get("transport_noise"):  # the chosen filter (prtcore/transport/noise.py)
+        from prtcore.transport.noise import noise_line
+
+        text = f"transport noise: {noise_line(report['transport_noise'])}\n{text}"
     (out / "report.txt").write_text(text + "\n", encoding="utf-8")
 
 

@@ -156,7 +156,11 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
     limit_bytes : the bake's memory limit (growing K stops before it)
     Timed stages: "select points" (selection and trial fits), "points" and "direct points"
     when candidates grow, and the transport stages of every pass that adds lights.
+    ``spec.fit.denoise`` must be a radius (:func:`prtcore.transport.noise.with_denoise`).
     """
+    if spec.fit.denoise == "auto":
+        raise ValueError("size_bake: fit.denoise 'auto' must be resolved to a radius first "
+                         "(prtcore.transport.noise.measure_noise / with_denoise)")
     fit, target = spec.fit, spec.validate.target_ratio
     t_start = time.perf_counter()
     candidates = transport.points

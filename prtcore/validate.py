@@ -16,7 +16,7 @@ from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.emitters.lightfile import load_light_file
 from prtcore.fit.model import relative_rmse
-from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.io.bundle import RuntimeData, load_runtime, read_manifest
 from prtcore.receivers.texels import image_to_texels
 from prtcore.reference.pathtracer import reference_lightmaps
 from prtcore.report import TABLE_N
@@ -72,6 +72,8 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
                                        tracer=tracer, timer=timer)
         posed = [(data, tracer, None)] * len(lights)
     ns = sorted({n for n in TABLE_N if n <= data.n_basis} | {data.n_basis})
+    # the bound against the reference itself: surface bundles with one transfer
+    basis = None if ("strands" in m or kf) else BasisAtTexels.for_bundle(data, texels)
     per_light = []
     for h, light in enumerate(lights):
         data_h, tracer_h, key = posed[h]
@@ -82,6 +84,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
         if key is not None:
             row["keyframe"] = key
         row["rmse_noise_corrected"] = {}
+        row["projection_bound_noise_corrected"] = {}
         noise2 = float((err[h] ** 2).mean())
         for n in ns:
             rec = image_to_texels(texels, blend(data_h, plane_weights(data_h, x, n)))[:, :3]
@@ -91,20 +94,71 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
             ms = float(((rec - ref[h]) ** 2).mean())
             row["rmse_noise_corrected"][str(n)] = (
                 float(np.sqrt(max(ms - noise2, 0.0))) / norm if norm > 0 else None)
+            bound2 = None if basis is None else basis.residual(x, ref[h], err[h], n)
+            row["projection_bound_noise_corrected"][str(n)] = (
+                float(np.sqrt(max(bound2, 0.0) / ref[h].size)) / norm
+                if norm > 0 and bound2 is not None else None)
         per_light.append(row)
     rows = []
     for n in ns:
         v = [r["rmse"][str(n)] for r in per_light if r["rmse"][str(n)] is not None]
         c = [r["rmse_noise_corrected"][str(n)] for r in per_light
              if r["rmse_noise_corrected"][str(n)] is not None]
+        b = [r["projection_bound_noise_corrected"][str(n)] for r in per_light
+             if r["projection_bound_noise_corrected"][str(n)] is not None]
         rows.append({"n": n, "rmse_mean": float(np.mean(v)) if v else None,
                      "rmse_max": float(np.max(v)) if v else None,
-                     "rmse_noise_corrected_mean": float(np.mean(c)) if c else None})
+                     "rmse_noise_corrected_mean": float(np.mean(c)) if c else None,
+                     "projection_bound_noise_corrected_mean":
+                         float(np.mean(b)) if len(b) == len(c) and b else None})
     noise = [r["reference_noise"] for r in per_light if r["reference_noise"] is not None]
     return {"reference": f"path tracer, {spp} spp", "lights": len(lights), "spp": spp,
             "light_source": "held-out" if light_file is None else str(light_file),
             "seed": seed, "reference_noise_mean": float(np.mean(noise)) if noise else None,
             "rows": rows, "per_light": per_light}
+
+
+class BasisAtTexels:
+    """A bundle's planes at the texels, orthonormalised once for every n:
+    mean : (T, 3) float64 the mean planes; q : three (T, n_b) float64, per channel an
+    orthonormal basis whose first k columns span the first k elements' planes (QR keeps
+    the nesting). None for a bundle fitted in gamma space (a non-linear projection) or
+    with per-keyframe transfers."""
+
+    def __init__(self, data: RuntimeData, planes: np.ndarray):
+        self.mean = np.zeros((len(planes), 3))
+        self.q = []
+        for c in range(3):
+            self.mean[:, c] = planes[:, (data.plane_element == 0)
+                                     & (data.plane_channel == c)].sum(axis=1)
+            use = np.flatnonzero((data.plane_element > 0) & (
+                (data.plane_channel == c) | (data.plane_channel < 0)))
+            use = use[np.argsort(data.plane_element[use], kind="stable")]
+            self.q.append(np.linalg.qr(planes[:, use])[0] if len(use)
+                          else np.zeros((len(planes), 0)))
+
+    @staticmethod
+    def for_bundle(data: RuntimeData, texels) -> BasisAtTexels | None:
+        if (data.gamma not in (None, 1.0)) or data.transfer.ndim == 4:
+            return None
+        return BasisAtTexels(data, image_to_texels(texels, data.planes).astype(np.float64))
+
+    def residual(self, x: np.ndarray, ref: np.ndarray, stderr: np.ndarray, n: int) -> float:
+        """The projection bound against a path-traced reference, its noise removed: Σ over
+        texels and channels of the squared residual of the best coefficients any transfer
+        could give the first n elements (the mean plane's weight fixed at ‖x‖, as at
+        runtime; least squares per channel, as :func:`prtcore.fit.transfer.projection_bound`),
+        less the part of the reference's variance outside the basis, Σ σ²(1 − leverage).
+        x : (P, 3) direct vector; ref, stderr : (T, 3); n : elements, mean included."""
+        s = float(np.linalg.norm(x))
+        out = 0.0
+        for c in range(3):
+            q = self.q[c][:, :max(n - 1, 0)]
+            r = ref[:, c] - s * self.mean[:, c]
+            r = r - q @ (q.T @ r)
+            leverage = np.einsum("ij,ij->i", q, q)
+            out += float(r @ r) - float((stderr[:, c] ** 2 * (1.0 - leverage)).sum())
+        return out
 
 
 def _hair_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,

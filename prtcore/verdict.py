@@ -4,7 +4,8 @@ cause it can detect and what to change.
 Judged at the shipped n on the held-out lights: the held-out error (pooled over the
 lights, √(Σ‖rec − ref‖² / Σ‖ref‖²); with a path-traced reference, the mean
 noise-corrected error per light) against ``validate.target_ratio`` × the projection
-bound (pooled alike) (the best any
+bound (pooled alike; with a path-traced reference, the basis projected on those
+references, their noise removed: :class:`prtcore.validate.BasisAtTexels`) (the best any
 transfer could do with this basis), and the held-out error relative to the RMS of all
 held-out indirect lightmaps against ``validate.max_error``. A failing bake still writes
 its bundle; ``prtcore bake`` then exits with :data:`EXIT_POOR` unless ``--allow-poor``.
@@ -56,7 +57,10 @@ def judge(table: dict, diagnostics: dict, n: int, validate, *, points: int,
         rr = _row(reference, n)
         if rr is not None and rr.get("rmse_noise_corrected_mean") is not None:
             error = rr["rmse_noise_corrected_mean"]
-            bound = row.get("projection_bound_mean")
+            # the basis projected on the path-traced references themselves (noise removed),
+            # the same lights as the error; the fast transport's where it cannot be
+            bound = rr.get("projection_bound_noise_corrected_mean") or row.get(
+                "projection_bound_mean")
             against = f"{reference['reference']}, noise removed"
     ratio = error / bound if bound else (1.0 if error == 0 else float("inf"))
     error_global = row.get("heldout_rmse_global_mean")

@@ -1,4 +1,4 @@
-"""The learnt SH network in GLSL (prtcore.runtime.learnt_sh: weights as mat4 constants)
+"""The learnt SH network in GLSL (prtcore.runtime.learnt_sh: weights as mat4 blocks)
 against its numpy evaluation (prtcore.fit.learnt_sh.evaluate), for the thesis' sizes with
 seeded random weights: equal to 1e-4 of the largest coefficient."""
 
@@ -51,6 +51,7 @@ def test_glsl_learnt_sh_is_the_numpy_one(ctx, size):
     gpu = gpu_evaluate(ctx, model, p, n)
     assert np.abs(cpu).max() > 0.1  # the outputs are not all squashed to 0 or ±scale
     assert np.abs(gpu - cpu).max() <= 1e-4 * np.abs(cpu).max(), np.abs(gpu - cpu).max()
-    mats, _, table = packed(model)
+    mats, _, table, scale = packed(model)
+    assert np.allclose(scale.ravel()[:16], 0.7)
     assert len(mats) == sum(int(i4 * o4) for i4, o4, _, _ in table)
     assert f"#define LAYERS {layers + 1}" in shader(model)

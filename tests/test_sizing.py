@@ -25,6 +25,7 @@ from prtcore.transport.dataset import (
     light_configurations,
     open_transport,
 )
+from prtcore.transport.noise import DENOISE_FALLBACK, with_denoise
 
 CORNELL = Path(__file__).resolve().parents[1] / "examples" / "cornell_box.glb"
 
@@ -68,7 +69,7 @@ def test_decide_sizing_resolves_auto_and_keeps_given_counts():
 
 
 def _sized(spec_dict, limit=1 << 40):
-    spec = parse_spec(spec_dict)
+    spec = with_denoise(parse_spec(spec_dict), DENOISE_FALLBACK)
     timer = StageTimer(quiet=True)
     intake = pipeline.run_intake(CORNELL, spec, timer=timer, quiet=True)
     sz = intake.plan.sizing
@@ -147,7 +148,8 @@ def test_an_auto_bake_reports_what_it_chose(tmp_path):
     assert sizing["trials"] and sizing["reason"]
     assert manifest["spec"]["lights"]["count"] == "auto"
     assert json.loads((out / "report.json").read_text())["sizing"] == sizing
-    assert (out / "report.txt").read_text().startswith(f"sizing: {sizing['reason']}\n")
+    head = (out / "report.txt").read_text().splitlines()[:2]  # after the transport noise
+    assert head[0].startswith("transport noise: ") and head[1] == f"sizing: {sizing['reason']}"
     chosen = [t for t in sizing["trials"] if t["points"] == sizing["points"]
               and t["lights"] == sizing["lights"]]
     # the verdict is judged on the same fit sizing measured

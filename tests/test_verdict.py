@@ -112,5 +112,8 @@ def test_reference_spp_judges_against_the_path_tracer(tmp_path):
     assert report["validation"]["lights"] == 2 and report["verdict"] == v
     row = next(r for r in report["validation"]["rows"] if r["n"] == 8)
     assert v["error"] == row["rmse_noise_corrected_mean"]
+    # the bound: the basis projected on the same path-traced references, noise removed
+    assert v["bound"] == row["projection_bound_noise_corrected_mean"] > 0
+    assert v["ratio"] == pytest.approx(v["error"] / v["bound"])
     assert "validate" in m["timings"]
     assert (out / "report.txt").read_text().strip().splitlines()[-1] == v["line"]

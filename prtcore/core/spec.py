@@ -111,9 +111,11 @@ class FitSpec:
     ridge: float | str = "auto"  # float ≥ 0 or "auto"
     channels: str = "mono"  # "mono" | "rgb"
     gamma: float | None = None
-    #: radius in texels of the seam-aware filter applied to the training lightmaps before
-    #: the basis is fitted (0: off); keeps the gather's per-texel noise out of the basis
-    denoise: float = 1.5
+    #: radius in texels of the seam-aware filter applied to the lightmaps before the basis
+    #: is fitted (0: off); keeps the gather's per-texel noise out of the basis. "auto":
+    #: the radius with the least error against the noiseless lightmaps, measured with a
+    #: second, independent transport of the held-out lights (prtcore/transport/noise.py)
+    denoise: float | str = "auto"
     #: the transfer regressor: "ridge" | "mlp" (ridge + a learnt residual, issue 18)
     transfer: str = "ridge"
     mlp_width: int = 64
@@ -196,7 +198,7 @@ BOUNDARIES = ("lambertian",)
 @dataclass(frozen=True)
 class MethodSpec:
     #: the method that fits and writes the bundle (prtcore.methods): "data_driven" |
-    #: "sh_prt"
+    #: "sh_prt" | "learnt_sh"
     name: str = "data_driven"
 
 
@@ -213,6 +215,33 @@ class ShPrtSpec:
     specular: float = 0.0
     #: its Phong exponent n
     exponent: float = 8.0
+
+
+@dataclass(frozen=True)
+class LearntShSpec:
+    """Learnt SH transfer, the thesis' network σ(p, n̂) (method "learnt_sh",
+    docs/learnt_sh.md)."""
+
+    bands: int = 4
+    #: neurons per hidden layer k and hidden layers l (thesis: k 64 or 128, l 4)
+    width: int = 128
+    layers: int = 4
+    #: area-uniform training samples, and rays per sample = strata²
+    samples: int = 8000
+    strata: int = 16
+    #: AdamW steps on minibatches of ``batch``
+    steps: int = 1500
+    batch: int = 512
+    seed: int = 0
+    #: > 0: a glossy Phong layer of this ρ_s (the network also learns the visibility SH)
+    specular: float = 0.0
+    exponent: float = 8.0
+    #: the bake's metrics against transfer textures: camera views on an orbit, their size,
+    #: and the textures' rays per texel = baseline_strata² (0 views: no metrics)
+    views: int = 30
+    view_width: int = 96
+    view_height: int = 64
+    baseline_strata: int = 16
 
 
 @dataclass(frozen=True)
@@ -247,6 +276,7 @@ class BakeSpec:
     sizing: SizingSpec = SizingSpec()
     method: MethodSpec = MethodSpec()
     sh_prt: ShPrtSpec = ShPrtSpec()
+    learnt_sh: LearntShSpec = LearntShSpec()
     hair: HairSpec = HairSpec()
     #: material name → :class:`MaterialOverride`
     materials: dict = field(default_factory=dict)
@@ -559,7 +589,8 @@ def _parse(data: Any) -> BakeSpec:
         # gamma < 1 expands the dynamic range (|v|^(1/g) overflows float64 for radiance
         # ~1e6 at g = 0.05, and the float32 model long before): refused, see fit.py
         gamma=None if gamma is None else _num(gamma, "fit.gamma", lo=1.0, hi=10.0),
-        denoise=_num(f.get("denoise", FitSpec().denoise), "fit.denoise", lo=0.0, hi=8.0),
+        denoise="auto" if f.get("denoise", "auto") == "auto" else _num(
+            f["denoise"], "fit.denoise", lo=0.0, hi=8.0),
         transfer=_choice(f.get("transfer", "ridge"), "fit.transfer", ("ridge", "mlp")),
         mlp_width=_int(f.get("mlp_width", 64), "fit.mlp_width", lo=1, hi=256),
         mlp_layers=_int(f.get("mlp_layers", 2), "fit.mlp_layers", lo=1, hi=8),
@@ -621,7 +652,7 @@ def _parse(data: Any) -> BakeSpec:
 
     mt = _section(MethodSpec, root.get("method", {}), "method")
     method = MethodSpec(name=_choice(mt.get("name", "data_driven"), "method.name",
-                                     ("data_driven", "sh_prt")))
+                                     ("data_driven", "sh_prt", "learnt_sh")))
     sp = _section(ShPrtSpec, root.get("sh_prt", {}), "sh_prt")
     sd = ShPrtSpec()
     bounce = sp.get("bounce", sd.bounce)
@@ -639,9 +670,25 @@ def _parse(data: Any) -> BakeSpec:
     )
     if sh_prt.specular > 0 and sh_prt.storage != "texture":
         raise SpecError("sh_prt.specular", "the glossy layer (TP) needs texture storage")
-    if method.name == "sh_prt" and keyframes.animation is not None:
-        raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
+    if method.name in ("sh_prt", "learnt_sh") and keyframes.animation is not None:
+        raise SpecError("method.name", f"{method.name} bakes static assets only (keyframes."
                         "animation is set)")
+    ls = _section(LearntShSpec, root.get("learnt_sh", {}), "learnt_sh")
+    ld = LearntShSpec()
+
+    def lint(key: str, lo: int, hi: int) -> int:
+        return _int(ls.get(key, getattr(ld, key)), f"learnt_sh.{key}", lo=lo, hi=hi)
+
+    learnt_sh = LearntShSpec(
+        bands=lint("bands", 1, 8), width=lint("width", 1, 1024), layers=lint("layers", 1, 16),
+        samples=lint("samples", 16, 1 << 24), strata=lint("strata", 1, 128),
+        steps=lint("steps", 0, 1 << 24), batch=lint("batch", 1, 1 << 20),
+        seed=lint("seed", 0, 1 << 62),
+        specular=_num(ls.get("specular", ld.specular), "learnt_sh.specular", lo=0.0, hi=1.0),
+        exponent=_num(ls.get("exponent", ld.exponent), "learnt_sh.exponent", lo=0.0, hi=1e4),
+        views=lint("views", 0, 1024), view_width=lint("view_width", 8, 4096),
+        view_height=lint("view_height", 8, 4096),
+        baseline_strata=lint("baseline_strata", 1, 128))
 
     hs = _section(HairSpec, root.get("hair", {}), "hair")
     albedo = hs.get("albedo")
@@ -667,7 +714,8 @@ def _parse(data: Any) -> BakeSpec:
 
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
-                    validate=validate, method=method, sh_prt=sh_prt, hair=hair,
+                    validate=validate, method=method, sh_prt=sh_prt, learnt_sh=learnt_sh,
+                    hair=hair,
                     materials=materials, sizing=sizing)
 
 

@@ -70,9 +70,12 @@ DOCS: dict[str, str] = {
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",
-    "fit.denoise": "radius in texels (0–8) of the seam-aware filter applied to the "
-                   "training lightmaps before the basis is fitted (0: off); the held-out "
-                   "lightmaps the verdict is judged on are not filtered",
+    "fit.denoise": "`auto`, or a radius in texels (0–8) of the seam-aware filter applied "
+                   "to the training and held-out lightmaps alike before the basis is "
+                   "fitted (0: off). `auto` traces the held-out lights a second time with "
+                   "an independent seed and ships the radius of 0, 0.75, 1.5, 2.5 with the "
+                   "least estimated error against the noiseless lightmaps (manifest "
+                   "`transport_noise`); keyframe bakes take 1.5",
     "fit.transfer": "`ridge` (linear, paper 4.3) · `mlp` (the ridge plus a learnt "
                     "residual network trained on its leave-one-out errors; "
                     "docs/bundle.md)",
@@ -101,7 +104,27 @@ DOCS: dict[str, str] = {
     "sizing.max_seconds": "growing K stops when the next pass would end past this many "
                           "seconds of transport (0: no time limit; the memory limit holds)",
     "method.name": "`data_driven` (Belcour et al. 2022) · `sh_prt` (classic SH-PRT or "
-                   "transfer textures, section `sh_prt`; docs/sh_prt.md)",
+                   "transfer textures, section `sh_prt`; docs/sh_prt.md) · `learnt_sh` "
+                   "(the thesis' network σ(p, n̂) → SH transfer, section `learnt_sh`; "
+                   "docs/learnt_sh.md)",
+    "learnt_sh.bands": "L, SH bands of the learnt transfer (L² network outputs), 1–8",
+    "learnt_sh.width": "k, neurons per hidden layer (thesis: 64 or 128)",
+    "learnt_sh.layers": "l, hidden layers, leaky ReLU (thesis: 4)",
+    "learnt_sh.samples": "area-uniform training samples on the surface",
+    "learnt_sh.strata": "rays per training sample = strata² (more rays: less noisy "
+                        "targets)",
+    "learnt_sh.steps": "AdamW steps",
+    "learnt_sh.batch": "minibatch size",
+    "learnt_sh.seed": "seed of the samples, rays, initial weights and minibatches (same "
+                      "seed, same weights)",
+    "learnt_sh.specular": "ρ_s of a glossy Phong layer (0: diffuse only); > 0 makes the "
+                          "network also learn the visibility SH for the triple product",
+    "learnt_sh.exponent": "Phong exponent n of the glossy layer",
+    "learnt_sh.views": "camera views on an orbit for the bake's metrics against transfer "
+                       "textures (0: none)",
+    "learnt_sh.view_width": "width of each metrics view in pixels",
+    "learnt_sh.view_height": "height of each metrics view in pixels",
+    "learnt_sh.baseline_strata": "the baseline transfer textures' rays per texel = this²",
     "sh_prt.storage": "`texture` (transfer textures: per lightmap texel, RGBA EXRs) · "
                       "`vertex` (per vertex, Sloan et al. 2002)",
     "sh_prt.bands": "L, SH bands (L² coefficients per colour channel), 1–16; 5 = the "

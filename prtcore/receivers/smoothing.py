@@ -49,34 +49,50 @@ def smoothing_operator(texels: TexelSpace, radius: float = SMOOTH_RADIUS,
     """The filter as a row-stochastic sparse matrix W (T × T) float64: ``W @ values``
     smooths (T, …) texel values (module docstring). Every row contains its own texel, so
     a texel with no neighbour keeps its value; radius 0 gives the identity."""
+    t = texels.count
+    if radius <= 0 or t == 0:
+        return sp.identity(t, format="csr", dtype=np.float64)
+    return smoothing_operators(texels, (radius,), cos_min, plane_tol)[0]
+
+
+def smoothing_operators(texels: TexelSpace, radii: tuple[float, ...],
+                        cos_min: float = SMOOTH_COS_MIN,
+                        plane_tol: float = SMOOTH_PLANE_TOL) -> list[sp.csr_matrix]:
+    """:func:`smoothing_operator` for several radii (all > 0) from one neighbour search at
+    the largest: the pairs within ``radius · h_i`` of each smaller radius are a subset.
+    Returns one (T × T) float64 CSR per radius, in order."""
     pos = np.asarray(texels.position, dtype=np.float64)
     nrm = np.asarray(texels.normal, dtype=np.float64)
     t = len(pos)
-    if radius <= 0 or t == 0:
-        return sp.identity(t, format="csr", dtype=np.float64)
+    if t == 0:
+        return [sp.identity(0, format="csr", dtype=np.float64) for _ in radii]
     h = texel_size(texels)
-    r = radius * h
+    r_max = max(radii) * h
     tree = cKDTree(pos)
-    rows, cols = [], []
+    parts = []  # per block of rows: (i, j, |p_j − p_i|²) of the pairs that pass the tests
     for a in range(0, t, 4096):
         b = min(a + 4096, t)
-        hits = tree.query_ball_point(pos[a:b], r[a:b])
+        hits = tree.query_ball_point(pos[a:b], r_max[a:b])
         lens = np.fromiter((len(x) for x in hits), dtype=np.int64, count=b - a)
-        rows.append(np.repeat(np.arange(a, b), lens))
-        cols.append(np.fromiter((j for x in hits for j in x), dtype=np.int64,
-                                count=int(lens.sum())))
-    i = np.concatenate(rows)
-    j = np.concatenate(cols)
-    d = pos[j] - pos[i]
-    ok = (np.einsum("ij,ij->i", nrm[i], nrm[j]) >= cos_min) & (
-        np.abs(np.einsum("ij,ij->i", nrm[i], d)) <= plane_tol * h[i])
-    ok |= i == j
-    i, j, d = i[ok], j[ok], d[ok]
-    sigma = 0.5 * r[i]
-    w = np.exp(-np.einsum("ij,ij->i", d, d) / (2.0 * sigma * sigma))
-    W = sp.csr_matrix((w, (i, j)), shape=(t, t))
-    norm = np.asarray(W.sum(axis=1)).ravel()
-    return sp.diags(1.0 / norm) @ W
+        i = np.repeat(np.arange(a, b), lens)
+        j = np.fromiter((j for x in hits for j in x), dtype=np.int64, count=int(lens.sum()))
+        d = pos[j] - pos[i]
+        ok = (np.einsum("ij,ij->i", nrm[i], nrm[j]) >= cos_min) & (
+            np.abs(np.einsum("ij,ij->i", nrm[i], d)) <= plane_tol * h[i])
+        ok |= i == j
+        parts.append((i[ok], j[ok], np.einsum("ij,ij->i", d[ok], d[ok])))
+    i, j, d2 = (np.concatenate(x) for x in zip(*parts, strict=True))
+    out = []
+    for radius in radii:
+        r = radius * h
+        keep = slice(None) if radius == max(radii) else (d2 <= r[i] * r[i]) | (i == j)
+        ik, jk = i[keep], j[keep]
+        sigma = 0.5 * r[ik]
+        w = np.exp(-d2[keep] / (2.0 * sigma * sigma))
+        W = sp.csr_matrix((w, (ik, jk)), shape=(t, t))
+        norm = np.asarray(W.sum(axis=1)).ravel()
+        out.append(sp.diags(1.0 / norm) @ W)
+    return out
 
 
 def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True,
