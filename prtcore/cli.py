@@ -144,22 +144,31 @@ def _warn_family(command: str, data, lights, tracer) -> None:
               "bake's held-out figures", file=sys.stderr)
 
 
-def _relight_sh_prt(args: argparse.Namespace, bundle: Path) -> int:
-    """relight of an sh_prt bundle: distant lighting (an environment map and/or
-    directional lights, docs/sh_prt.md) → the lightmap of outgoing radiance."""
+#: methods whose bundles take distant lighting (docs/sh_prt.md, docs/learnt_sh.md)
+DISTANT_METHODS = ("sh_prt", "learnt_sh")
+
+
+def _relight_distant(args: argparse.Namespace, bundle: Path, method: str) -> int:
+    """relight of an sh_prt or learnt_sh bundle: distant lighting (an environment map
+    and/or directional lights, docs/sh_prt.md) → the lightmap of outgoing radiance."""
     from prtcore.emitters.environment import load_distant_lighting
     from prtcore.io.bundle import read_manifest
     from prtcore.io.imageio import write_exr
-    from prtcore.methods.sh_prt import relight_bundle
 
+    if method == "sh_prt":
+        from prtcore.methods.sh_prt import relight_bundle
+    else:
+        from prtcore.methods.learnt_sh import relight_bundle
     for flag, value in (("--time", args.time), ("--basis", args.basis)):
         if value is not None:
-            raise PrtError(f"{flag}: an sh_prt bundle has no keyframes or basis")
+            raise PrtError(f"{flag}: an {method} bundle has no keyframes or basis")
     manifest = read_manifest(bundle)
     image = relight_bundle(bundle, manifest, load_distant_lighting(args.light))
     write_exr(args.out, image, dtype="float")
-    sec = manifest["sh_prt"]
-    print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, sh_prt {sec['storage']}, "
+    sec = manifest[method]
+    kind = f"sh_prt {sec['storage']}" if method == "sh_prt" else \
+        f"learnt_sh k{sec['width']} l{sec['layers']}"
+    print(f"relit: {args.out} ({image.shape[1]}×{image.shape[0]}, {kind}, "
           f"{sec['bands']} bands)")
     return 0
 
@@ -172,8 +181,9 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.runtime.cpu import relight
 
     bundle = Path(args.bundle)
-    if read_manifest(bundle).get("method") == "sh_prt":
-        return _relight_sh_prt(args, bundle)
+    method = read_manifest(bundle).get("method")
+    if method in DISTANT_METHODS:
+        return _relight_distant(args, bundle, method)
     manifest, data, scene, key = _posed_runtime("relight", bundle, args.time)
     lights = load_light_file(args.light)
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
@@ -190,21 +200,25 @@ def _cmd_relight(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render_sh_prt(args: argparse.Namespace) -> int:
-    """render of an sh_prt bundle: the vertex- or fragment-shader variant under distant
-    lighting (docs/sh_prt.md)."""
-    from prtcore.runtime.sh_gl import render_sh_prt_to_file
+def _render_distant(args: argparse.Namespace, method: str) -> int:
+    """render of an sh_prt bundle (the vertex- or fragment-shader variant, docs/sh_prt.md)
+    or a learnt_sh bundle (the network per fragment, docs/learnt_sh.md) under distant
+    lighting."""
+    if method == "sh_prt":
+        from prtcore.runtime.sh_gl import render_sh_prt_to_file as render_file
+    else:
+        from prtcore.runtime.learnt_sh import render_learnt_sh_to_file as render_file
 
     for flag, value in (("--time", args.time), ("--basis", args.basis),
                         ("--indirect-only", args.indirect_only or None),
                         ("--no-indirect", args.no_indirect or None),
                         ("--cpu", args.cpu or None)):
         if value is not None:
-            raise PrtError(f"render: {flag}: not an option for an sh_prt bundle")
-    res, label = render_sh_prt_to_file(args.bundle, args.light, args.camera, args.out,
-                                       exposure=args.exposure)
+            raise PrtError(f"render: {flag}: not an option for an {method} bundle")
+    res, label = render_file(args.bundle, args.light, args.camera, args.out,
+                             exposure=args.exposure)
     times = ", ".join(f"{k} {v:.2f} ms" for k, v in res.wall_milliseconds.items())
-    print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, sh_prt) on "
+    print(f"rendered: {args.out} ({res.image.shape[1]}×{res.image.shape[0]}, {method}) on "
           f"{label}; first frame, wall clock: {times}")
     return 0
 
@@ -213,8 +227,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from prtcore.io.bundle import read_manifest
     from prtcore.runtime.gl import render_to_file
 
-    if read_manifest(Path(args.bundle)).get("method") == "sh_prt":
-        return _render_sh_prt(args)
+    method = read_manifest(Path(args.bundle)).get("method")
+    if method in DISTANT_METHODS:
+        return _render_distant(args, method)
     if args.indirect_only and args.no_indirect:
         raise PrtError("render: --indirect-only and --no-indirect exclude each other")
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
@@ -284,11 +299,13 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from prtcore.report import format_table
 
     bundle = Path(args.bundle)
-    read_manifest(bundle)
+    manifest = read_manifest(bundle)
     path = bundle / "report.json"
     if not path.is_file():
         raise PrtError(f"{bundle}: report.json is missing")
     report = json.loads(path.read_text(encoding="utf-8"))
+    if manifest.get("method") == "learnt_sh":
+        return _report_learnt_sh(args, bundle, report, path)
     if args.light and not args.reference_spp:
         raise PrtError("report: --light needs --reference-spp N (the path tracer's samples "
                        "per texel)")
@@ -320,6 +337,31 @@ def _cmd_report(args: argparse.Namespace) -> int:
         print(format_validation(report["validation"]))
     for v in report.get("validation_lights", {}).values():
         print(format_validation(v))
+    return 0
+
+
+def _report_learnt_sh(args: argparse.Namespace, bundle: Path, report: dict,
+                      path: Path) -> int:
+    """report of a learnt_sh bundle: the bake's metrics against transfer textures
+    (report.json, computed at bake time); ``--gpu`` measures the GL frame time and keeps
+    it in report.json."""
+    import json
+
+    from prtcore.methods.learnt_sh import format_metrics
+
+    if args.light or args.reference_spp:
+        raise PrtError("report: --light/--reference-spp: a learnt_sh bundle is measured "
+                       "against transfer textures at bake time, not the path tracer")
+    metrics = report.get("metrics")
+    if not metrics:
+        raise PrtError(f"{bundle}: report.json has no metrics (baked with "
+                       "learnt_sh.views = 0)")
+    if args.gpu:
+        from prtcore.methods.learnt_sh import gpu_frame_time
+
+        report["gpu_frame"] = gpu_frame_time(bundle, metrics)
+        path.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    print(format_metrics(metrics, report.get("gpu_frame")))
     return 0
 
 

@@ -21,3 +21,15 @@ def shared_assets() -> Path:
     path = TESTS.parents[1] / "shared" / "assets"
     assert path.is_dir(), f"shared test assets missing: {path}"
     return path
+
+
+@pytest.fixture(scope="module")
+def gl_ctx():
+    """A headless EGL context for one test module (made current again before release:
+    CLI tests in the module create and release contexts of their own)."""
+    from prtcore.runtime.glcontext import create_context, make_current
+
+    ctx = create_context()
+    yield ctx
+    make_current(ctx)
+    ctx.release()

@@ -91,6 +91,45 @@ def bake_sh_prt_bundle(tmp_path, storage: str, *, bounce: bool = True,
     return out
 
 
+def write_render_inputs(tmp_path, width: int = 64, height: int = 48):
+    """A camera file looking at the floor-and-object scene (``width`` × ``height``) and a
+    directional light file: (camera path, light path) for ``prtcore render``."""
+    import json
+
+    (tmp_path / "cam.json").write_text(json.dumps(
+        {"position": [2.3, 2.0, 3.1], "target": [0, 0.2, 0.8], "fov_y_deg": 45,
+         "width": width, "height": height}))
+    (tmp_path / "sun.json").write_text(json.dumps(
+        {"type": "directional", "direction": [0.3, -1, 0.4], "intensity": 2}))
+    return tmp_path / "cam.json", tmp_path / "sun.json"
+
+
+def bake_learnt_sh_bundle(tmp_path, *, specular: float = 0.5, views: int = 2,
+                          name: str = "b_learnt"):
+    """A learnt_sh bundle of the floor-and-object scene at a 32² atlas, baked through the
+    CLI with a tiny network (k 16, l 2, 3 bands, 600 samples × 16 rays, 60 steps, seed 0;
+    ``specular`` > 0: the glossy visibility outputs, exponent 8) and ``views`` metrics
+    views of 32 × 24 against 16-ray transfer textures."""
+    import json
+
+    from prtcore.cli import main
+    from prtcore.scenes import floor_object
+
+    asset = floor_object.write_floor_object(tmp_path / "fo.glb")
+    spec = dict(floor_object.SPEC, atlas={"resolution": 32, "padding": 2},
+                method={"name": "learnt_sh"},
+                learnt_sh={"bands": 3, "width": 16, "layers": 2, "samples": 600, "strata": 4,
+                           "steps": 60, "batch": 128, "views": views, "view_width": 32,
+                           "view_height": 24, "baseline_strata": 4, "specular": specular,
+                           "exponent": 8.0},
+                output={"dtype": "float"})
+    (tmp_path / "spec_learnt.json").write_text(json.dumps(spec))
+    out = tmp_path / name
+    assert main(["bake", str(asset), "--spec", str(tmp_path / "spec_learnt.json"), "--out",
+                 str(out), "-q"]) == 0
+    return out
+
+
 def write_normal_mapped_quad(path, normal_map: np.ndarray, scale: float = 1.0,
                              albedo=(0.6, 0.6, 0.6)):
     """A 2 m × 2 m quad at y = 0 facing +y, TEXCOORD_0 = ((x + 1)/2, (z + 1)/2) — so

@@ -4,11 +4,9 @@ fragment-shader variant vs the bilinear transfer textures at its TEXCOORD_1."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-from scenes import bake_sh_prt_bundle
+from scenes import bake_sh_prt_bundle, write_render_inputs
 
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import CLAMP_TO_EDGE, sample_texture
@@ -19,18 +17,9 @@ from prtcore.io.gltf.loader import load_asset
 from prtcore.io.transfer_textures import VISIBILITY, read_transfer_textures
 from prtcore.methods import sh_prt
 from prtcore.reference.pathtracer import default_tracer
-from prtcore.runtime.glcontext import create_context, make_current
 from prtcore.runtime.sh_gl import ShPrtRenderer
 from prtcore.scenes import floor_object
 from prtcore.transport.sh_transfer import ShTransfer
-
-
-@pytest.fixture(scope="module")
-def gl_ctx():
-    ctx = create_context()
-    yield ctx
-    make_current(ctx)
-    ctx.release()
 
 
 def _gl_and_hits(out, gl_ctx):
@@ -101,14 +90,8 @@ def test_render_command_on_an_sh_prt_bundle(tmp_path, capsys):
     from prtcore.cli import main
 
     out = bake_sh_prt_bundle(tmp_path, "texture", bounce=False)
-    (tmp_path / "cam.json").write_text(json.dumps(
-        {"position": [2.3, 2.0, 3.1], "target": [0, 0.2, 0.8], "fov_y_deg": 45,
-         "width": 64, "height": 48}))
-    (tmp_path / "sun.json").write_text(json.dumps(
-        {"type": "directional", "direction": [0.3, -1, 0.4], "intensity": 2}))
-    assert main(["render", str(out), "--light", str(tmp_path / "sun.json"), "--camera",
-                 str(tmp_path / "cam.json"), "--out", str(tmp_path / "f.png")]) == 0
+    cam, sun = write_render_inputs(tmp_path)
+    render = ["render", str(out), "--light", str(sun), "--camera", str(cam), "--out"]
+    assert main([*render, str(tmp_path / "f.png")]) == 0
     assert "sh_prt" in capsys.readouterr().out and (tmp_path / "f.png").is_file()
-    assert main(["render", str(out), "--light", str(tmp_path / "sun.json"), "--camera",
-                 str(tmp_path / "cam.json"), "--out", str(tmp_path / "g.png"),
-                 "--indirect-only"]) == 2
+    assert main([*render, str(tmp_path / "g.png"), "--indirect-only"]) == 2

@@ -265,3 +265,24 @@ class Scene:
     def replace(self, **changes) -> Scene:
         import dataclasses
         return dataclasses.replace(self, **changes)
+
+
+def single_mesh_scene(source: str, positions: np.ndarray, normals: np.ndarray,
+                      faces: np.ndarray, material: Material, *,
+                      uv0: np.ndarray | None = None, has_uv0: np.ndarray | None = None,
+                      warnings: tuple[str, ...] = ()) -> Scene:
+    """A scene of one untransformed mesh with one material (OBJ/PLY assets, SDF meshes):
+    positions, normals (v, 3) float64, faces (f, 3) int64; uv0 (v, 2) with has_uv0 (v,)
+    bool, or none."""
+    nv = len(positions)
+    if uv0 is None:
+        uv0, has_uv0 = np.zeros((nv, 2)), np.zeros(nv, dtype=bool)
+    empty4 = np.zeros((0, 4))
+    inst = PrimitiveInstance(node=-1, mesh=0, primitive=0, vertex_start=0, vertex_count=nv,
+                             face_start=0, face_count=len(faces), object_positions=positions,
+                             object_normals=normals, joints=empty4.astype(np.int32),
+                             weights=empty4)
+    return Scene(source=source, positions=positions, normals=normals, uv0=uv0, uv1=None,
+                 faces=faces, face_material=np.zeros(len(faces), dtype=np.int32),
+                 face_instance=np.zeros(len(faces), dtype=np.int32), materials=(material,),
+                 instances=(inst,), has_uv0=has_uv0, warnings=warnings)

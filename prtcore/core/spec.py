@@ -198,7 +198,7 @@ BOUNDARIES = ("lambertian",)
 @dataclass(frozen=True)
 class MethodSpec:
     #: the method that fits and writes the bundle (prtcore.methods): "data_driven" |
-    #: "sh_prt"
+    #: "sh_prt" | "learnt_sh"
     name: str = "data_driven"
 
 
@@ -215,6 +215,37 @@ class ShPrtSpec:
     specular: float = 0.0
     #: its Phong exponent n
     exponent: float = 8.0
+
+
+@dataclass(frozen=True)
+class LearntShSpec:
+    """Learnt SH transfer, the thesis' network σ(p, n̂) (method "learnt_sh",
+    docs/learnt_sh.md)."""
+
+    bands: int = 4
+    #: neurons per hidden layer k and hidden layers l (thesis: k 64 or 128, l 4)
+    width: int = 128
+    layers: int = 4
+    #: area-uniform training samples, and rays per sample = strata²
+    samples: int = 8000
+    strata: int = 16
+    #: AdamW steps on minibatches of ``batch``
+    steps: int = 1500
+    batch: int = 512
+    seed: int = 0
+    #: > 0: a glossy Phong layer of this ρ_s (the network also learns the visibility SH)
+    specular: float = 0.0
+    exponent: float = 8.0
+    #: the bake's metrics against transfer textures: camera views on an orbit, their size,
+    #: and the textures' rays per texel = baseline_strata² (0 views: no metrics)
+    views: int = 30
+    view_width: int = 96
+    view_height: int = 64
+    baseline_strata: int = 16
+    #: sub-scenes (thesis 4.1.5): a grid of (nx, ny, nz) cells, one network each, trained
+    #: on its cell grown by ``overlap`` × the cell's size into the neighbours
+    cells: tuple[int, int, int] = (1, 1, 1)
+    overlap: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -249,6 +280,7 @@ class BakeSpec:
     sizing: SizingSpec = SizingSpec()
     method: MethodSpec = MethodSpec()
     sh_prt: ShPrtSpec = ShPrtSpec()
+    learnt_sh: LearntShSpec = LearntShSpec()
     hair: HairSpec = HairSpec()
     #: material name → :class:`MaterialOverride`
     materials: dict = field(default_factory=dict)
@@ -624,7 +656,7 @@ def _parse(data: Any) -> BakeSpec:
 
     mt = _section(MethodSpec, root.get("method", {}), "method")
     method = MethodSpec(name=_choice(mt.get("name", "data_driven"), "method.name",
-                                     ("data_driven", "sh_prt")))
+                                     ("data_driven", "sh_prt", "learnt_sh")))
     sp = _section(ShPrtSpec, root.get("sh_prt", {}), "sh_prt")
     sd = ShPrtSpec()
     bounce = sp.get("bounce", sd.bounce)
@@ -642,9 +674,27 @@ def _parse(data: Any) -> BakeSpec:
     )
     if sh_prt.specular > 0 and sh_prt.storage != "texture":
         raise SpecError("sh_prt.specular", "the glossy layer (TP) needs texture storage")
-    if method.name == "sh_prt" and keyframes.animation is not None:
-        raise SpecError("method.name", "sh_prt bakes static assets only (keyframes."
+    if method.name in ("sh_prt", "learnt_sh") and keyframes.animation is not None:
+        raise SpecError("method.name", f"{method.name} bakes static assets only (keyframes."
                         "animation is set)")
+    ls = _section(LearntShSpec, root.get("learnt_sh", {}), "learnt_sh")
+    ld = LearntShSpec()
+
+    def lint(key: str, lo: int, hi: int) -> int:
+        return _int(ls.get(key, getattr(ld, key)), f"learnt_sh.{key}", lo=lo, hi=hi)
+
+    learnt_sh = LearntShSpec(
+        bands=lint("bands", 1, 8), width=lint("width", 1, 1024), layers=lint("layers", 1, 16),
+        samples=lint("samples", 16, 1 << 24), strata=lint("strata", 1, 128),
+        steps=lint("steps", 0, 1 << 24), batch=lint("batch", 1, 1 << 20),
+        seed=lint("seed", 0, 1 << 62),
+        specular=_num(ls.get("specular", ld.specular), "learnt_sh.specular", lo=0.0, hi=1.0),
+        exponent=_num(ls.get("exponent", ld.exponent), "learnt_sh.exponent", lo=0.0, hi=1e4),
+        views=lint("views", 0, 1024), view_width=lint("view_width", 8, 4096),
+        view_height=lint("view_height", 8, 4096),
+        baseline_strata=lint("baseline_strata", 1, 128),
+        cells=_cells(ls.get("cells", list(ld.cells))),
+        overlap=_num(ls.get("overlap", ld.overlap), "learnt_sh.overlap", lo=0.0, hi=1.0))
 
     hs = _section(HairSpec, root.get("hair", {}), "hair")
     albedo = hs.get("albedo")
@@ -670,8 +720,17 @@ def _parse(data: Any) -> BakeSpec:
 
     return BakeSpec(atlas=atlas, prepare=prepare, measurement_points=points, lights=lights,
                     transport=transport, fit=fit, keyframes=keyframes, output=output,
-                    validate=validate, method=method, sh_prt=sh_prt, hair=hair,
+                    validate=validate, method=method, sh_prt=sh_prt, learnt_sh=learnt_sh,
+                    hair=hair,
                     materials=materials, sizing=sizing)
+
+
+def _cells(v: Any) -> tuple[int, int, int]:
+    """``learnt_sh.cells``: [nx, ny, nz], each 1–16."""
+    if not isinstance(v, list) or len(v) != 3:
+        raise SpecError("learnt_sh.cells", f"expected [nx, ny, nz], got {v!r}")
+    return tuple(_int(c, f"learnt_sh.cells[{i}]", lo=1, hi=16)
+                 for i, c in enumerate(v))  # type: ignore[return-value]
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

@@ -104,7 +104,31 @@ DOCS: dict[str, str] = {
     "sizing.max_seconds": "growing K stops when the next pass would end past this many "
                           "seconds of transport (0: no time limit; the memory limit holds)",
     "method.name": "`data_driven` (Belcour et al. 2022) · `sh_prt` (classic SH-PRT or "
-                   "transfer textures, section `sh_prt`; docs/sh_prt.md)",
+                   "transfer textures, section `sh_prt`; docs/sh_prt.md) · `learnt_sh` "
+                   "(the thesis' network σ(p, n̂) → SH transfer, section `learnt_sh`; "
+                   "docs/learnt_sh.md)",
+    "learnt_sh.bands": "L, SH bands of the learnt transfer (L² network outputs), 1–8",
+    "learnt_sh.width": "k, neurons per hidden layer (thesis: 64 or 128)",
+    "learnt_sh.layers": "l, hidden layers, leaky ReLU (thesis: 4)",
+    "learnt_sh.samples": "area-uniform training samples on the surface",
+    "learnt_sh.strata": "rays per training sample = strata² (more rays: less noisy "
+                        "targets)",
+    "learnt_sh.steps": "AdamW steps",
+    "learnt_sh.batch": "minibatch size",
+    "learnt_sh.seed": "seed of the samples, rays, initial weights and minibatches (same "
+                      "seed, same weights)",
+    "learnt_sh.specular": "ρ_s of a glossy Phong layer (0: diffuse only); > 0 makes the "
+                          "network also learn the visibility SH for the triple product",
+    "learnt_sh.exponent": "Phong exponent n of the glossy layer",
+    "learnt_sh.views": "camera views on an orbit for the bake's metrics against transfer "
+                       "textures (0: none)",
+    "learnt_sh.view_width": "width of each metrics view in pixels",
+    "learnt_sh.view_height": "height of each metrics view in pixels",
+    "learnt_sh.baseline_strata": "the baseline transfer textures' rays per texel = this²",
+    "learnt_sh.cells": "sub-scenes (thesis 4.1.5): [nx, ny, nz] grid cells over the "
+                       "samples' bounds, one network each (1–16 per axis)",
+    "learnt_sh.overlap": "δ: each cell's network is trained on its cell grown by this "
+                         "share of the cell's size into the neighbours, 0–1",
     "sh_prt.storage": "`texture` (transfer textures: per lightmap texel, RGBA EXRs) · "
                       "`vertex` (per vertex, Sloan et al. 2002)",
     "sh_prt.bands": "L, SH bands (L² coefficients per colour channel), 1–16; 5 = the "

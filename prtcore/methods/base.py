@@ -6,7 +6,8 @@ never branches on a method's name: it asks :func:`method`.
 
 Members register themselves (``@register``) and are imported by ``prtcore.methods``
 (one line each): data-driven PRT (:mod:`prtcore.methods.data_driven`), classic SH-PRT and
-transfer textures (:mod:`prtcore.methods.sh_prt`); learnt transfer is a new module here.
+transfer textures (:mod:`prtcore.methods.sh_prt`), learnt SH transfer
+(:mod:`prtcore.methods.learnt_sh`).
 """
 
 from __future__ import annotations
@@ -87,6 +88,17 @@ class Method:
     def plot(self, result: Any, path: Path) -> None:
         """The report's figure (report.png)."""
         raise NotImplementedError
+
+
+class DirectMethod(Method):
+    """A method that ray-traces its own transfer (sh_prt, learnt_sh): no light dataset,
+    no held-out lights, so no path-traced validation of them."""
+
+    needs_dataset = False
+    path_traced_validation = False
+
+    def revalidate(self, result: Any, inputs: BakeInputs, validation: dict) -> Any:
+        return result
 
 
 _REGISTRY: Registry[Method] = Registry("method", "name")

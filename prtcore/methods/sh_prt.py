@@ -46,7 +46,7 @@ from prtcore.io.transfer_textures import (
     read_transfer_textures,
     write_transfer_textures,
 )
-from prtcore.methods.base import BakeInputs, Method, register
+from prtcore.methods.base import BakeInputs, DirectMethod, register
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.sh_transfer import (
     ShTransfer,
@@ -237,6 +237,12 @@ def sky_lightmap(scene: Scene, texels: TexelSpace, result: ShPrtResult) -> np.nd
     return evaluate_vertex(scene, result.transfer, texels.triangle, texels.barycentric, light)
 
 
+def write_preview_png(path: Path, preview_image: np.ndarray) -> None:
+    """report.png of a preview atlas (H, W, ≥3): clipped to [0, 1], gamma 2.2, 8 bits."""
+    rgb = np.clip(preview_image[:, :, :3], 0.0, 1.0)
+    write_png(path, (rgb ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
+
+
 @dataclass(frozen=True, eq=False)
 class ShPrtBake:
     """The method's result: the SH-PRT bake, its preview lightmap (t, 3) at the covered
@@ -251,13 +257,11 @@ class ShPrtBake:
 
 
 @register
-class ShPrtMethod(Method):
+class ShPrtMethod(DirectMethod):
     """Classic SH-PRT (per vertex) or transfer textures (per texel): no light dataset, no
     fit; the transfer is ray traced directly (stage "fit")."""
 
     name = "sh_prt"
-    needs_dataset = False
-    path_traced_validation = False
 
     def fit(self, inputs: BakeInputs, timer: StageTimer) -> ShPrtBake:
         spec = inputs.spec.sh_prt
@@ -325,14 +329,9 @@ class ShPrtMethod(Method):
                 "fit; `prtcore compare` measures it against the path tracer",
                 "causes": []}
 
-    def revalidate(self, result: ShPrtBake, inputs: BakeInputs, validation: dict
-                   ) -> ShPrtBake:
-        return result
-
     def plot(self, result: ShPrtBake, path: Path) -> None:
         """report.png: the preview (uniform white sky of radiance 1) over the atlas."""
-        rgb = np.clip(result.preview_image[:, :, :3], 0.0, 1.0)
-        write_png(path, (rgb ** (1 / 2.2) * 255 + 0.5).astype(np.uint8))
+        write_preview_png(path, result.preview_image)
 
 
 def relight_bundle(bundle: Path, manifest: dict, lighting) -> np.ndarray:

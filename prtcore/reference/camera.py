@@ -262,3 +262,22 @@ def reference_view_to_exr(source: str | Path, light_path: str | Path, camera_pat
     rgb = {"full": ref.full, "direct": ref.direct, "indirect": ref.indirect}[component]
     write_exr(out, np.concatenate([rgb, ref.alpha[:, :, None]], axis=2), dtype="float")
     return Path(out)
+
+
+def orbit_cameras(center: np.ndarray, radius: float, views: int, width: int, height: int,
+                  *, distance: float = 2.2, elevation_rad: float = 0.5,
+                  fov_y_deg: float = 40.0) -> list[Camera]:
+    """``views`` cameras evenly spaced on a circle around a scene's bounding sphere
+    (centre (3,), radius), ``distance`` radii from the centre and ``elevation_rad`` above
+    it, looking at the centre (+y up): the camera trajectory of the learnt-transfer
+    metrics."""
+    c, r = np.asarray(center, np.float64), float(radius)
+    cams = []
+    for k in range(views):
+        a = 2 * np.pi * k / views
+        eye = c + distance * r * np.array([np.cos(a) * np.cos(elevation_rad),
+                                           np.sin(elevation_rad),
+                                           np.sin(a) * np.cos(elevation_rad)])
+        cams.append(Camera(position=eye, target=c, up=np.array([0.0, 1.0, 0.0]),
+                           fov_y_deg=fov_y_deg, width=width, height=height))
+    return cams

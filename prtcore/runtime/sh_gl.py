@@ -43,43 +43,157 @@ SH_VERTEX_FORMAT = "3f 3f 2f"
 GLOSSY_MAX_BANDS = 8
 
 
-class ShPrtRenderer:
-    """The GPU runtime of one sh_prt bundle (the manifest's ``sh_prt`` section)."""
+def glossy_constants(bands: int, exponent: float) -> tuple[bytes, bytes]:
+    """The glossy layer's constant buffers (``sh_glossy.glsl``): the Phong lobe's
+    Funk–Hecke kernel (L²,) and the basis normalisation K_l^m (GLOSSY_MAX_BANDS²), float32
+    bytes. Refuses more than :data:`GLOSSY_MAX_BANDS` bands."""
+    from prtcore.core import sh
 
-    def __init__(self, bundle: str | Path, ctx=None):
+    if bands > GLOSSY_MAX_BANDS:
+        raise PrtError(f"the GL glossy layer takes at most {GLOSSY_MAX_BANDS} bands, got "
+                       f"{bands}")
+    kernel = sh.zonal_kernel(sh.phong_zonal(exponent, bands))
+    norm = np.zeros((GLOSSY_MAX_BANDS, GLOSSY_MAX_BANDS), np.float32)
+    norm[:bands, :bands] = sh.normalisation(bands)
+    return np.asarray(kernel, "<f4").tobytes(), norm.tobytes()
+
+
+def product_matrices(light: np.ndarray) -> bytes:
+    """The triple product's matrices of light SH (L², 3), written once per frame:
+    M_c[k, j] = Σ_i Γ_ijk l_ic, (3, L², L²) float32 bytes."""
+    from prtcore.core import sh
+
+    mats = np.stack([sh.product_matrix(light[:, ch]) for ch in range(3)])
+    return np.ascontiguousarray(mats, "<f4").tobytes()
+
+
+class DistantPass:
+    """A camera pass over a bundle's asset under distant lighting (the sh_prt and
+    learnt_sh runtimes): the manifest checked for ``method``, the asset's positions,
+    normals and TEXCOORD_1 in a vertex array drawn with ``sh_vs.glsl`` and ``fragment``
+    (a shader source) — or with ``fullscreen`` one triangle over the viewport
+    (``atlas_vs.glsl``, for a fragment shader that finds its own surface) — one
+    framebuffer per image size, GL objects released together."""
+
+    def __init__(self, bundle: str | Path, method: str, fragment: str, ctx=None, *,
+                 fullscreen: bool = False):
         import moderngl
 
-        from prtcore.io.bundle import load_raw, read_manifest
+        from prtcore.io.bundle import read_manifest
         from prtcore.io.gltf.loader import load_asset
-        from prtcore.io.transfer_textures import read_transfer_textures
 
         self.bundle = Path(bundle)
         self.manifest = read_manifest(self.bundle)
-        if self.manifest.get("method") != "sh_prt":
-            raise PrtError(f"{self.bundle}: not an sh_prt bundle")
-        sec = self.manifest["sh_prt"]
-        self.bands, self.storage = int(sec["bands"]), sec["storage"]
+        if self.manifest.get("method") != method:
+            raise PrtError(f"{self.bundle}: not an {method} bundle")
         self.scene = load_asset(self.bundle / self.manifest["asset"]["file"])
         if self.scene.uv1 is None:
             raise PrtError(f"{self.bundle}: asset.glb has no TEXCOORD_1")
         self.center = np.asarray(self.scene.center, np.float64)
         self.radius = float(max(self.scene.radius, 1e-30))
-        self.files = math.ceil(self.bands ** 2 / 4)
         self.ctx = ctx if ctx is not None else create_context()
         self._own_ctx = ctx is None
         self._mgl = moderngl
         self._timer = PassTimer(self.ctx)
         self._objects: list = []
+        self._fbos: dict = {}
         make_current(self.ctx)
         sc, c = self.scene, self.ctx
-        self._prog = self._keep(c.program(vertex_shader=shader_source("sh_vs.glsl"),
-                                          fragment_shader=shader_source("sh_fs.glsl")))
+        self._fullscreen = fullscreen
+        self._prog = self._keep(c.program(
+            vertex_shader=shader_source("atlas_vs.glsl" if fullscreen else "sh_vs.glsl"),
+            fragment_shader=fragment))
+        if fullscreen:
+            self._vao = self._keep(c.vertex_array(self._prog, []))
+            return
         verts = np.concatenate([sc.positions, sc.normals, sc.uv1], axis=1)
         vbo = self._keep(c.buffer(np.ascontiguousarray(verts, dtype="<f4").tobytes()))
         ibo = self._keep(c.buffer(np.ascontiguousarray(sc.faces, dtype="<u4").tobytes()))
         self._vao = self._keep(c.vertex_array(self._prog, [(vbo, SH_VERTEX_FORMAT, "in_pos",
                                                             "in_nrm", "in_uv1")],
                                               index_buffer=ibo, index_element_size=4))
+
+    def _keep(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    def release(self) -> None:
+        """Free the GL objects (framebuffer 0 bound first, see glcontext), and the context
+        when this renderer created it; also on leaving a ``with`` block."""
+        make_current(self.ctx)
+        unbind_framebuffer(self.ctx)
+        while self._objects:
+            self._objects.pop().release()
+        self._fbos.clear()
+        self._timer.release()
+        if self._own_ctx:
+            self.ctx.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def _upload_light(self, light_sh: np.ndarray, rows: int, glossy: bool) -> None:
+        """Write light SH (L², 3) into ``self._light`` (``rows`` vec4s, binding 6) and,
+        for a glossy layer, its triple-product matrices into ``self._product``."""
+        n = self.bands ** 2
+        light = np.asarray(light_sh, np.float64)
+        if light.shape != (n, 3):
+            raise PrtError(f"render: light SH of shape {light.shape}; expected ({n}, 3)")
+        buf = np.zeros((rows, 4), "<f4")
+        buf[:n, :3] = light
+        self._light.write(buf.tobytes())
+        if glossy:
+            self._product.write(product_matrices(light))
+
+    def _draw(self, camera: Camera, name: str) -> RenderResult:
+        """Draw the asset through ``camera`` (uniforms and buffers already set) as the
+        timed pass ``name``; the frame, row 0 at the top."""
+        mgl, c = self._mgl, self.ctx
+        key = (camera.width, camera.height)
+        if key not in self._fbos:
+            tex = self._keep(c.texture(key, 4, dtype="f4"))
+            depth = self._keep(c.depth_renderbuffer(key))
+            self._fbos[key] = self._keep(c.framebuffer(color_attachments=[tex],
+                                                       depth_attachment=depth))
+        fbo = self._fbos[key]
+        if not self._fullscreen:
+            clip = scene_clip_from_world(camera, self.center, self.radius)
+            set_uniform(self._prog, "clip_from_world", matrix_bytes(clip))
+        set_uniform(self._prog, "eye", tuple(float(v) for v in camera.position))
+        self._timer.reset()
+        with self._timer.timed(name):
+            fbo.use()
+            fbo.viewport = (0, 0, *fbo.size)
+            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+            c.enable(mgl.DEPTH_TEST)
+            c.disable(mgl.CULL_FACE | mgl.BLEND)
+            self._vao.render(mgl.TRIANGLES, vertices=3 if self._fullscreen else -1)
+            c.disable(mgl.DEPTH_TEST)
+        h, w = camera.height, camera.width
+        img = np.frombuffer(fbo.read(components=4, dtype="f4"), "<f4").reshape(h, w, 4)
+        check_gl(c, f"{name} render")
+        gpu, wall = self._timer.results()
+        return RenderResult(image=img[::-1].copy(), uv1=np.zeros((h, w, 2), np.float32),
+                            milliseconds=gpu, wall_milliseconds=wall)
+
+
+class ShPrtRenderer(DistantPass):
+    """The GPU runtime of one sh_prt bundle (the manifest's ``sh_prt`` section)."""
+
+    def __init__(self, bundle: str | Path, ctx=None):
+        import moderngl
+
+        from prtcore.io.bundle import load_raw
+        from prtcore.io.transfer_textures import read_transfer_textures
+
+        super().__init__(bundle, "sh_prt", shader_source("sh_fs.glsl"), ctx)
+        sec = self.manifest["sh_prt"]
+        self.bands, self.storage = int(sec["bands"]), sec["storage"]
+        self.files = math.ceil(self.bands ** 2 / 4)
+        c = self.ctx
         self._setup_glossy(sec.get("glossy"))
         if self.storage == "vertex":
             t = load_raw(self.bundle, sec["vertex_transfer"]).astype("<f4")
@@ -99,14 +213,12 @@ class ShPrtRenderer:
             self._tex.repeat_x = self._tex.repeat_y = False
             self._transfer = self._keep(c.buffer(reserve=16))
         self._light = self._keep(c.buffer(reserve=16 * 4 * self.files))
-        self._fbos: dict = {}
         check_gl(self.ctx, "sh_prt setup")
 
     def _setup_glossy(self, glossy: dict | None) -> None:
         """The glossy layer (TP): visibility textures (one RGBA layer per four
         coefficients), the Phong kernel, the basis normalisation; the product matrices are
         written per frame."""
-        from prtcore.core import sh
         from prtcore.io.transfer_textures import VISIBILITY, read_transfer_textures
 
         c, n = self.ctx, self.bands ** 2
@@ -128,60 +240,17 @@ class ShPrtRenderer:
             layers, "<f4").tobytes(), dtype="f4"))
         self._vis.filter = (self._mgl.LINEAR, self._mgl.LINEAR)
         self._vis.repeat_x = self._vis.repeat_y = False
-        kernel = sh.zonal_kernel(sh.phong_zonal(float(glossy["exponent"]), self.bands))
-        self._kernel = self._keep(c.buffer(np.asarray(kernel, "<f4").tobytes()))
-        norm = np.zeros((GLOSSY_MAX_BANDS, GLOSSY_MAX_BANDS), np.float32)
-        norm[:self.bands, :self.bands] = sh.normalisation(self.bands)
-        self._norm = self._keep(c.buffer(norm.tobytes()))
+        kernel, norm = glossy_constants(self.bands, float(glossy["exponent"]))
+        self._kernel = self._keep(c.buffer(kernel))
+        self._norm = self._keep(c.buffer(norm))
         self._product = self._keep(c.buffer(reserve=4 * 3 * n * n))
-
-    def _keep(self, obj):
-        self._objects.append(obj)
-        return obj
-
-    def release(self) -> None:
-        """Free the GL objects (framebuffer 0 bound first, see glcontext), and the context
-        when this renderer created it; also on leaving a ``with`` block."""
-        make_current(self.ctx)
-        unbind_framebuffer(self.ctx)
-        while self._objects:
-            self._objects.pop().release()
-        self._fbos.clear()
-        self._timer.release()
-        if self._own_ctx:
-            self.ctx.release()
-
-    def __enter__(self) -> ShPrtRenderer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.release()
 
     @current
     def render(self, light_sh: np.ndarray, camera: Camera) -> RenderResult:
         """One frame under light SH coefficients (L², 3) through ``camera``."""
-        mgl, c, prog = self._mgl, self.ctx, self._prog
         n = self.bands ** 2
-        light = np.asarray(light_sh, np.float64)
-        if light.shape != (n, 3):
-            raise PrtError(f"render: light SH of shape {light.shape}; expected ({n}, 3)")
-        buf = np.zeros((4 * self.files, 4), "<f4")
-        buf[:n, :3] = light
-        self._light.write(buf.tobytes())
-        if self.glossy is not None:  # M_c[k, j] = Σ_i Γ_ijk l_ic, once per frame
-            from prtcore.core import sh
-
-            mats = np.stack([sh.product_matrix(light[:, ch]) for ch in range(3)])
-            self._product.write(np.ascontiguousarray(mats, "<f4").tobytes())
-        key = (camera.width, camera.height)
-        if key not in self._fbos:
-            tex = self._keep(c.texture(key, 4, dtype="f4"))
-            depth = self._keep(c.depth_renderbuffer(key))
-            self._fbos[key] = self._keep(c.framebuffer(color_attachments=[tex],
-                                                       depth_attachment=depth))
-        fbo = self._fbos[key]
-        clip = scene_clip_from_world(camera, self.center, self.radius)
-        set_uniform(prog, "clip_from_world", matrix_bytes(clip))
+        self._upload_light(light_sh, 4 * self.files, self.glossy is not None)
+        prog = self._prog
         set_uniform(prog, "vertex_storage", int(self.storage == "vertex"))
         set_uniform(prog, "n_coeffs", n)
         set_uniform(prog, "files", self.files)
@@ -190,7 +259,6 @@ class ShPrtRenderer:
         set_uniform(prog, "glossy", int(self.glossy is not None))
         set_uniform(prog, "specular", float((self.glossy or {}).get("specular", 0.0)))
         set_uniform(prog, "bands", self.bands)
-        set_uniform(prog, "eye", tuple(float(v) for v in camera.position))
         self._tex.use(location=0)
         self._vis.use(location=1)
         self._transfer.bind_to_storage_buffer(5)
@@ -198,21 +266,7 @@ class ShPrtRenderer:
         self._product.bind_to_storage_buffer(7)
         self._kernel.bind_to_storage_buffer(8)
         self._norm.bind_to_storage_buffer(9)
-        self._timer.reset()
-        with self._timer.timed(f"sh_{self.storage}"):
-            fbo.use()
-            fbo.viewport = (0, 0, *fbo.size)
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            c.enable(mgl.DEPTH_TEST)
-            c.disable(mgl.CULL_FACE | mgl.BLEND)
-            self._vao.render(mgl.TRIANGLES)
-            c.disable(mgl.DEPTH_TEST)
-        h, w = camera.height, camera.width
-        img = np.frombuffer(fbo.read(components=4, dtype="f4"), "<f4").reshape(h, w, 4)
-        check_gl(c, "sh_prt render")
-        gpu, wall = self._timer.results()
-        return RenderResult(image=img[::-1].copy(), uv1=np.zeros((h, w, 2), np.float32),
-                            milliseconds=gpu, wall_milliseconds=wall)
+        return self._draw(camera, f"sh_{self.storage}")
 
 
 def render_sh_prt_to_file(bundle: str | Path, light_path: str | Path,
@@ -220,6 +274,16 @@ def render_sh_prt_to_file(bundle: str | Path, light_path: str | Path,
                           ) -> tuple[RenderResult, str]:
     """``prtcore render`` of an sh_prt bundle: distant lighting (docs/lights.md) → one frame
     to a PNG or EXR. Returns the frame and the GL renderer's label."""
+    return render_distant_to_file(ShPrtRenderer, bundle, light_path, camera_path, out,
+                                  exposure=exposure)
+
+
+def render_distant_to_file(renderer: type, bundle: str | Path, light_path: str | Path,
+                           camera_path: str | Path, out: str | Path, *,
+                           exposure: float = 1.0) -> tuple[RenderResult, str]:
+    """One frame of a bundle drawn by ``renderer`` (a :class:`DistantPass` with
+    ``bands`` and ``render(light_sh, camera)``) under a distant-light file, to a PNG or
+    EXR. Returns the frame and the GL renderer's label."""
     from prtcore.emitters.environment import load_distant_lighting
     from prtcore.reference.camera import load_camera
     from prtcore.runtime.gl import write_render
@@ -229,7 +293,7 @@ def render_sh_prt_to_file(bundle: str | Path, light_path: str | Path,
         raise PrtError(f"{out}: output must end in .png or .exr")
     lighting = load_distant_lighting(light_path)
     camera = load_camera(camera_path)
-    with ShPrtRenderer(bundle) as r:
+    with renderer(bundle) as r:
         res = r.render(lighting.sh_coefficients(r.bands), camera)
         label = renderer_label(r.ctx)
     write_render(out, res.image, exposure)

@@ -359,7 +359,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     per_batch = max(1, GATHER_BATCH // m)
     valid_rays = np.zeros(t, dtype=np.int32)
     inside_origin = np.zeros((t, s), dtype=bool)
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per batch
     n_traced = n_back = n_miss = n_below = 0
     starts = range(0, t, per_batch)
     if timer is not None:
@@ -408,7 +408,12 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         pos = use if traced_all else np.searchsorted(sel, use)  # among the traced rays
         cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
         cols[use] = mapper(hits.triangle[pos], hits.barycentric[pos], use, o, d, hits.t[pos])
-        parts.append(_row_counts(cols.reshape(nt, m), b0, t))
+        # kept per batch: the row lengths, columns and weights (8 bytes per non-zero,
+        # not the 20 of rows, columns and counts)
+        r, c, cnt = _row_counts(cols.reshape(nt, m), b0, t)
+        parts.append((np.bincount(r - b0, minlength=nt), c,
+                      (cnt / valid_rays[r]).astype(np.float32)))
+        del r, c, cnt
         if near_field > 0:
             r_use = use // m  # receiving texel - b0
             close = hits.t[pos] < reach[b0 + r_use]
@@ -418,12 +423,12 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
                                (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32)))
         del hits, d, o, cols
 
-    row = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
-    col = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
-    cnt = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.int64)
-    weight = (cnt / valid_rays[row]).astype(np.float32)
     indptr = np.zeros(t + 1, dtype=np.int64)
-    np.cumsum(np.bincount(row, minlength=t), out=indptr[1:])
+    if parts:
+        np.cumsum(np.concatenate([p[0] for p in parts]), out=indptr[1:])
+    col = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
+    weight = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.float32)
+    del parts
     matrix = sp.csr_matrix((weight, col, indptr), shape=(t, t))
     matrix.has_sorted_indices = True
     matrix.has_canonical_format = True

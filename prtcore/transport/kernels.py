@@ -44,8 +44,9 @@ def _row_product(indptr, indices, data, x, i, acc):  # pragma: no cover - compil
 def csr_dense(indptr, indices, data, x, out, chunks):  # pragma: no cover - compiled
     """out[i] = Σ_jj data[jj]·x[indices[jj]] for every row i (float32, scipy's order).
 
-    indptr (T + 1,) / indices (nnz,) / data (nnz,) float32: CSR; x (n, c) float32
-    C-contiguous; out (T, c) float32, overwritten; chunks : :func:`row_chunks`.
+    indptr (T + 1,) int64 / indices (nnz,) int32 or int64 / data (nnz,) float32: CSR;
+    x (n, c) float32 C-contiguous; out (T, c) float32, overwritten; chunks :
+    :func:`row_chunks`.
     """
     for ci in numba.prange(len(chunks) - 1):
         for i in range(chunks[ci], chunks[ci + 1]):

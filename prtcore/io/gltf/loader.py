@@ -39,7 +39,7 @@ import numpy as np
 
 from prtcore.core.errors import AssetError, PrtError, UnsupportedAsset
 from prtcore.core.limits import IntakeLimits
-from prtcore.core.scene import Material, PrimitiveInstance, Scene
+from prtcore.core.scene import Material, Scene, single_mesh_scene
 from prtcore.io.gltf.accessors import buffer_lengths, load_buffers
 from prtcore.io.gltf.animation import parse_animations, parse_skins
 from prtcore.io.gltf.compression import decode_meshopt_views
@@ -56,6 +56,7 @@ from prtcore.io.gltf.nodes import (
     trs_matrix,
 )
 from prtcore.io.gltf.schema import Ctx
+from prtcore.io.sdf import is_sdf_file, load_sdf, sdf_mesh_scene
 
 #: ``trs_matrix``, ``normal_matrix`` and ``texture_transform_matrix`` live in :mod:`.nodes` and
 #: :mod:`.materials`; they are re-exported here for the code that imports them from the loader.
@@ -155,24 +156,14 @@ def load_trimesh_asset(ctx: Ctx, data: bytes, kind: str) -> Scene:
     normals = normalize_rows(np.asarray(mesh.vertex_normals, dtype=np.float64))
     uv = getattr(mesh.visual, "uv", None)
     nv = len(positions)
+    uv0 = has_uv0 = None
     if uv is not None and np.shape(uv) == (nv, 2) and np.isfinite(uv).all():
         uv0 = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]).astype(np.float64)
         has_uv0 = np.ones(nv, dtype=bool)
-    else:
-        uv0, has_uv0 = np.zeros((nv, 2)), np.zeros(nv, dtype=bool)
-    empty4 = np.zeros((0, 4))
-    inst = PrimitiveInstance(node=-1, mesh=0, primitive=0, vertex_start=0, vertex_count=nv,
-                             face_start=0, face_count=len(faces), object_positions=positions,
-                             object_normals=normals, joints=empty4.astype(np.int32),
-                             weights=empty4)
     grey = Material(name="default",
                     base_color_factor=np.array([DEFAULT_GREY, DEFAULT_GREY, DEFAULT_GREY, 1.0]))
-    return Scene(
-        source=ctx.file, positions=positions, normals=normals, uv0=uv0, uv1=None, faces=faces,
-        face_material=np.zeros(len(faces), dtype=np.int32),
-        face_instance=np.zeros(len(faces), dtype=np.int32), materials=(grey,),
-        instances=(inst,), has_uv0=has_uv0, warnings=tuple(ctx.warnings),
-    )
+    return single_mesh_scene(ctx.file, positions, normals, faces, grey, uv0=uv0,
+                             has_uv0=has_uv0, warnings=tuple(ctx.warnings))
 
 
 def _read_asset_file(ctx: Ctx, path: str) -> bytes:
@@ -190,7 +181,8 @@ def _read_asset_file(ctx: Ctx, path: str) -> bytes:
 
 def load_asset(path: str | os.PathLike, limits: IntakeLimits | None = None) -> Scene:
     """Load a ``.glb``/``.gltf`` (external buffers/images next to it) or ``.obj``/``.ply``
-    into a flattened world-space :class:`Scene`.
+    into a flattened world-space :class:`Scene`; an ``.sdf.json`` SDF scene gives its
+    marching-cubes mesh (:mod:`prtcore.io.sdf`).
 
     limits : intake limits, checked before allocation (default
         :meth:`IntakeLimits.from_env`).
@@ -203,9 +195,11 @@ def load_asset(path: str | os.PathLike, limits: IntakeLimits | None = None) -> S
     ctx = Ctx(file=file, folder=os.path.realpath(os.path.dirname(os.path.abspath(file))),
               limits=limits)
     suffix = os.path.splitext(file)[1].lower()
+    if is_sdf_file(file):  # analytic SDF scene: its marching-cubes mesh (prtcore.io.sdf)
+        return sdf_mesh_scene(load_sdf(file), file)
     if suffix not in (".glb", ".gltf", ".obj", ".ply"):
         raise UnsupportedAsset(file, "", f"unsupported file type {suffix or '(none)'!r} "
-                                         "(expected .glb, .gltf, .obj or .ply)")
+                                         "(expected .glb, .gltf, .obj, .ply or .sdf.json)")
     try:
         data = _read_asset_file(ctx, file)
         if suffix in (".glb", ".gltf"):

@@ -5,23 +5,11 @@
 // interpolated vertex colour. Glossy layer (TP, texture storage): the visibility SH V(uv1)
 // times the light by the triple product (M_c = Σ_i Γ_ijk l_ic, from the CPU per frame),
 // then the Phong lobe's kernel at the mirror direction (prtcore.methods.sh_prt.glossy_tp).
-#include "sh_basis.glsl"
-in vec3 v_color;
-in vec2 v_uv1;
-in vec3 v_pos;
-in vec3 v_nrm;
-uniform int glossy;
-uniform float specular;
-uniform int bands;
-uniform vec3 eye;
+#include "distant_fs.glsl"
 uniform sampler2DArray visibility_tex;
-layout(std430, binding = 7) readonly buffer Product { float product[]; };  // [c][k][j]
-layout(std430, binding = 8) readonly buffer Kernel { float kernel[]; };  // [k]
 uniform int vertex_storage;
 uniform int files;
-uniform sampler2DArray transfer_tex;
-layout(std430, binding = 6) readonly buffer LightSH { vec4 light[]; };  // padded to 4·files
-layout(location = 0) out vec4 f_color;
+uniform sampler2DArray transfer_tex;  // light[] padded to 4·files
 void main() {
     if (!gl_FrontFacing) {  // inside geometry: no light (as the path tracer)
         f_color = vec4(0.0);
@@ -41,27 +29,14 @@ void main() {
         }
     }
     if (glossy != 0) {
-        vec3 ng = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-        if (dot(ng, eye - v_pos) < 0.0) ng = -ng;
-        vec3 n = normalize(v_nrm);
-        if (!(dot(n, ng) > 0.0)) n = ng;  // as prtcore.core.geometry.shading_normals
+        vec3 r = mirror_direction(v_pos, v_nrm, eye);
         int nc = bands * bands;
         float v[SH_MAX_COEFFS];
         for (int k = 0; k < files; ++k) {
             vec4 t = texture(visibility_tex, vec3(v_uv1, float(k)));
             for (int j = 0; j < 4; ++j) if (4 * k + j < nc) v[4 * k + j] = t[j];
         }
-        float y[SH_MAX_COEFFS];
-        sh_basis(reflect(-normalize(eye - v_pos), n), bands, y);
-        vec3 spec = vec3(0.0);
-        for (int c = 0; c < 3; ++c) {
-            for (int k = 0; k < nc; ++k) {
-                float lv = 0.0;
-                for (int j = 0; j < nc; ++j) lv += product[(c * nc + k) * nc + j] * v[j];
-                spec[c] += lv * kernel[k] * y[k];
-            }
-        }
-        col += specular * spec;
+        col += specular * glossy_tp(v, r, bands);
     }
     f_color = vec4(col, 1.0);
 }
