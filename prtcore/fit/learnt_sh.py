@@ -268,7 +268,7 @@ def write_network(directory: Path, model: LearntSh, name: str) -> dict:
 
 
 def read_network(directory: Path, desc: dict) -> LearntSh:
-    """The network a manifest's ``network`` description (:func:`write_network`) names, in
+    """The network a manifest's network description (:func:`write_network`) names, in
     bundle ``directory``: float32 weights as stored, evaluated in float64."""
     flat = load_raw(directory, desc)
     weights, biases = [], []

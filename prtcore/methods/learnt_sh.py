@@ -2,17 +2,20 @@
 "learnt_sh"}``, docs/learnt_sh.md).
 
 The bake trains σ(p, n̂) → the L² SH coefficients of the shadowed diffuse transfer at
-unit albedo (:func:`prtcore.fit.learnt_sh.fit_learnt_sh`; with ``learnt_sh.specular`` > 0
-also the visibility SH for a glossy Phong layer) and writes a bundle of the network
-(``learnt_sh_net.bin`` + the manifest's ``learnt_sh.network``), the albedo atlas
-(``albedo.exr``, sampled at TEXCOORD_1) and the coverage. Engines shade a surface point
+unit albedo (:func:`prtcore.fit.subscenes.fit_scenes`: one network, or one per sub-scene
+cell with ``learnt_sh.cells``; with ``learnt_sh.specular`` > 0 also the visibility SH for
+a glossy Phong layer; on an ``*.sdf.json`` asset, samples on the field's zero level set)
+and writes a bundle of the networks (``learnt_sh_net_{k}.bin`` + the manifest's
+``learnt_sh.networks``), the albedo atlas (``albedo.exr``, sampled at TEXCOORD_1), the
+coverage, and for SDF scenes the field (``scene.sdf.json``). Engines shade a surface point
 p with shading normal n̂ under distant lighting l (L², 3):
 
     diffuse  c = albedo(uv1) · Σ_i T_i(p, n̂) l_ic
     glossy   + ρ_s Σ_k (M_c V(p, n̂))_k z_k Y_k(r)     (TP, as sh_prt's glossy layer)
 
 on the CPU (:func:`shade_points`, :func:`relight_bundle` for the view-independent
-lightmap) and in GLSL (:mod:`prtcore.runtime.learnt_sh`).
+lightmap, :func:`shade_sdf_view` for SDF scenes) and in GLSL
+(:mod:`prtcore.runtime.learnt_sh`: the mesh rasterised, or the field sphere-traced).
 
 The bake's metrics (stage "report", :func:`view_metrics`) compare the method with the
 texture-PRT baseline (transfer textures of the same scene, shadowed, same bands) over
@@ -78,7 +81,8 @@ SDF_FILE = "scene.sdf.json"
 LEARNT_SH_FORMULA = (
     "outgoing radiance, channel c = albedo_c(uv1) * sum_i T_i * l[i, c] (+ specular * "
     "sum_k (M_c V)_k z_k Y_k(r) with a glossy network): y = network(p, n) "
-    "(learnt_sh.network: encoding, layers, scale), T = y[0:L²], V = y[L²:2L²], l the "
+    "(learnt_sh.networks: the network of p's grid cell, its encoding, layers, scale), "
+    "T = y[0:L²], V = y[L²:2L²], l the "
     "light's real SH (prtcore.core.sh), M_c[k, j] = sum_i Gamma_ijk l[i, c], z the Phong "
     "lobe's Funk-Hecke kernel, r the view's mirror direction about the shading normal; "
     "albedo from albedo.exr at TEXCOORD_1 (bilinear)")
