@@ -10,6 +10,8 @@ benchmarks/results/hair_accuracy.json, per variant:
 * ``constant``: radially constant outgoing radiance in every bounce (the paper's storage);
 * ``harmonic``: the direct light's first azimuthal harmonic kept in the first bounce;
 * ``all_bounces``: every texel's (mean, cos, sin) through every bounce (``hair.harmonics``);
+* ``all_bounces_h2``: the same plus the direct light's second azimuthal harmonic in the
+  first bounce (``harmonic_first_bounce(..., first=2)``);
 * ``model``: the constant variant against a reference that makes the same radially constant
   assumption (``radially_averaged=True``) — what the gather and solve themselves cost;
 * with ``--mitsuba-samples S``: ``harmonic_vs_mitsuba`` and ``pathtracer_vs_mitsuba``,
@@ -69,18 +71,27 @@ def main() -> None:
     space = build_strand_space(hair, args.texels_per_strand)
     tracer, mesh = hair_tracer(space)
     t0 = time.perf_counter()
-    direct = fibre_direct(space, tracer, LIGHTS, args.samples, seed=1)
-    term = fibre_gather(space, tracer, mesh, 0, args.rays, seed=2, all_bounces=True)
+    direct = fibre_direct(space, tracer, LIGHTS, args.samples, seed=1, harmonics=2)
+    term = fibre_gather(space, tracer, mesh, 0, args.rays, seed=2, all_bounces=True,
+                        harmonics=2)
     const, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4)
     t1 = time.perf_counter()
+    harm1 = dataclasses.replace(term, harmonics=term.harmonics[:2])
     harm, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4,
-                              first_bounce=harmonic_first_bounce(term, direct))
+                              first_bounce=harmonic_first_bounce(harm1, direct))
     t2 = time.perf_counter()
     every, *_ = solve_indirect(
         term.block, np.tile(space.albedo, (3, 1)),
         np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
         method="neumann")
     every = np.maximum(every[:space.count], 0)
+    t = space.count
+    rows2, val2 = harmonic_first_bounce(term, direct, first=2)
+    every2, *_ = solve_indirect(
+        term.block, np.tile(space.albedo, (3, 1)),
+        np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
+        method="neumann", first_bounce=(rows2, val2))
+    every2 = np.maximum(every2[:t], 0)
     sel = np.random.default_rng(0).choice(space.count, args.texels, replace=False)
     ref = fibre_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, seed=7)
     t3 = time.perf_counter()
@@ -89,6 +100,7 @@ def main() -> None:
     rows = {"constant": noise_corrected_error(const[sel].astype(float), *ref),
             "harmonic": noise_corrected_error(harm[sel].astype(float), *ref),
             "all_bounces": noise_corrected_error(every[sel].astype(float), *ref),
+            "all_bounces_h2": noise_corrected_error(every2[sel].astype(float), *ref),
             "model": noise_corrected_error(const[sel].astype(float), *avg)}
     if args.mitsuba_samples:
         from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect

@@ -90,3 +90,25 @@ def test_direct_harmonics_follow_the_lit_side():
     np.testing.assert_allclose(d.harmonics[2:, 0, 0, 0], c2 * np.array([math.cos(ang),
                                                                         math.sin(ang)]),
                                atol=2e-3 * 0.5 * 3 / math.pi)
+
+
+def test_harmonic_first_bounce_sums_the_harmonics_from_first():
+    """``first = 2`` keeps only the second harmonic's ``G_2 · L_2``: with both harmonics
+    carried the full correction is the first harmonic's plus that; with one harmonic the
+    second-harmonic part is empty."""
+    from dataclasses import replace
+
+    from prtcore.transport.fibre import harmonic_first_bounce
+
+    s = build_strand_space(hairball(strands=120, segments=6, seed=3), 3)
+    tracer, mesh = hair_tracer(s)
+    sun = [_sun([0.3, -1.0, 0.2])]
+    direct = fibre_direct(s, tracer, sun, samples=8, seed=1, harmonics=2)
+    term = fibre_gather(s, tracer, mesh, 0, rays=16, seed=2, harmonics=2)
+    one = replace(term, harmonics=term.harmonics[:2])
+    _, both = harmonic_first_bounce(term, direct)
+    _, h1 = harmonic_first_bounce(one, direct)
+    rows, h2 = harmonic_first_bounce(term, direct, first=2)
+    assert np.array_equal(rows, np.arange(s.count)) and np.abs(h2).max() > 0
+    np.testing.assert_allclose(both, h1 + h2, rtol=1e-5, atol=1e-6 * np.abs(both).max())
+    assert not harmonic_first_bounce(one, direct, first=2)[1].any()

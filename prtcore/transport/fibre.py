@@ -247,15 +247,18 @@ def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
     return m
 
 
-def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect
+def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect, first: int = 1
                           ) -> tuple[np.ndarray, np.ndarray]:
     """The first bounce's correction for the azimuthal variation of the direct light on
-    the fibres hit: ``Σ_h G_h · L_h`` over the harmonics both carry, (T, K, 3) float32 for
-    every row, in the units of ``G · L_d`` (:func:`prtcore.transport.solve.solve_indirect`'s
-    ``first_bounce``). Later bounces stay radially constant."""
+    the fibres hit: ``Σ_h G_h · L_h`` over the harmonics h ≥ ``first`` both carry,
+    (T, K, 3) float32 for every row, in the units of ``G · L_d``
+    (:func:`prtcore.transport.solve.solve_indirect`'s ``first_bounce``). Later bounces
+    stay radially constant. ``first = 2`` with ``all_bounces``: the block carries the
+    first harmonic through every bounce, the second rides the first bounce only."""
     t, k = direct.mean.shape[:2]
     val = np.zeros((t, k * 3), dtype=np.float32)
-    for g, l_h in zip(term.harmonics, direct.harmonics, strict=False):
+    skip = 2 * (first - 1)
+    for g, l_h in zip(term.harmonics[skip:], direct.harmonics[skip:], strict=False):
         val += g @ l_h.reshape(t, -1)
     return np.arange(t, dtype=np.int64), val.reshape(t, k, 3)
 
