@@ -13,9 +13,12 @@ MAE / PSNR / SSIM of the display images against transfer textures of
 ``--baseline-strata``² rays per texel, and the same textures from independent rays (the
 ceiling the reference's own noise sets).
 
+With ``--cells nx,ny,nz`` each size is one network per grid cell (sub-scenes, thesis
+4.1.5, :mod:`prtcore.fit.subscenes`), trained on its cell grown by ``--overlap``.
+
 Usage: python benchmarks/learnt_sh.py [--views 30] [--configs 8000x6,8000x16]
        [--steps 1500] [--batch 512] [--sizes k64_l4,k128_l4] [--specular 0.5]
-       [--baseline-strata 16] [--out FILE.json]
+       [--baseline-strata 16] [--cells 1,1,1] [--overlap 0.1] [--out FILE.json]
 Writes benchmarks/results/learnt_sh.json and learnt_sh_views.png (first view of the last
 row: baseline | learnt | |difference| × 4, one row per material).
 """
@@ -37,7 +40,8 @@ if str(ROOT) not in sys.path:
 
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import parse_spec  # noqa: E402
-from prtcore.fit.learnt_sh import SIZES, fit_learnt_sh  # noqa: E402
+from prtcore.fit.learnt_sh import SIZES  # noqa: E402
+from prtcore.fit.subscenes import fit_scenes  # noqa: E402
 from prtcore.io.imageio import write_png  # noqa: E402
 from prtcore.methods.learnt_sh import albedo_atlas, format_metrics, view_metrics  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
@@ -63,6 +67,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="ρ_s of the glossy material (0: diffuse only)")
     ap.add_argument("--exponent", type=float, default=8.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cells", default="1,1,1",
+                    help="sub-scenes: nx,ny,nz grid cells, one network each (thesis 4.1.5)")
+    ap.add_argument("--overlap", type=float, default=0.1,
+                    help="δ: each cell's training box grows by this share of its size")
     ap.add_argument("--out", type=Path, default=RESULTS / "learnt_sh.json")
     args = ap.parse_args(argv)
 
@@ -73,15 +81,16 @@ def main(argv: list[str] | None = None) -> int:
     tracer = RayTracer(scene.positions, scene.faces, scene.radius)
     _, albedo_image = albedo_atlas(scene, texels)
     results, strip = [], None
+    cells = tuple(int(c) for c in args.cells.split(","))
     for config in args.configs.split(","):
         samples, strata = (int(v) for v in config.split("x"))
         for name in args.sizes.split(","):
             width, layers = SIZES[name]
             t0 = time.perf_counter()
-            model = fit_learnt_sh(scene, tracer, samples=samples, bands=args.bands,
-                                  strata=strata, width=width, layers=layers,
-                                  steps=args.steps, batch=args.batch, seed=args.seed,
-                                  glossy=args.specular > 0)
+            model = fit_scenes(scene, tracer, cells=cells, overlap=args.overlap,
+                               samples=samples, bands=args.bands, strata=strata, width=width,
+                               layers=layers, steps=args.steps, batch=args.batch,
+                               seed=args.seed, glossy=args.specular > 0)
             seconds = time.perf_counter() - t0
             metrics, strip = view_metrics(
                 scene, tracer, texels, model, albedo_image, views=args.views,
@@ -91,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{args.batch}: trained in {seconds:.1f} s, held-out MSE "
                   f"{model.diagnostics['holdout_mse']:.3g}")
             print(format_metrics(metrics), flush=True)
-            results.append({"network": name, "samples": samples, "strata": strata,
+            results.append({"network": name, "cells": list(cells), "samples": samples,
+                            "strata": strata,
                             "train_seconds": seconds, "diagnostics": model.diagnostics,
                             "metrics": metrics})
     print("\nsummary (PSNR dB / SSIM, learnt vs transfer textures; ceiling = textures "

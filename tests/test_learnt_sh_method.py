@@ -50,7 +50,7 @@ def test_network_file_round_trip(tmp_path):
     model = LearntSh(Mlp(ws, bs, LEAKY_SLOPE, "tanh"), np.array([0.1, 0.2, -0.3]), 1.5,
                      np.r_[np.full(9, 0.4), np.full(9, 2.0)], 3, POSITION_FREQUENCIES,
                      NORMAL_FREQUENCIES, {})
-    desc = write_network(tmp_path, model)
+    desc = write_network(tmp_path, model, "net.bin")
     back = read_network(tmp_path, json.loads(json.dumps(desc)))
     assert back.glossy and desc["glossy"] and back.bands == 3
     p = rng.uniform(-1, 1, (50, 3))
@@ -74,9 +74,11 @@ def test_bake_writes_a_learnt_sh_bundle(bundle, capsys):
                          "manifest.schema.json").read_text())
     jsonschema.validate(m, schema)
     sec = m["learnt_sh"]
-    assert m["method"] == "learnt_sh" and sec["network"]["glossy"]
-    assert sec["network"]["layers"][-1]["outputs"] == 2 * 9
-    assert (bundle / sec["network"]["file"]).stat().st_size == 4 * sec["network"]["shape"][0]
+    net = sec["networks"]["networks"][0]
+    assert m["method"] == "learnt_sh" and net["glossy"]
+    assert sec["networks"]["grid"]["cells"] == [1, 1, 1]
+    assert net["layers"][-1]["outputs"] == 2 * 9
+    assert (bundle / net["file"]).stat().st_size == 4 * net["shape"][0]
     assert m["verdict"]["status"] == "unknown"
     report = json.loads((bundle / "report.json").read_text())
     rows = report["metrics"]["rows"]
@@ -115,7 +117,7 @@ def test_relight_is_the_network_at_the_texels(bundle, tmp_path, capsys):
     assert "learnt_sh" in capsys.readouterr().out
     img = read_image(out)
     m = read_manifest(bundle)
-    model = read_network(bundle, m["learnt_sh"]["network"])
+    model = read_network(bundle, m["learnt_sh"]["networks"]["networks"][0])
     scene = load_asset(bundle / "asset.glb")
     texels = build_texel_space(scene, 32, 32, padding=2)
     light = load_distant_lighting(tmp_path / "light.json").sh_coefficients(3)
@@ -170,7 +172,7 @@ def test_render_command_and_same_seed_same_weights(bundle, tmp_path, capsys):
     assert "learnt_sh" in capsys.readouterr().out and (tmp_path / "f.png").is_file()
     assert main([*render, str(tmp_path / "g.png"), "--indirect-only"]) == 2
     again = bake_learnt_sh_bundle(tmp_path, views=0, name="again")
-    name = read_manifest(bundle)["learnt_sh"]["network"]["file"]
+    name = read_manifest(bundle)["learnt_sh"]["networks"]["networks"][0]["file"]
     digest = [hashlib.sha256((b / name).read_bytes()).hexdigest() for b in (bundle, again)]
     assert digest[0] == digest[1]
     assert main(["report", str(again)]) == 2  # no metrics: said, not invented

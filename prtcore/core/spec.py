@@ -242,6 +242,10 @@ class LearntShSpec:
     view_width: int = 96
     view_height: int = 64
     baseline_strata: int = 16
+    #: sub-scenes (thesis 4.1.5): a grid of (nx, ny, nz) cells, one network each, trained
+    #: on its cell grown by ``overlap`` × the cell's size into the neighbours
+    cells: tuple[int, int, int] = (1, 1, 1)
+    overlap: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -688,7 +692,9 @@ def _parse(data: Any) -> BakeSpec:
         exponent=_num(ls.get("exponent", ld.exponent), "learnt_sh.exponent", lo=0.0, hi=1e4),
         views=lint("views", 0, 1024), view_width=lint("view_width", 8, 4096),
         view_height=lint("view_height", 8, 4096),
-        baseline_strata=lint("baseline_strata", 1, 128))
+        baseline_strata=lint("baseline_strata", 1, 128),
+        cells=_cells(ls.get("cells", list(ld.cells))),
+        overlap=_num(ls.get("overlap", ld.overlap), "learnt_sh.overlap", lo=0.0, hi=1.0))
 
     hs = _section(HairSpec, root.get("hair", {}), "hair")
     albedo = hs.get("albedo")
@@ -717,6 +723,14 @@ def _parse(data: Any) -> BakeSpec:
                     validate=validate, method=method, sh_prt=sh_prt, learnt_sh=learnt_sh,
                     hair=hair,
                     materials=materials, sizing=sizing)
+
+
+def _cells(v: Any) -> tuple[int, int, int]:
+    """``learnt_sh.cells``: [nx, ny, nz], each 1–16."""
+    if not isinstance(v, list) or len(v) != 3:
+        raise SpecError("learnt_sh.cells", f"expected [nx, ny, nz], got {v!r}")
+    return tuple(_int(c, f"learnt_sh.cells[{i}]", lo=1, hi=16)
+                 for i, c in enumerate(v))  # type: ignore[return-value]
 
 
 def load_spec(path: str | Path | None) -> BakeSpec:

@@ -125,6 +125,10 @@ DOCS: dict[str, str] = {
     "learnt_sh.view_width": "width of each metrics view in pixels",
     "learnt_sh.view_height": "height of each metrics view in pixels",
     "learnt_sh.baseline_strata": "the baseline transfer textures' rays per texel = this²",
+    "learnt_sh.cells": "sub-scenes (thesis 4.1.5): [nx, ny, nz] grid cells over the "
+                       "samples' bounds, one network each (1–16 per axis)",
+    "learnt_sh.overlap": "δ: each cell's network is trained on its cell grown by this "
+                         "share of the cell's size into the neighbours, 0–1",
     "sh_prt.storage": "`texture` (transfer textures: per lightmap texel, RGBA EXRs) · "
                       "`vertex` (per vertex, Sloan et al. 2002)",
     "sh_prt.bands": "L, SH bands (L² coefficients per colour channel), 1–16; 5 = the "

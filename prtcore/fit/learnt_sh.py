@@ -23,8 +23,9 @@ UVs to store transfer in can still be shaded with PRT.
 SDF scenes (:mod:`prtcore.core.sdf`): the samples of the marching-cubes mesh are projected
 onto the zero level set, with the field's gradient as normal. The method that writes the
 network into a bundle is :mod:`prtcore.methods.learnt_sh`; its GLSL evaluation
-:mod:`prtcore.runtime.learnt_sh`. Not here (issue 18's note): sub-scene splitting,
-avoiding vertex neighbourhoods when sampling.
+:mod:`prtcore.runtime.learnt_sh`; sub-scenes (one network per grid cell)
+:mod:`prtcore.fit.subscenes`. Not here (issue 18's note): avoiding vertex neighbourhoods
+when sampling.
 """
 
 from __future__ import annotations
@@ -156,14 +157,31 @@ def _holdout_mse(net: Mlp, x: np.ndarray, target: np.ndarray, scale: np.ndarray)
     return float(np.mean((scale * forward(net, x) - target) ** 2))
 
 
-def fit_learnt_sh(scene: Scene, tracer: RayTracer, *, samples: int = 20000, bands: int = 4,
-                  strata: int = 8, width: int = 64, layers: int = 4, steps: int = 3000,
-                  batch: int = 1024, seed: int = 0, glossy: bool = False,
-                  sdf: SdfScene | None = None) -> LearntSh:
-    """Train σ(p, n̂) for ``scene`` (module docstring): ``samples`` area-uniform points,
-    ``strata²`` rays each, ``steps`` AdamW steps on minibatches of ``batch``; ``glossy``
-    adds the visibility outputs; ``sdf``: the network's samples lie on its zero level set
-    (:func:`level_set_samples`)."""
+@dataclass(frozen=True, eq=False)
+class TrainingSet:
+    """The network's training data (:func:`training_set`).
+
+    position : (n, 3) float64 the network's input positions (on the level set for SDFs);
+    normal : (n, 3) unit shading normals; target : (n, outputs) float64 the ray-traced
+    transfer (then the visibility SH with ``glossy``); scale : (outputs,) the tanh
+    output's scale per output (SCALE_MARGIN × the largest |target| of its block);
+    diagnostics : how it was made (JSON data)
+    """
+
+    position: np.ndarray
+    normal: np.ndarray
+    target: np.ndarray
+    scale: np.ndarray
+    bands: int
+    diagnostics: dict[str, Any]
+
+
+def training_set(scene: Scene, tracer: RayTracer, *, samples: int, bands: int, strata: int,
+                 seed: int, glossy: bool = False, sdf: SdfScene | None = None
+                 ) -> TrainingSet:
+    """``samples`` area-uniform points (on an SDF's zero level set with ``sdf``,
+    :func:`level_set_samples`), their unit-albedo transfer with ``strata²`` rays each,
+    and with ``glossy`` their visibility SH."""
     t0 = time.perf_counter()
     if sdf is None:
         pts = area_samples(scene, samples, seed)
@@ -173,48 +191,69 @@ def fit_learnt_sh(scene: Scene, tracer: RayTracer, *, samples: int = 20000, band
     blocks = [unit_albedo_transfer(scene, tracer, pts, bands, strata, seed)]
     if glossy:
         blocks.append(visibility_transfer(tracer, pts, bands, strata, seed))
-    target = np.concatenate(blocks, axis=1)
-    t1 = time.perf_counter()
-    centre, radius = np.asarray(scene.center, np.float64), float(scene.radius) or 1.0
-    x = encode(position, pts.normal, centre, radius, POSITION_FREQUENCIES,
-               NORMAL_FREQUENCIES)
     scale = np.concatenate([np.full(b.shape[1], SCALE_MARGIN * float(np.abs(b).max()) or 1.0)
                             for b in blocks])
-    perm = np.random.default_rng(seed).permutation(samples)
-    n_hold = max(1, round(HOLDOUT_SHARE * samples))
+    return TrainingSet(position, pts.normal, np.concatenate(blocks, axis=1), scale, bands,
+                       {"samples": samples, "strata": strata, "bands": bands, "seed": seed,
+                        "glossy": glossy, "seconds_data": time.perf_counter() - t0})
+
+
+def train_model(data: TrainingSet, rows: np.ndarray, centre: np.ndarray, radius: float, *,
+                width: int, layers: int, steps: int, batch: int, seed: int,
+                desc: str = "learnt SH") -> LearntSh:
+    """Train σ on the training rows ``rows`` (int indices) of ``data``, positions scaled by
+    ``centre`` (3,) and ``radius``: a seeded tenth held back and its error reported,
+    ``steps`` AdamW steps on minibatches of ``batch`` (module docstring)."""
+    t1 = time.perf_counter()
+    rows = np.asarray(rows, np.int64)
+    x = encode(data.position[rows], data.normal[rows], centre, radius,
+               POSITION_FREQUENCIES, NORMAL_FREQUENCIES)
+    target, scale = data.target[rows], data.scale
+    perm = np.random.default_rng(seed).permutation(len(rows))
+    n_hold = max(1, round(HOLDOUT_SHARE * len(rows)))
     hold, fit = np.sort(perm[:n_hold]), np.sort(perm[n_hold:])
     net, _ = train_network(x[fit], target[fit] / scale, (width,) * layers, steps, seed,
-                           val=(x[hold], target[hold] / scale), desc="learnt SH",
+                           val=(x[hold], target[hold] / scale), desc=desc,
                            output="tanh", batch=batch)
-    diag = {"samples": samples, "strata": strata, "bands": bands, "width": width,
-            "layers": layers, "steps": steps, "batch": batch, "seed": seed,
+    diag = {**data.diagnostics, "rows": len(rows), "width": width, "layers": layers,
+            "steps": steps, "batch": batch, "train_seed": seed,
             "holdout_samples": int(n_hold),
-            "glossy": glossy,
             "holdout_mse": _holdout_mse(net, x[hold], target[hold], scale),
             "holdout_mse_zero": float(np.mean(target[hold] ** 2)),
-            "seconds_data": t1 - t0, "seconds_training": time.perf_counter() - t1}
-    return LearntSh(net, centre, radius, scale, bands, POSITION_FREQUENCIES,
-                    NORMAL_FREQUENCIES, diag)
+            "seconds_training": time.perf_counter() - t1}
+    return LearntSh(net, np.asarray(centre, np.float64), float(radius), scale, data.bands,
+                    POSITION_FREQUENCIES, NORMAL_FREQUENCIES, diag)
+
+
+def fit_learnt_sh(scene: Scene, tracer: RayTracer, *, samples: int = 20000, bands: int = 4,
+                  strata: int = 8, width: int = 64, layers: int = 4, steps: int = 3000,
+                  batch: int = 1024, seed: int = 0, glossy: bool = False,
+                  sdf: SdfScene | None = None) -> LearntSh:
+    """Train one σ(p, n̂) for the whole ``scene`` (module docstring): ``samples``
+    area-uniform points, ``strata²`` rays each, ``steps`` AdamW steps on minibatches of
+    ``batch``; ``glossy`` adds the visibility outputs; ``sdf``: the network's samples lie
+    on its zero level set (:func:`level_set_samples`)."""
+    data = training_set(scene, tracer, samples=samples, bands=bands, strata=strata,
+                        seed=seed, glossy=glossy, sdf=sdf)
+    return train_model(data, np.arange(samples), np.asarray(scene.center, np.float64),
+                       float(scene.radius) or 1.0, width=width, layers=layers, steps=steps,
+                       batch=batch, seed=seed)
 
 
 # ---------------------------------------------------------------------------------------
 # The network in a bundle (docs/learnt_sh.md)
 
-#: the network's raw file in a bundle
-WEIGHTS_FILE = "learnt_sh_net.bin"
-
-
-def write_network(directory: Path, model: LearntSh) -> dict:
-    """Write the network to ``directory``/:data:`WEIGHTS_FILE` (little-endian float32: per
-    layer its weights (out, in) row-major, then its biases (out,)) and return the
-    manifest's ``network`` description (shapes, offsets in floats, encoding, scales)."""
+def write_network(directory: Path, model: LearntSh, name: str) -> dict:
+    """Write the network to ``directory``/``name`` (little-endian float32: per layer its
+    weights (out, in) row-major, then its biases (out,)) and return its manifest
+    description (shapes, offsets in floats, encoding, scales)."""
     values, layers, at = [], [], 0
     for w, b in zip(model.net.weights, model.net.biases, strict=True):
         layers.append({"inputs": int(w.shape[1]), "outputs": int(w.shape[0]),
                        "weights_offset": at, "bias_offset": at + w.size})
         values += [np.asarray(w).ravel(), np.asarray(b).ravel()]
         at += w.size + b.size
-    desc = raw_file(directory / WEIGHTS_FILE, np.concatenate(values))
+    desc = raw_file(directory / name, np.concatenate(values))
     return {**desc, "layers": layers, "hidden_activation": "leaky_relu",
             "slope": float(model.net.slope), "output_activation": model.net.output,
             "scale": [float(s) for s in np.broadcast_to(model.scale, (model.net.outputs,))],
@@ -229,7 +268,7 @@ def write_network(directory: Path, model: LearntSh) -> dict:
 
 
 def read_network(directory: Path, desc: dict) -> LearntSh:
-    """The network a manifest's ``network`` description (:func:`write_network`) names, in
+    """The network a manifest's network description (:func:`write_network`) names, in
     bundle ``directory``: float32 weights as stored, evaluated in float64."""
     flat = load_raw(directory, desc)
     weights, biases = [], []

@@ -2,17 +2,20 @@
 "learnt_sh"}``, docs/learnt_sh.md).
 
 The bake trains σ(p, n̂) → the L² SH coefficients of the shadowed diffuse transfer at
-unit albedo (:func:`prtcore.fit.learnt_sh.fit_learnt_sh`; with ``learnt_sh.specular`` > 0
-also the visibility SH for a glossy Phong layer) and writes a bundle of the network
-(``learnt_sh_net.bin`` + the manifest's ``learnt_sh.network``), the albedo atlas
-(``albedo.exr``, sampled at TEXCOORD_1) and the coverage. Engines shade a surface point
+unit albedo (:func:`prtcore.fit.subscenes.fit_scenes`: one network, or one per sub-scene
+cell with ``learnt_sh.cells``; with ``learnt_sh.specular`` > 0 also the visibility SH for
+a glossy Phong layer; on an ``*.sdf.json`` asset, samples on the field's zero level set)
+and writes a bundle of the networks (``learnt_sh_net_{k}.bin`` + the manifest's
+``learnt_sh.networks``), the albedo atlas (``albedo.exr``, sampled at TEXCOORD_1), the
+coverage, and for SDF scenes the field (``scene.sdf.json``). Engines shade a surface point
 p with shading normal n̂ under distant lighting l (L², 3):
 
     diffuse  c = albedo(uv1) · Σ_i T_i(p, n̂) l_ic
     glossy   + ρ_s Σ_k (M_c V(p, n̂))_k z_k Y_k(r)     (TP, as sh_prt's glossy layer)
 
 on the CPU (:func:`shade_points`, :func:`relight_bundle` for the view-independent
-lightmap) and in GLSL (:mod:`prtcore.runtime.learnt_sh`).
+lightmap, :func:`shade_sdf_view` for SDF scenes) and in GLSL
+(:mod:`prtcore.runtime.learnt_sh`: the mesh rasterised, or the field sphere-traced).
 
 The bake's metrics (stage "report", :func:`view_metrics`) compare the method with the
 texture-PRT baseline (transfer textures of the same scene, shadowed, same bands) over
@@ -47,15 +50,13 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene, Texture
 from prtcore.core.sdf import SdfScene, sdf_t_max, sphere_trace
 from prtcore.emitters.environment import light_sh, sky_with_sun
-from prtcore.fit.learnt_sh import (
-    WEIGHTS_FILE,
-    LearntSh,
-    evaluate,
-    fit_learnt_sh,
-    read_network,
-    transfer_of,
-    visibility_of,
-    write_network,
+from prtcore.fit.learnt_sh import transfer_of, visibility_of
+from prtcore.fit.subscenes import (
+    LearntShScenes,
+    evaluate_scenes,
+    fit_scenes,
+    read_scenes,
+    write_scenes,
 )
 from prtcore.io.imageio import read_image, write_exr, write_png
 from prtcore.io.sdf import is_sdf_file, load_sdf
@@ -80,7 +81,8 @@ SDF_FILE = "scene.sdf.json"
 LEARNT_SH_FORMULA = (
     "outgoing radiance, channel c = albedo_c(uv1) * sum_i T_i * l[i, c] (+ specular * "
     "sum_k (M_c V)_k z_k Y_k(r) with a glossy network): y = network(p, n) "
-    "(learnt_sh.network: encoding, layers, scale), T = y[0:L²], V = y[L²:2L²], l the "
+    "(learnt_sh.networks: the network of p's grid cell, its encoding, layers, scale), "
+    "T = y[0:L²], V = y[L²:2L²], l the "
     "light's real SH (prtcore.core.sh), M_c[k, j] = sum_i Gamma_ijk l[i, c], z the Phong "
     "lobe's Funk-Hecke kernel, r the view's mirror direction about the shading normal; "
     "albedo from albedo.exr at TEXCOORD_1 (bilinear)")
@@ -98,7 +100,7 @@ class LearntShBake:
     seconds : training time
     """
 
-    model: LearntSh
+    model: LearntShScenes
     albedo_image: np.ndarray
     preview: np.ndarray
     preview_image: np.ndarray
@@ -128,14 +130,14 @@ def albedo_atlas(scene: Scene, texels: TexelSpace) -> tuple[np.ndarray, np.ndarr
     return rho, texels.to_image(rho)[:, :, :3].astype(np.float64)
 
 
-def shade_points(model: LearntSh, albedo: np.ndarray, position: np.ndarray,
+def shade_points(model: LearntShScenes, albedo: np.ndarray, position: np.ndarray,
                  normal: np.ndarray, light: np.ndarray, *, eye: np.ndarray | None = None,
                  specular: float = 0.0, exponent: float = 8.0) -> np.ndarray:
     """Outgoing radiance (m, 3) float64 at surface points (m, 3) with unit shading normals
     (m, 3) and albedo (m, 3), under light SH (L², 3): ``albedo · (T · l)``, plus with
     ``specular`` > 0 (a glossy network; ``eye`` (3,) the viewer) the Phong layer by the
     triple product (:func:`prtcore.methods.sh_prt.glossy_tp`)."""
-    y = evaluate(model, position, normal)
+    y = evaluate_scenes(model, position, normal)
     out = np.asarray(albedo, np.float64) * (transfer_of(model, y) @ light)
     if specular > 0:
         view = np.asarray(eye, np.float64) - position
@@ -169,7 +171,7 @@ def view_hits(scene: Scene, tracer: RayTracer, camera: Camera) -> ViewHits:
                     shading_normals(scene, tri, bary, tracer.face_normals[tri]))
 
 
-def shade_view(model: LearntSh, albedo_image: np.ndarray, hits: ViewHits, camera: Camera,
+def shade_view(model: LearntShScenes, albedo_image: np.ndarray, hits: ViewHits, camera: Camera,
                light: np.ndarray, *, specular: float = 0.0, exponent: float = 8.0
                ) -> np.ndarray:
     """The CPU equivalent of the GL camera pass: (h, w, 4) float64, A = 1 where a pixel
@@ -182,7 +184,7 @@ def shade_view(model: LearntSh, albedo_image: np.ndarray, hits: ViewHits, camera
     return img.reshape(camera.height, camera.width, 4)
 
 
-def shade_sdf_view(model: LearntSh, sdf: SdfScene, camera: Camera, light: np.ndarray, *,
+def shade_sdf_view(model: LearntShScenes, sdf: SdfScene, camera: Camera, light: np.ndarray, *,
                    specular: float = 0.0, exponent: float = 8.0) -> np.ndarray:
     """The CPU equivalent of the GL pass of an SDF bundle: each pixel centre's ray
     sphere-traced through the field (:func:`prtcore.core.sdf.sphere_trace`), the network
@@ -218,7 +220,7 @@ def display(rgb: np.ndarray, exposure: float) -> np.ndarray:
     return linear_to_srgb(np.clip(np.asarray(rgb) * exposure, 0.0, 1.0)).astype(np.float64)
 
 
-def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: LearntSh,
+def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: LearntShScenes,
                  albedo_image: np.ndarray, *, views: int, width: int, height: int,
                  strata: int, seed: int, specular: float, exponent: float
                  ) -> tuple[dict, np.ndarray]:
@@ -272,8 +274,9 @@ def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: Lea
         exposure = 0.9 / max(float(np.percentile(np.stack(linear[f"baseline/{m}"]), 99.5)),
                              1e-12)
         ref = [display(im, exposure) for im in linear[f"baseline/{m}"]]
+        cells = "" if model.grid.count == 1 else f"×{model.grid.count}"
         for who, name in (("learnt", f"learnt k{model.net.widths[0]}_l"
-                                     f"{len(model.net.widths)}"),
+                                     f"{len(model.net.widths)}{cells}"),
                           ("reseeded", "baseline_reseeded")):
             per = [compare_images(display(im, exposure), r)
                    for im, r in zip(linear[f"{who}/{m}"], ref, strict=True)]
@@ -291,8 +294,8 @@ def view_metrics(scene: Scene, tracer: RayTracer, texels: TexelSpace, model: Lea
                      "rays_per_texel": strata * strata, "atlas": [w, h],
                      "seconds": baseline_seconds},
         "rows": rows,
-        "weights_bytes": int(4 * sum(a.size for a in (*model.net.weights,
-                                                      *model.net.biases))),
+        "weights_bytes": int(4 * sum(a.size for m in model.models
+                                     for a in (*m.net.weights, *m.net.biases))),
         "texture_bytes": int(h * w * 3 * bands * bands * TEXTURE_BYTES
                              + (h * w * bands * bands * TEXTURE_BYTES if specular > 0
                                 else 0)),
@@ -354,16 +357,16 @@ class LearntShMethod(DirectMethod):
         sdf_file = inputs.intake.source if is_sdf_file(inputs.intake.source) else None
         with timer.stage("fit"):
             t0 = time.perf_counter()
-            model = fit_learnt_sh(scene, tracer, samples=spec.samples, bands=spec.bands,
-                                  strata=spec.strata, width=spec.width, layers=spec.layers,
-                                  steps=spec.steps, batch=spec.batch, seed=spec.seed,
-                                  glossy=spec.specular > 0,
-                                  sdf=load_sdf(sdf_file) if sdf_file else None)
+            model = fit_scenes(scene, tracer, cells=spec.cells, overlap=spec.overlap,
+                               samples=spec.samples, bands=spec.bands, strata=spec.strata,
+                               width=spec.width, layers=spec.layers, steps=spec.steps,
+                               batch=spec.batch, seed=spec.seed, glossy=spec.specular > 0,
+                               sdf=load_sdf(sdf_file) if sdf_file else None)
             seconds = time.perf_counter() - t0
         with timer.stage("report"):
             rho, albedo_image = albedo_atlas(scene, texels)
-            preview = rho * (transfer_of(model, evaluate(model, texels.position,
-                                                         texels.normal))
+            preview = rho * (transfer_of(model, evaluate_scenes(model, texels.position,
+                                                                texels.normal))
                              @ _uniform_sky(model.bands))
             metrics = strip = None
             if spec.views > 0:
@@ -383,13 +386,14 @@ class LearntShMethod(DirectMethod):
                   channel_names=("R", "G", "B"))
         write_exr(directory / "coverage.exr", result.preview_image[:, :, -1:], dtype="half",
                   channel_names=("Y",))
-        network = write_network(directory, model)
+        networks = write_scenes(directory, model)
         section = {"bands": model.bands, "coefficients": model.bands ** 2,
-                   "network": network, "albedo": "albedo.exr",
+                   "networks": networks, "albedo": "albedo.exr",
                    "specular": spec.specular if model.glossy else 0.0,
                    "exponent": spec.exponent, "width": spec.width, "layers": spec.layers,
                    "training": model.diagnostics,
-                   "weights_bytes": (directory / WEIGHTS_FILE).stat().st_size,
+                   "weights_bytes": sum((directory / d["file"]).stat().st_size
+                                        for d in networks["networks"]),
                    "convention": "prtcore.core.sh (docs/sh_prt.md); docs/learnt_sh.md"}
         if result.sdf_file is not None:  # the field the GL pass sphere-traces
             sdf = load_sdf(result.sdf_file)
@@ -406,6 +410,7 @@ class LearntShMethod(DirectMethod):
                 with_verdict: bool = True) -> str:
         m, d = result.model, result.model.diagnostics
         lines = [f"learnt_sh: k = {m.net.widths[0]}, l = {len(m.net.widths)}, {m.bands} bands"
+                 f"{'' if m.grid.count == 1 else f', {m.grid.count} sub-scenes'}"
                  f"{' + visibility (glossy)' if m.glossy else ''}; {d['samples']} samples × "
                  f"{d['strata']}² rays, {d['steps']} steps; held-out MSE "
                  f"{d['holdout_mse']:.3g} (untrained {d['holdout_mse_zero']:.3g}); "
@@ -430,10 +435,10 @@ class LearntShMethod(DirectMethod):
             write_preview_png(path, result.preview_image)
 
 
-def load_model(bundle: Path, manifest: dict) -> tuple[LearntSh, np.ndarray]:
+def load_model(bundle: Path, manifest: dict) -> tuple[LearntShScenes, np.ndarray]:
     """The network and the albedo atlas (H, W, 3) float64 of a learnt_sh bundle."""
     sec = manifest["learnt_sh"]
-    return (read_network(bundle, sec["network"]),
+    return (read_scenes(bundle, sec["networks"]),
             read_image(bundle / sec["albedo"])[:, :, :3].astype(np.float64))
 
 

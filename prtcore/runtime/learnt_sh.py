@@ -26,6 +26,7 @@ from prtcore.core.errors import PrtError
 from prtcore.core.sdf import GRADIENT_STEP, HIT_EPSILON, MAX_STEPS, sdf_t_max
 from prtcore.core.sdf import packed as packed_sdf
 from prtcore.fit.learnt_sh import LearntSh
+from prtcore.fit.subscenes import LearntShScenes, single
 from prtcore.reference.camera import Camera
 from prtcore.runtime.gl import RenderResult
 from prtcore.runtime.glcontext import check_gl, current, set_uniform
@@ -34,9 +35,9 @@ from prtcore.runtime.sh_gl import DistantPass, glossy_constants, render_distant_
 
 #: invocations per work group (the compute shader's local_size_x)
 GROUP = 64
-#: the network's storage-buffer bindings in learnt_sh_net.glsl: weights, biases, layer
-#: table, output scales
-NET_BINDINGS = (10, 11, 12, 13)
+#: the networks' storage-buffer bindings in learnt_sh_net.glsl: weights, biases, layer
+#: table, output scales, frames
+NET_BINDINGS = (10, 11, 12, 13, 15)
 #: the SDF primitives' binding in learnt_sh_sdf.glsl
 SDF_BINDING = 14
 
@@ -51,40 +52,49 @@ def _blocks(w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return wp.reshape(o4, 4, i4, 4).transpose(0, 2, 1, 3), bp.reshape(o4, 4)
 
 
-def packed(model: LearntSh) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The network as the shader reads it: every layer's 4 × 4 blocks as column-major
-    mat4 (blocks, 16) float32, its biases (vec4s, 4) float32, per layer (input vec4s,
-    output vec4s, first block, first bias) (L, 4) int32, and the output scales (out4, 4)
-    float32."""
-    mats, vecs, table = [], [], []
-    for w, b in zip(model.net.weights, model.net.biases, strict=True):
-        wb, bb = _blocks(np.asarray(w, np.float64), np.asarray(b, np.float64))
-        o4, i4 = wb.shape[:2]
-        table.append((i4, o4, sum(len(m) for m in mats), sum(len(v) for v in vecs)))
-        # GLSL mat4 is column-major: column c holds W[4o + r, 4q + c] for r = 0..3
-        mats.append(wb.transpose(0, 1, 3, 2).reshape(o4 * i4, 16))
-        vecs.append(bb)
-    out = model.net.outputs
-    scale = np.zeros(4 * -(-out // 4))
-    scale[:out] = np.broadcast_to(np.asarray(model.scale, np.float64), (out,))
+def packed(model: LearntSh | LearntShScenes
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The networks as the shader reads them, one per sub-scene cell in cell order: every
+    layer's 4 × 4 blocks as column-major mat4 (blocks, 16) float32, the biases (vec4s, 4)
+    float32, per network and layer (input vec4s, output vec4s, first block, first bias)
+    (cells·L, 4) int32, the output scales (cells·out4, 4) float32, and per network its
+    frame (centre, 1 / radius) (cells, 4) float32."""
+    scenes = model if isinstance(model, LearntShScenes) else single(model)
+    mats, vecs, table, scales, frames = [], [], [], [], []
+    for m in scenes.models:
+        for w, b in zip(m.net.weights, m.net.biases, strict=True):
+            wb, bb = _blocks(np.asarray(w, np.float64), np.asarray(b, np.float64))
+            o4, i4 = wb.shape[:2]
+            table.append((i4, o4, sum(len(x) for x in mats), sum(len(v) for v in vecs)))
+            # GLSL mat4 is column-major: column c holds W[4o + r, 4q + c] for r = 0..3
+            mats.append(wb.transpose(0, 1, 3, 2).reshape(o4 * i4, 16))
+            vecs.append(bb)
+        out = m.net.outputs
+        scale = np.zeros(4 * -(-out // 4))
+        scale[:out] = np.broadcast_to(np.asarray(m.scale, np.float64), (out,))
+        scales.append(scale.reshape(-1, 4))
+        frames.append((*m.centre, 1.0 / m.radius))
     return (np.concatenate(mats).astype("<f4"), np.concatenate(vecs).astype("<f4"),
-            np.asarray(table, "<i4"), scale.reshape(-1, 4).astype("<f4"))
+            np.asarray(table, "<i4"), np.concatenate(scales).astype("<f4"),
+            np.asarray(frames, "<f4"))
 
 
-def _defines(model: LearntSh) -> dict[str, int]:
-    _, _, table, _ = packed(model)
+def _defines(model: LearntSh | LearntShScenes) -> dict[str, int]:
+    first = model.models[0] if isinstance(model, LearntShScenes) else model
+    _, _, table, _, _ = packed(first)
     return {"IN4": int(table[0, 0]), "MAX4": int(max(table[:, 0].max(), table[:, 1].max())),
-            "LAYERS": len(table), "POSITION_FREQUENCIES": model.position_frequencies,
-            "NORMAL_FREQUENCIES": model.normal_frequencies}
+            "OUT4": int(table[-1, 1]), "LAYERS": len(table),
+            "POSITION_FREQUENCIES": first.position_frequencies,
+            "NORMAL_FREQUENCIES": first.normal_frequencies}
 
 
-def shader(model: LearntSh) -> str:
+def shader(model: LearntSh | LearntShScenes) -> str:
     """The compute shader's source for ``model``'s sizes and encoding."""
     return shader_source("learnt_sh_cs.glsl", **_defines(model))
 
 
-def network_buffers(ctx, model: LearntSh) -> list:
-    """The network's storage buffers, bound to :data:`NET_BINDINGS` (the caller releases
+def network_buffers(ctx, model: LearntSh | LearntShScenes) -> list:
+    """The networks' storage buffers, bound to :data:`NET_BINDINGS` (the caller releases
     them)."""
     bufs = [ctx.buffer(a.tobytes()) for a in packed(model)]
     for binding, buf in zip(NET_BINDINGS, bufs, strict=True):
@@ -92,15 +102,17 @@ def network_buffers(ctx, model: LearntSh) -> list:
     return bufs
 
 
-def set_network_uniforms(prog, model: LearntSh) -> None:
-    """The encoding's and activation's uniforms of ``learnt_sh_net.glsl``."""
-    set_uniform(prog, "centre", tuple(float(c) for c in model.centre))
-    set_uniform(prog, "inv_radius", 1.0 / model.radius)
-    set_uniform(prog, "slope", model.net.slope)
-    set_uniform(prog, "tanh_output", int(model.net.output == "tanh"))
+def set_network_uniforms(prog, model: LearntSh | LearntShScenes) -> None:
+    """The activation's and the sub-scene grid's uniforms of ``learnt_sh_net.glsl``."""
+    scenes = model if isinstance(model, LearntShScenes) else single(model)
+    set_uniform(prog, "slope", scenes.net.slope)
+    set_uniform(prog, "tanh_output", int(scenes.net.output == "tanh"))
+    set_uniform(prog, "grid_cells", tuple(int(c) for c in scenes.grid.cells))
+    set_uniform(prog, "grid_lo", tuple(float(v) for v in scenes.grid.lo))
+    set_uniform(prog, "grid_size", tuple(float(v) for v in scenes.grid.hi - scenes.grid.lo))
 
 
-def gpu_evaluate(ctx, model: LearntSh, position: np.ndarray, normal: np.ndarray
+def gpu_evaluate(ctx, model: LearntSh | LearntShScenes, position: np.ndarray, normal: np.ndarray
                  ) -> np.ndarray:
     """σ at points (n, 3) with unit normals (n, 3) in the moderngl context ``ctx``:
     (n, outputs) float64 (computed in float32)."""
@@ -138,7 +150,7 @@ class LearntShRenderer(DistantPass):
     def __init__(self, bundle: str | Path, ctx=None):
         import moderngl
 
-        from prtcore.fit.learnt_sh import read_network
+        from prtcore.fit.subscenes import read_scenes
         from prtcore.io.bundle import read_manifest
         from prtcore.io.imageio import read_image
         from prtcore.io.sdf import load_sdf
@@ -147,7 +159,7 @@ class LearntShRenderer(DistantPass):
         sec = manifest.get("learnt_sh")
         if manifest.get("method") != "learnt_sh" or sec is None:
             raise PrtError(f"{bundle}: not a learnt_sh bundle")
-        self.model = read_network(Path(bundle), sec["network"])
+        self.model = read_scenes(Path(bundle), sec["networks"])
         self.sdf = load_sdf(Path(bundle) / sec["sdf"]["file"]) if sec.get("sdf") else None
         if self.sdf is None:
             fragment = shader_source("learnt_sh_fs.glsl", **_defines(self.model))

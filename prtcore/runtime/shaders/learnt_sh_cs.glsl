@@ -12,6 +12,5 @@ void main() {
     if (i >= n_points) return;
     vec4 y[MAX4];
     sigma(pos[i].xyz, nrm[i].xyz, y);
-    int out4 = layer[LAYERS - 1].y;
-    for (int o = 0; o < out4; ++o) coeffs[out4 * i + o] = y[o];
+    for (int o = 0; o < OUT4; ++o) coeffs[OUT4 * i + o] = y[o];
 }
