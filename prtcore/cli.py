@@ -211,7 +211,8 @@ def _render_distant(args: argparse.Namespace, method: str) -> int:
 
     for flag, value in (("--time", args.time), ("--basis", args.basis),
                         ("--indirect-only", args.indirect_only or None),
-                        ("--no-indirect", args.no_indirect or None)):
+                        ("--no-indirect", args.no_indirect or None),
+                        ("--cpu", args.cpu or None)):
         if value is not None:
             raise PrtError(f"render: {flag}: not an option for an {method} bundle")
     res, label = render_file(args.bundle, args.light, args.camera, args.out,
@@ -236,17 +237,29 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from prtcore.emitters.lightfile import load_light_file
     from prtcore.io.bundle import read_manifest
 
-    if "strands" in read_manifest(Path(args.bundle)):  # hair: ray traced on the CPU
+    if "strands" in read_manifest(Path(args.bundle)):  # hair: the fibre tubes
         from prtcore.reference.camera import load_camera
         from prtcore.runtime.gl import write_render
-        from prtcore.runtime.strands import render_strands
 
-        image = render_strands(args.bundle, load_light_file(args.light),
-                               load_camera(args.camera), n=args.basis, mode=mode)
+        lights, camera = load_light_file(args.light), load_camera(args.camera)
+        if args.cpu:
+            from prtcore.runtime.strands import render_strands
+
+            image = render_strands(args.bundle, lights, camera, n=args.basis, mode=mode)
+            label = "the CPU (hair: fibre tubes ray traced, strand texture sampled)"
+        else:
+            from prtcore.runtime.strands_gl import render_strands_gl
+
+            res, label = render_strands_gl(args.bundle, lights, camera, n=args.basis,
+                                           mode=mode,
+                                           shadow_resolution=args.shadow_resolution)
+            image = res.image
+            label += " (hair: fibre tubes, shadow maps, strand texture blended)"
         write_render(args.out, image, args.exposure)
-        print(f"rendered: {args.out} ({image.shape[1]}×{image.shape[0]}, {mode}) on the "
-              "CPU (hair: fibre tubes ray traced, strand texture sampled)")
+        print(f"rendered: {args.out} ({image.shape[1]}×{image.shape[0]}, {mode}) on {label}")
         return 0
+    if args.cpu:
+        raise PrtError("render: --cpu: only hair bundles are drawn on the CPU")
 
     _, data, scene, _ = _posed_runtime("render", Path(args.bundle), args.time)
     lights = load_light_file(args.light)
@@ -445,6 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--exposure", type=float, default=1.0, help="PNG only: linear scale")
     sp.add_argument("--shadow-resolution", type=int, default=1024,
                     help="side of each shadow-map view")
+    sp.add_argument("--cpu", action="store_true",
+                    help="hair bundles: ray trace the fibre tubes on the CPU instead")
     sp.set_defaults(func=_cmd_render)
 
     sp = sub.add_parser("view", help="the web viewer of a bundle on 127.0.0.1 (WebGL2)")

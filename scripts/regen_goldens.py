@@ -1,6 +1,6 @@
 #!/usr/bin/env python
-"""Regenerate the golden images of tests/test_render.py and tests/test_viewer.py, and write
-a difference report.
+"""Regenerate the golden images of tests/test_render.py, tests/test_viewer.py and
+tests/test_hairbake.py (the GL hair drawing), and write a difference report.
 
     .venv/bin/python scripts/regen_goldens.py [--dry-run] [-k EXPR]
 
@@ -40,7 +40,8 @@ PAGE_SHOT = ROOT / "docs" / "viewer.png"
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dry-run", action="store_true", help="report only; keep the goldens")
-    ap.add_argument("-k", default="golden_cornell or golden_shared_asset or golden_viewer",
+    ap.add_argument("-k", default="golden_cornell or golden_shared_asset or golden_viewer or "
+                    "golden_hair",
                     help="pytest -k expression selecting the golden tests")
     args = ap.parse_args(argv)
 
@@ -58,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         with open(log, "w") as f:
             proc = subprocess.run(
                 [sys.executable, "-m", "pytest", "-q", "-m", "", "-p", "no:cacheprovider",
-                 "tests/test_render.py", "tests/test_viewer.py", "-k", args.k], cwd=ROOT,
+                 "tests/test_render.py", "tests/test_viewer.py", "tests/test_hairbake.py",
+                 "-k", args.k], cwd=ROOT,
                 env=env, stdout=f,
                 stderr=subprocess.STDOUT)
         text = log.read_text(errors="replace")

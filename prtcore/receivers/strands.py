@@ -169,11 +169,15 @@ def interp_points(hair: Hair, values: np.ndarray, strand: np.ndarray, arc: np.nd
     return np.stack([np.interp(q, g, values[:, c]) for c in range(values.shape[1])], axis=1)
 
 
-def axis_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def axis_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray,
+               u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axis point, unit tangent (the direction of the segment holding the point) and unit
-    transported u ⟂ it (each (n, 3)) at (strand, arc)."""
-    _, u, _ = transported_frames(hair)
+    transported u ⟂ it (each (n, 3)) at (strand, arc). ``u``: the hair's transported u
+    per point, (p, 3) float64 (``transported_frames(hair)[1]``), computed here when None —
+    callers that query many batches compute it once (it is a loop over the points of the
+    longest strand)."""
+    if u is None:
+        _, u, _ = transported_frames(hair)
     g = _global_arc(hair)
     q = g[hair.offsets[:-1]][strand] + arc
     first, last = hair.offsets[:-1][strand], hair.offsets[1:][strand] - 2
@@ -191,13 +195,13 @@ def axis_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray
     return pos, tan, uu
 
 
-def azimuth_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray, points: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def azimuth_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray, points: np.ndarray,
+                  u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For points near the fibre at (strand, arc): the axis point (n, 3), the unit radial
     direction to each point (n, 3) and its azimuth's (cos φ, sin φ) (n, 2) in the fibre's
     transported frame (u, v = tangent × u) — the convention of
-    :meth:`StrandSpace.surface_samples`."""
-    axis, tan, u = axis_frame(hair, strand, arc)
+    :meth:`StrandSpace.surface_samples`. ``u`` as for :func:`axis_frame`."""
+    axis, tan, u = axis_frame(hair, strand, arc, u)
     radial = points - axis
     radial -= np.einsum("ij,ij->i", radial, tan)[:, None] * tan
     n = np.linalg.norm(radial, axis=1, keepdims=True)

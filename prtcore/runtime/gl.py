@@ -88,7 +88,100 @@ class RenderResult:
     wall_milliseconds: dict[str, float] = field(default_factory=dict)
 
 
-class BundleRenderer:
+class GLRenderer:
+    """What every renderer of a bundle does with its GL objects: keeps them
+    (:meth:`_keep`), caches its framebuffers (:meth:`_target`), frees them all (and the
+    context when it created it) in :meth:`release` or on leaving a ``with`` block. A
+    subclass calls :meth:`_open` with its setup, which may set ``_shadows`` (a
+    :class:`~prtcore.runtime.shadows.ShadowMaps`)."""
+
+    def _open(self, ctx, setup) -> None:
+        """Take ``ctx`` (or create an EGL context when None) and run ``setup()`` with it
+        current; on any failure free what was made and re-raise."""
+        self.ctx = ctx if ctx is not None else create_context()
+        self._own_ctx = ctx is None
+        self._released = False
+        self._objects: list = []
+        self._fbos: dict[tuple, tuple] = {}
+        self._shadows: ShadowMaps | None = None
+        self._timer = PassTimer(self.ctx)
+        try:
+            make_current(self.ctx)
+            check_gl(self.ctx, "before setup")
+            setup()
+            check_gl(self.ctx, "setup")
+        except BaseException:
+            self.release()
+            raise
+
+    def _keep(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    def _unbind(self) -> None:
+        """Bind framebuffer 0 before framebuffers are released (see
+        :func:`prtcore.runtime.glcontext.unbind_framebuffer`; a shared context outlives
+        this renderer)."""
+        unbind_framebuffer(self.ctx)
+
+    def release(self) -> None:
+        """Free every GL object (and the context when this renderer created it)."""
+        if self._released:
+            return
+        self._release_objects()
+        self._released = True
+        if self._own_ctx:
+            self.ctx.release()
+
+    @current
+    def _release_objects(self) -> None:
+        self._unbind()
+        for obj in reversed(self._objects):
+            obj.release()
+        self._objects.clear()
+        for fbo_objs in self._fbos.values():
+            for o in fbo_objs:
+                o.release()
+        self._fbos.clear()
+        if self._shadows is not None:
+            self._shadows.release()
+            self._shadows = None
+        self._timer.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def _target(self, width: int, height: int, attachments: int):
+        """A framebuffer of ``attachments`` float RGBA textures and a depth buffer, made
+        once per size."""
+        key = (width, height, attachments)
+        if key not in self._fbos:
+            texs = [self.ctx.texture((width, height), 4, dtype="f4")
+                    for _ in range(attachments)]
+            depth = self.ctx.depth_renderbuffer((width, height))
+            fbo = self.ctx.framebuffer(color_attachments=texs, depth_attachment=depth)
+            self._fbos[key] = (fbo, depth, *texs)
+        return self._fbos[key][0]
+
+
+def draw_depth_tested(ctx, fbo, draw) -> None:
+    """Clear ``fbo`` (colour 0, depth 1) and run ``draw()`` into it with the depth test on,
+    no culling, no blending — how every camera pass draws."""
+    import moderngl
+
+    fbo.use()
+    fbo.viewport = (0, 0, *fbo.size)
+    fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+    ctx.enable(moderngl.DEPTH_TEST)
+    ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+    draw()
+    ctx.disable(moderngl.DEPTH_TEST)
+
+
+class BundleRenderer(GLRenderer):
     """The GPU runtime of one bundle in one OpenGL context.
 
     bundle : bundle directory (docs/bundle.md); ctx : a moderngl context (created through EGL
@@ -121,29 +214,11 @@ class BundleRenderer:
                 self.bundle, self.manifest, self.data, self.scene, time)
         if self.scene.uv1 is None:
             raise PrtError(f"{self.bundle}: asset.glb has no TEXCOORD_1")
-        self.ctx = ctx if ctx is not None else create_context()
-        self._own_ctx = ctx is None
-        self._released = False
         self.shadow_resolution = int(shadow_resolution)
-        self._objects: list = []
-        self._fbos: dict[tuple, tuple] = {}
-        self._shadows: ShadowMaps | None = None
-        self._timer = PassTimer(self.ctx)
         self._mgl = moderngl
-        try:
-            make_current(self.ctx)
-            check_gl(self.ctx, "before setup")
-            self._setup()
-            check_gl(self.ctx, "setup")
-        except BaseException:
-            self.release()
-            raise
+        self._open(ctx, self._setup)
 
     # -- setup -------------------------------------------------------------------------
-    def _keep(self, obj):
-        self._objects.append(obj)
-        return obj
-
     def _setup(self) -> None:
         sc = self.scene
         self.center = np.asarray(sc.center, np.float64)
@@ -194,15 +269,8 @@ class BundleRenderer:
         TEXCOORD_1 v ≈ 0), the coverage, and the atlas program that blends them."""
         moderngl, ctx, d = self._mgl, self.ctx, self.data
         h, w, q = d.planes.shape
+        self._basis = self._keep(basis_texture(ctx, d.planes))
         layers = -(-q // 4)
-        planes = np.zeros((layers, h, w, 4), np.float32)
-        for f in range(layers):
-            part = d.planes[:, :, 4 * f:4 * f + 4]
-            planes[f, :, :, :part.shape[2]] = part
-        self._basis = self._keep(ctx.texture_array((w, h, layers), 4, planes.tobytes(),
-                                                   dtype="f4"))
-        self._basis.filter = (moderngl.LINEAR, moderngl.LINEAR)
-        self._basis.repeat_x = self._basis.repeat_y = False
         self._coverage = self._keep(ctx.texture((w, h), 1, np.ascontiguousarray(
             d.coverage, dtype="<f4").tobytes(), dtype="f4"))
         self._coverage.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -251,42 +319,6 @@ class BundleRenderer:
                            LEARNT_WIDTH=max((1, *d.learnt.widths)))
         self._coeff_cs = self._keep(ctx.compute_shader(shader_source("coeff_cs.glsl",
                                                                      **defines)))
-
-    def _unbind(self) -> None:
-        """Bind framebuffer 0 before framebuffers are released (see
-        :func:`prtcore.runtime.glcontext.unbind_framebuffer`; a shared context outlives
-        this renderer)."""
-        unbind_framebuffer(self.ctx)
-
-    def release(self) -> None:
-        """Free every GL object (and the context when this renderer created it)."""
-        if self._released:
-            return
-        self._release_objects()
-        self._released = True
-        if self._own_ctx:
-            self.ctx.release()
-
-    @current
-    def _release_objects(self) -> None:
-        self._unbind()
-        for obj in reversed(self._objects):
-            obj.release()
-        self._objects.clear()
-        for fbo_objs in self._fbos.values():
-            for o in fbo_objs:
-                o.release()
-        self._fbos.clear()
-        if self._shadows is not None:
-            self._shadows.release()
-            self._shadows = None
-        self._timer.release()
-
-    def __enter__(self) -> BundleRenderer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.release()
 
     @property
     def n_basis(self) -> int:
@@ -351,16 +383,6 @@ class BundleRenderer:
         set_uniform(prog, "n_layers", layers)
         set_uniform(prog, "gamma", float(self.data.gamma or 0.0))
 
-    def _target(self, width: int, height: int, attachments: int):
-        key = (width, height, attachments)
-        if key not in self._fbos:
-            texs = [self.ctx.texture((width, height), 4, dtype="f4")
-                    for _ in range(attachments)]
-            depth = self.ctx.depth_renderbuffer((width, height))
-            fbo = self.ctx.framebuffer(color_attachments=texs, depth_attachment=depth)
-            self._fbos[key] = (fbo, depth, *texs)
-        return self._fbos[key][0]
-
     @current
     def camera_pass(self, camera: Camera, mode: str, layers: int) -> None:
         ctx, mgl, prog = self.ctx, self._mgl, self._camera_prog
@@ -374,12 +396,7 @@ class BundleRenderer:
         set_uniform(prog, "eye", tuple(float(v) for v in camera.position))
         set_uniform(prog, "mode", MODES[mode])
         set_uniform(prog, "albedo_texture", 2)
-        with self._timer.timed("camera"):
-            fbo.use()
-            fbo.viewport = (0, 0, *fbo.size)
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            ctx.enable(mgl.DEPTH_TEST)
-            ctx.disable(mgl.CULL_FACE | mgl.BLEND)
+        def draw() -> None:
             for vao, mat, tex in self._draws:
                 set_uniform(prog, "base_color", tuple(float(v) for v in mat.base_color_factor))
                 set_uniform(prog, "has_texture", int(tex is not None))
@@ -388,7 +405,9 @@ class BundleRenderer:
                 if tex is not None:
                     tex.use(location=2)
                 vao.render(mgl.TRIANGLES)
-            ctx.disable(mgl.DEPTH_TEST)
+
+        with self._timer.timed("camera"):
+            draw_depth_tested(ctx, fbo, draw)
 
     @current
     def atlas_pass(self, layers: int) -> None:
@@ -500,6 +519,24 @@ class BundleRenderer:
         return RenderResult(image=img.reshape(h, w, 4)[::-1].copy(),
                             uv1=np.zeros((h, w, 2), np.float32), milliseconds=gpu,
                             wall_milliseconds=wall)
+
+
+def basis_texture(ctx, planes: np.ndarray):
+    """The basis planes (h, w, q) as a float RGBA texture array of ⌈q/4⌉ layers, four
+    planes per layer (row 0 = the EXR's top row), bilinear, clamped — what blend.glsl's
+    ``basis`` samples."""
+    import moderngl
+
+    h, w, q = planes.shape
+    layers = -(-q // 4)
+    packed = np.zeros((layers, h, w, 4), np.float32)
+    for f in range(layers):
+        part = planes[:, :, 4 * f:4 * f + 4]
+        packed[f, :, :, :part.shape[2]] = part
+    tex = ctx.texture_array((w, h, layers), 4, packed.tobytes(), dtype="f4")
+    tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    tex.repeat_x = tex.repeat_y = False
+    return tex
 
 
 def learnt_buffers(net: Mlp) -> tuple[np.ndarray, np.ndarray]:

@@ -61,6 +61,7 @@ from prtcore.core.fibres import (
     cylinder_normal,
     fibre_tubes,
     segment_hits,
+    transported_frames,
 )
 from prtcore.core.geometry import directions_around
 from prtcore.core.progress import StageTimer, bar
@@ -173,6 +174,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     origin, normal, _, phi = space.surface_samples(rays, seed)
     origin, normal, phi = origin.reshape(-1, 3), normal.reshape(-1, 3), phi.reshape(-1)
     rng = np.random.default_rng([seed, 1])
+    frame_u = transported_frames(hair)[1]  # once, not per batch
     rows_all, cols_all, cs_all, po_all = [], [], [], []
     n_fibre = n_mesh = 0
     total = t * rays
@@ -195,7 +197,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         axis /= np.linalg.norm(axis, axis=1, keepdims=True)
         normal_hit = cylinder_normal(axis, d[fib], 2 * rng.random(len(p0)) - 1)
         centre = a0 + along[:, None] * (b0 - a0)
-        _, _, cs = azimuth_frame(hair, strand, arc, centre + normal_hit)
+        _, _, cs = azimuth_frame(hair, strand, arc, centre + normal_hit, frame_u)
         rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
         cols_all.append(space.texel_of(strand, arc).astype(np.int32))
         cs_all.append(cs.astype(np.float32))
