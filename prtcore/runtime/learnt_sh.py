@@ -148,11 +148,8 @@ class LearntShRenderer(DistantPass):
     one camera pass evaluating the network per fragment."""
 
     def __init__(self, bundle: str | Path, ctx=None):
-        import moderngl
-
         from prtcore.fit.subscenes import read_scenes
         from prtcore.io.bundle import read_manifest
-        from prtcore.io.imageio import read_image
         from prtcore.io.sdf import load_sdf
 
         manifest = read_manifest(Path(bundle))
@@ -166,9 +163,17 @@ class LearntShRenderer(DistantPass):
         else:
             fragment = shader_source("learnt_sh_sdf_fs.glsl", MAX_STEPS=MAX_STEPS,
                                      **_defines(self.model))
-        super().__init__(bundle, "learnt_sh", fragment, ctx, fullscreen=self.sdf is not None)
         self.bands = self.model.bands
         self.specular = float(sec["specular"]) if self.model.glossy else 0.0
+        super().__init__(bundle, "learnt_sh", fragment, ctx, fullscreen=self.sdf is not None,
+                         setup=lambda: self._setup(sec))
+
+    def _setup(self, sec: dict) -> None:
+        """The field, albedo atlas, network, light and glossy-layer buffers."""
+        import moderngl
+
+        from prtcore.io.imageio import read_image
+
         c = self.ctx
         self._sdf = self._keep(c.buffer(packed_sdf(self.sdf).tobytes() if self.sdf
                                         else np.zeros(12, "<f4").tobytes()))
@@ -187,7 +192,6 @@ class LearntShRenderer(DistantPass):
             kernel = norm = np.zeros(4, "<f4").tobytes()
         self._kernel, self._norm = self._keep(c.buffer(kernel)), self._keep(c.buffer(norm))
         self._product = self._keep(c.buffer(reserve=4 * 3 * n * n))
-        check_gl(self.ctx, "learnt_sh setup")
 
     @current
     def render(self, light_sh: np.ndarray, camera: Camera) -> RenderResult:

@@ -23,17 +23,13 @@ import numpy as np
 
 from prtcore.core.errors import PrtError
 from prtcore.reference.camera import Camera
-from prtcore.runtime.gl import RenderResult
+from prtcore.runtime.gl import GLRenderer, RenderResult, draw_depth_tested
 from prtcore.runtime.glcontext import (
-    PassTimer,
     check_gl,
-    create_context,
     current,
-    make_current,
     matrix_bytes,
     scene_clip_from_world,
     set_uniform,
-    unbind_framebuffer,
 )
 from prtcore.runtime.glsl import shader_source
 
@@ -67,16 +63,16 @@ def product_matrices(light: np.ndarray) -> bytes:
     return np.ascontiguousarray(mats, "<f4").tobytes()
 
 
-class DistantPass:
+class DistantPass(GLRenderer):
     """A camera pass over a bundle's asset under distant lighting (the sh_prt and
     learnt_sh runtimes): the manifest checked for ``method``, the asset's positions,
     normals and TEXCOORD_1 in a vertex array drawn with ``sh_vs.glsl`` and ``fragment``
     (a shader source) — or with ``fullscreen`` one triangle over the viewport
-    (``atlas_vs.glsl``, for a fragment shader that finds its own surface) — one
-    framebuffer per image size, GL objects released together."""
+    (``atlas_vs.glsl``, for a fragment shader that finds its own surface); ``setup`` makes
+    the subclass's GL objects. Lifecycle and framebuffers: :class:`GLRenderer`."""
 
     def __init__(self, bundle: str | Path, method: str, fragment: str, ctx=None, *,
-                 fullscreen: bool = False):
+                 fullscreen: bool = False, setup=None):
         import moderngl
 
         from prtcore.io.bundle import read_manifest
@@ -91,49 +87,27 @@ class DistantPass:
             raise PrtError(f"{self.bundle}: asset.glb has no TEXCOORD_1")
         self.center = np.asarray(self.scene.center, np.float64)
         self.radius = float(max(self.scene.radius, 1e-30))
-        self.ctx = ctx if ctx is not None else create_context()
-        self._own_ctx = ctx is None
         self._mgl = moderngl
-        self._timer = PassTimer(self.ctx)
-        self._objects: list = []
-        self._fbos: dict = {}
-        make_current(self.ctx)
-        sc, c = self.scene, self.ctx
         self._fullscreen = fullscreen
-        self._prog = self._keep(c.program(
-            vertex_shader=shader_source("atlas_vs.glsl" if fullscreen else "sh_vs.glsl"),
-            fragment_shader=fragment))
-        if fullscreen:
-            self._vao = self._keep(c.vertex_array(self._prog, []))
-            return
-        verts = np.concatenate([sc.positions, sc.normals, sc.uv1], axis=1)
-        vbo = self._keep(c.buffer(np.ascontiguousarray(verts, dtype="<f4").tobytes()))
-        ibo = self._keep(c.buffer(np.ascontiguousarray(sc.faces, dtype="<u4").tobytes()))
-        self._vao = self._keep(c.vertex_array(self._prog, [(vbo, SH_VERTEX_FORMAT, "in_pos",
-                                                            "in_nrm", "in_uv1")],
-                                              index_buffer=ibo, index_element_size=4))
 
-    def _keep(self, obj):
-        self._objects.append(obj)
-        return obj
+        def open_pass() -> None:
+            sc, c = self.scene, self.ctx
+            self._prog = self._keep(c.program(
+                vertex_shader=shader_source("atlas_vs.glsl" if fullscreen else "sh_vs.glsl"),
+                fragment_shader=fragment))
+            if fullscreen:
+                self._vao = self._keep(c.vertex_array(self._prog, []))
+            else:
+                verts = np.concatenate([sc.positions, sc.normals, sc.uv1], axis=1)
+                vbo = self._keep(c.buffer(np.ascontiguousarray(verts, "<f4").tobytes()))
+                ibo = self._keep(c.buffer(np.ascontiguousarray(sc.faces, "<u4").tobytes()))
+                self._vao = self._keep(c.vertex_array(
+                    self._prog, [(vbo, SH_VERTEX_FORMAT, "in_pos", "in_nrm", "in_uv1")],
+                    index_buffer=ibo, index_element_size=4))
+            if setup is not None:
+                setup()
 
-    def release(self) -> None:
-        """Free the GL objects (framebuffer 0 bound first, see glcontext), and the context
-        when this renderer created it; also on leaving a ``with`` block."""
-        make_current(self.ctx)
-        unbind_framebuffer(self.ctx)
-        while self._objects:
-            self._objects.pop().release()
-        self._fbos.clear()
-        self._timer.release()
-        if self._own_ctx:
-            self.ctx.release()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.release()
+        self._open(ctx, open_pass)
 
     def _upload_light(self, light_sh: np.ndarray, rows: int, glossy: bool) -> None:
         """Write light SH (L², 3) into ``self._light`` (``rows`` vec4s, binding 6) and,
@@ -151,30 +125,18 @@ class DistantPass:
     def _draw(self, camera: Camera, name: str) -> RenderResult:
         """Draw the asset through ``camera`` (uniforms and buffers already set) as the
         timed pass ``name``; the frame, row 0 at the top."""
-        mgl, c = self._mgl, self.ctx
-        key = (camera.width, camera.height)
-        if key not in self._fbos:
-            tex = self._keep(c.texture(key, 4, dtype="f4"))
-            depth = self._keep(c.depth_renderbuffer(key))
-            self._fbos[key] = self._keep(c.framebuffer(color_attachments=[tex],
-                                                       depth_attachment=depth))
-        fbo = self._fbos[key]
+        fbo = self._target(camera.width, camera.height, 1)
         if not self._fullscreen:
             clip = scene_clip_from_world(camera, self.center, self.radius)
             set_uniform(self._prog, "clip_from_world", matrix_bytes(clip))
         set_uniform(self._prog, "eye", tuple(float(v) for v in camera.position))
         self._timer.reset()
         with self._timer.timed(name):
-            fbo.use()
-            fbo.viewport = (0, 0, *fbo.size)
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            c.enable(mgl.DEPTH_TEST)
-            c.disable(mgl.CULL_FACE | mgl.BLEND)
-            self._vao.render(mgl.TRIANGLES, vertices=3 if self._fullscreen else -1)
-            c.disable(mgl.DEPTH_TEST)
+            draw_depth_tested(self.ctx, fbo, lambda: self._vao.render(
+                self._mgl.TRIANGLES, vertices=3 if self._fullscreen else -1))
         h, w = camera.height, camera.width
         img = np.frombuffer(fbo.read(components=4, dtype="f4"), "<f4").reshape(h, w, 4)
-        check_gl(c, f"{name} render")
+        check_gl(self.ctx, f"{name} render")
         gpu, wall = self._timer.results()
         return RenderResult(image=img[::-1].copy(), uv1=np.zeros((h, w, 2), np.float32),
                             milliseconds=gpu, wall_milliseconds=wall)
@@ -184,12 +146,14 @@ class ShPrtRenderer(DistantPass):
     """The GPU runtime of one sh_prt bundle (the manifest's ``sh_prt`` section)."""
 
     def __init__(self, bundle: str | Path, ctx=None):
-        import moderngl
+        super().__init__(bundle, "sh_prt", shader_source("sh_fs.glsl"), ctx,
+                         setup=self._setup)
 
+    def _setup(self) -> None:
+        """The transfer (vertex buffer or texture array), glossy layer and light buffer."""
         from prtcore.io.bundle import load_raw
         from prtcore.io.transfer_textures import read_transfer_textures
 
-        super().__init__(bundle, "sh_prt", shader_source("sh_fs.glsl"), ctx)
         sec = self.manifest["sh_prt"]
         self.bands, self.storage = int(sec["bands"]), sec["storage"]
         self.files = math.ceil(self.bands ** 2 / 4)
@@ -209,11 +173,10 @@ class ShPrtRenderer(DistantPass):
                 (w, h, 3 * self.files), 4,
                 np.ascontiguousarray(layers.reshape(-1, h, w, 4), "<f4").tobytes(),
                 dtype="f4"))
-            self._tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._tex.filter = (self._mgl.LINEAR, self._mgl.LINEAR)
             self._tex.repeat_x = self._tex.repeat_y = False
             self._transfer = self._keep(c.buffer(reserve=16))
         self._light = self._keep(c.buffer(reserve=16 * 4 * self.files))
-        check_gl(self.ctx, "sh_prt setup")
 
     def _setup_glossy(self, glossy: dict | None) -> None:
         """The glossy layer (TP): visibility textures (one RGBA layer per four
