@@ -8,9 +8,12 @@ shorter triangles: tighter bounding boxes), each on one thread, timed in CPU sec
 this process (the 2-core machine is shared: CPU time is steadier than wall time); and, for
 scale, the same queries against a single triangle (embreex's per-ray overhead). Then
 ``fibre_direct`` for ``--lights`` point lights with its CPU time split into Embree's
-occlusion queries and the rest. Prints and writes benchmarks/results/hair_rays.json.
+occlusion queries and the rest, and ``fibre_gather`` with ``--gather-rays`` rays per
+texel likewise (closest-hit queries, with :mod:`prtcore.core.raytrace`'s hit records, and
+the rest). Prints and writes benchmarks/results/hair_rays.json.
 
 Usage: python benchmarks/hair_rays.py [--strands 10000] [--split 4] [--lights 4]
+       [--gather-rays 8]
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.scene import Light  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.scenes.hair import hairball  # noqa: E402
-from prtcore.transport.fibre import fibre_direct, hair_tracer  # noqa: E402
+from prtcore.transport.fibre import fibre_direct, fibre_gather, hair_tracer  # noqa: E402
 
 
 def split_segments(hair: Hair, pieces: int) -> Hair:
@@ -75,6 +78,7 @@ def main() -> None:
     ap.add_argument("--strands", type=int, default=10_000)
     ap.add_argument("--split", type=int, default=4)
     ap.add_argument("--lights", type=int, default=4)
+    ap.add_argument("--gather-rays", type=int, default=8)
     args = ap.parse_args()
     hair = hairball(strands=args.strands, seed=0)
     space = build_strand_space(hair, 10)
@@ -129,6 +133,25 @@ def main() -> None:
     print(f"fibre_direct, {args.lights} lights, J = 4: {total:.2f} CPU-s, of which Embree's "
           f"occlusion {spent[0]:.2f} CPU-s for {spent[1] / 1e6:.2f} M shadow rays; load "
           f"{os.getloadavg()[0]:.1f}")
+    spent[:] = [0.0, 0]
+    intersect = tracer.intersect
+
+    def timed_hits(*a):
+        t0 = time.process_time()
+        out = intersect(*a)
+        spent[0] += time.process_time() - t0
+        spent[1] += len(a[0])
+        return out
+
+    tracer.intersect = timed_hits
+    t0 = time.process_time()
+    fibre_gather(space, tracer, fibre_tubes(hair), 0, args.gather_rays, 5)
+    total = time.process_time() - t0
+    row["fibre_gather"] = {"rays_per_texel": args.gather_rays, "cpu_seconds": total,
+                           "intersect_cpu_seconds": spent[0], "rays": spent[1]}
+    print(f"fibre_gather, M = {args.gather_rays}: {total:.2f} CPU-s, of which Embree's "
+          f"closest hits (with raytrace.py's hit records) {spent[0]:.2f} CPU-s for "
+          f"{spent[1] / 1e6:.2f} M rays")
     out = ROOT / "benchmarks" / "results" / "hair_rays.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(row, indent=1))
