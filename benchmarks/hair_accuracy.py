@@ -20,9 +20,12 @@ benchmarks/results/hair_accuracy.json, per variant:
 
 The hair has one colour (0.8, 0.6, 0.4) so that Mitsuba needs one BSDF.
 
+``--max-bounces N`` limits the fast path's solves and the references' paths to N bounces
+(1: the first bounce alone — where its error comes from).
+
 Usage: python benchmarks/hair_accuracy.py [--strands 1000] [--rays 256] [--paths 1024]
        [--texels 300] [--texels-per-strand 4] [--mitsuba-samples 0]
-       [--mitsuba-texels 100]
+       [--mitsuba-texels 100] [--max-bounces 64]
 """
 
 from __future__ import annotations
@@ -65,7 +68,9 @@ def main() -> None:
     ap.add_argument("--texels-per-strand", type=int, default=4)
     ap.add_argument("--mitsuba-samples", type=int, default=0)
     ap.add_argument("--mitsuba-texels", type=int, default=100)
+    ap.add_argument("--max-bounces", type=int, default=64)
     args = ap.parse_args()
+    nb = args.max_bounces
     hair = tangle(args.strands)
     hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
     space = build_strand_space(hair, args.texels_per_strand)
@@ -74,29 +79,30 @@ def main() -> None:
     direct = fibre_direct(space, tracer, LIGHTS, args.samples, seed=1, harmonics=2)
     term = fibre_gather(space, tracer, mesh, 0, args.rays, seed=2, all_bounces=True,
                         harmonics=2)
-    const, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4)
+    const, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, nb, 1e-4)
     t1 = time.perf_counter()
     harm1 = dataclasses.replace(term, harmonics=term.harmonics[:2])
-    harm, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4,
+    harm, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, nb, 1e-4,
                               first_bounce=harmonic_first_bounce(harm1, direct))
     t2 = time.perf_counter()
     every, *_ = solve_indirect(
         term.block, np.tile(space.albedo, (3, 1)),
-        np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
+        np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), nb, 1e-4,
         method="neumann")
     every = np.maximum(every[:space.count], 0)
     t = space.count
     rows2, val2 = harmonic_first_bounce(term, direct, first=2)
     every2, *_ = solve_indirect(
         term.block, np.tile(space.albedo, (3, 1)),
-        np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
+        np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), nb, 1e-4,
         method="neumann", first_bounce=(rows2, val2))
     every2 = np.maximum(every2[:t], 0)
     sel = np.random.default_rng(0).choice(space.count, args.texels, replace=False)
-    ref = fibre_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, seed=7)
+    ref = fibre_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, seed=7,
+                          max_depth=nb)
     t3 = time.perf_counter()
     avg = fibre_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, seed=8,
-                          radially_averaged=True)
+                          max_depth=nb, radially_averaged=True)
     rows = {"constant": noise_corrected_error(const[sel].astype(float), *ref),
             "harmonic": noise_corrected_error(harm[sel].astype(float), *ref),
             "all_bounces": noise_corrected_error(every[sel].astype(float), *ref),
