@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import tempfile
 import time
@@ -79,7 +80,7 @@ def main() -> int:
     rows = []
     print(f"{'scene':<16s} {'sizes':<9s} {'P':>4s} {'K':>4s} {'n':>3s} {'error':>7s} "
           f"{'bound':>7s} {'ratio':>6s} {'verdict':>8s} {'t.noise':>7s} {'radius':>6s} "
-          f"{'time s':>7s}")
+          f"{'time s':>7s} {'CPU s':>7s}")
     kinds = {"auto": {}}
     if args.baseline:
         kinds["fixed"] = {"measurement_points": {"count": 256, "placement": "surface"},
@@ -101,15 +102,18 @@ def main() -> int:
                 spec["validate"] = {"reference_spp": args.reference_spp}
                 if args.reference_lights:
                     spec["validate"]["reference_lights"] = args.reference_lights
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
             out = bake(asset, parse_spec(spec), tmp / f"{name}-{kind}", quiet=True)
             seconds = time.perf_counter() - t0
+            c1 = resource.getrusage(resource.RUSAGE_SELF)  # every thread of the process
+            cpu = (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime)
             m = read_manifest(out)
             v = m["verdict"]
             row = {"scene": name, "sizes": kind, "P": m["points"]["count"],
                    "K": m["fit"]["configurations"], "n": v["n"], "error": v["error"],
                    "bound": v["bound"], "ratio": v["ratio"], "verdict": v["status"],
-                   "against": v["against"], "seconds": seconds, "causes": v["causes"],
+                   "against": v["against"], "seconds": seconds, "cpu_seconds": cpu,
+                   "causes": v["causes"],
                    "sizing": m.get("sizing", {}).get("reason"),
                    "transport_noise": m.get("transport_noise"),
                    "denoise": m["spec"]["fit"]["denoise"] if "transport_noise" not in m
@@ -121,11 +125,13 @@ def main() -> int:
                   f"{row['ratio'] if row['ratio'] is None else round(row['ratio'], 2)!s:>6s} "
                   f"{row['verdict']:>8s} "
                   f"{pct((row['transport_noise'] or {}).get('transport_noise')):>7s} "
-                  f"{row['denoise']!s:>6s} {seconds:>7.1f}", flush=True)
-        mine = {r["sizes"]: r["seconds"] for r in rows if r["scene"] == name}
+                  f"{row['denoise']!s:>6s} {seconds:>7.1f} {cpu:>7.1f}", flush=True)
+        mine = {r["sizes"]: r for r in rows if r["scene"] == name}
         for kind in kinds:
             if kind != "auto":
-                print(f"  {name}: the defaults take {mine['auto'] / mine[kind]:.2f}× the "
+                a, o = mine["auto"], mine[kind]
+                print(f"  {name}: the defaults take {a['seconds'] / o['seconds']:.2f}× the "
+                      f"wall time and {a['cpu_seconds'] / o['cpu_seconds']:.2f}× the CPU "
                       f"time of {kind}", flush=True)
     write_rows(rows, args.out)
     return 0

@@ -117,8 +117,8 @@ def gamma_comparison(intake, train, hold, data, args, log) -> dict:
     out = {}
     models = {}
     for label, g in (("linear", None), ("gamma", 2.2)):
-        spec = dataclasses.replace(intake.spec, fit=dataclasses.replace(intake.spec.fit,
-                                                                          gamma=g))
+        spec = with_denoise(dataclasses.replace(intake.spec, fit=dataclasses.replace(
+            intake.spec.fit, gamma=g)), DENOISE_FALLBACK)  # the bake's radius when unmeasured
         inputs = BakeInputs(spec=spec, intake=dataclasses.replace(intake, spec=spec),
                             train=train, hold=hold, keyframes=None, data=data)
         res = DataDriven().fit(inputs, StageTimer(quiet=True))

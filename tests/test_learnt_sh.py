@@ -12,6 +12,7 @@ import pytest
 from prtcore.core.raytrace import RayTracer
 from prtcore.fit.learnt_sh import (
     SIZES,
+    VERTEX_MARGIN,
     area_samples,
     evaluate,
     fit_learnt_sh,
@@ -26,6 +27,29 @@ CORNELL = Path(__file__).resolve().parents[1] / "examples" / "cornell_box.glb"
 def cornell():
     scene = load_asset(CORNELL)
     return scene, RayTracer(scene.positions, scene.faces, scene.radius)
+
+
+def test_area_samples_avoid_vertex_neighbourhoods_and_stay_uniform_elsewhere():
+    """One triangle (0,0,0), (1,0,0), (0,1,0): a sample's barycentrics are (1 − x − y, x, y).
+    None may weigh a corner above 1 − VERTEX_MARGIN; the rest of the triangle stays uniform
+    (the share of samples with x + y < ½ is that region's share of the allowed area)."""
+    from prtcore.core.scene import Material, single_mesh_scene
+
+    pos = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    scene = single_mesh_scene("tri", pos, np.tile([0.0, 0, 1], (3, 1)),
+                              np.array([[0, 1, 2]]),
+                              Material(name="m", base_color_factor=np.ones(4)))
+    n = 40000
+    p = area_samples(scene, n, 5).position
+    bary = np.stack([1 - p[:, 0] - p[:, 1], p[:, 0], p[:, 1]], axis=1)
+    assert bary.max() <= 1 - VERTEX_MARGIN + 1e-12 and bary.min() >= -1e-12
+    m = VERTEX_MARGIN
+    allowed = 1 - 3 * m * m  # fractions of the triangle's area
+    inner = 0.25 - m * m  # x + y < ½ minus the corner at (0, 0)
+    share = np.mean(p[:, 0] + p[:, 1] < 0.5)
+    assert abs(share - inner / allowed) < 4 * np.sqrt(0.25 / n)
+    # a margin of 0 draws plain area-uniform samples
+    assert area_samples(scene, 100, 5, vertex_margin=0.0).position.shape == (100, 3)
 
 
 def test_area_samples_are_uniform_over_the_surface(cornell):

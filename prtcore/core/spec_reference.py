@@ -72,9 +72,9 @@ DOCS: dict[str, str] = {
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",
     "fit.denoise": "`auto`, or a radius in texels (0–8) of the seam-aware filter applied "
                    "to the training and held-out lightmaps alike before the basis is "
-                   "fitted (0: off). `auto` traces the held-out lights a second time with "
-                   "an independent seed and ships the radius of 0, 0.75, 1.5, 2.5 with the "
-                   "least estimated error against the noiseless lightmaps (manifest "
+                   "fitted (0: off). `auto` traces the first 8 held-out lights a second "
+                   "time with an independent seed and ships the radius of 0, 0.75, 1.5, "
+                   "2.5 with the least estimated error against the noiseless lightmaps (manifest "
                    "`transport_noise`); keyframe bakes take 1.5",
     "fit.transfer": "`ridge` (linear, paper 4.3) · `mlp` (the ridge plus a learnt "
                     "residual network trained on its leave-one-out errors; "

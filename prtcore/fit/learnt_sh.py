@@ -24,8 +24,8 @@ SDF scenes (:mod:`prtcore.core.sdf`): the samples of the marching-cubes mesh are
 onto the zero level set, with the field's gradient as normal. The method that writes the
 network into a bundle is :mod:`prtcore.methods.learnt_sh`; its GLSL evaluation
 :mod:`prtcore.runtime.learnt_sh`; sub-scenes (one network per grid cell)
-:mod:`prtcore.fit.subscenes`. Not here (issue 18's note): avoiding vertex neighbourhoods
-when sampling.
+:mod:`prtcore.fit.subscenes`. Samples avoid the vertices' neighbourhoods
+(:data:`VERTEX_MARGIN`).
 """
 
 from __future__ import annotations
@@ -62,6 +62,10 @@ NORMAL_FREQUENCIES = 2
 SCALE_MARGIN = 1.1
 #: share of the samples held back to report the error on
 HOLDOUT_SHARE = 0.1
+#: Samples avoid the vertices' neighbourhoods (thesis 4.1.2: shading normals and the
+#: mesh's own tessellation are least like the surface there): the corner regions of each
+#: triangle where one barycentric weight exceeds 1 − VERTEX_MARGIN (3·margin² of its area)
+VERTEX_MARGIN = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,10 +122,19 @@ def visibility_of(model: LearntSh, outputs: np.ndarray) -> np.ndarray:
     return outputs[:, model.bands ** 2:]
 
 
-def area_samples(scene: Scene, count: int, seed: int) -> SurfaceSamples:
+def area_samples(scene: Scene, count: int, seed: int,
+                 vertex_margin: float = VERTEX_MARGIN) -> SurfaceSamples:
     """``count`` area-uniform surface samples with their shading and geometric normals and
-    albedo (seeded)."""
-    tri, bary = sample_surface(scene, count, np.random.default_rng(seed))
+    albedo (seeded), none in a vertex's neighbourhood (thesis 4.1.2): a sample whose
+    barycentric weight of one corner exceeds 1 − ``vertex_margin`` is drawn again (from
+    the same stream), so the rest of each triangle stays uniformly covered."""
+    rng = np.random.default_rng(seed)
+    tri, bary = sample_surface(scene, count, rng)
+    for _ in range(64):  # each round keeps all but ~3·margin² of the redrawn ones
+        near = np.flatnonzero(bary.max(axis=1) > 1.0 - vertex_margin)
+        if not len(near):
+            break
+        tri[near], bary[near] = sample_surface(scene, len(near), rng)
     v = scene.positions[scene.faces[tri]]
     position = np.einsum("nk,nkj->nj", bary, v)
     gn = face_normals(scene, tri)

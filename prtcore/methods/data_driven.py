@@ -69,6 +69,9 @@ class DataDriven(Method):
 
     def fit(self, inputs: BakeInputs, timer: StageTimer) -> DataDrivenResult:
         spec, kfs, data = inputs.spec, inputs.keyframes, inputs.data
+        if spec.fit.denoise == "auto":
+            raise ValueError("DataDriven.fit: fit.denoise 'auto' must be resolved to a radius "
+                             "first (prtcore.transport.noise.measure_noise / with_denoise)")
         texels = inputs.intake.texels
         K = len(inputs.train)
         D, I = data.direct_points[:, :K], data.indirect[:, :K]

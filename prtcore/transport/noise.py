@@ -41,6 +41,10 @@ DENOISE_RADII = (0.0, 0.75, 1.5, 2.5)
 #: The radius of ``fit.denoise = "auto"`` where no second transport is traced (keyframe
 #: bakes; hair bakes do not filter).
 DENOISE_FALLBACK = 1.5
+#: Held-out lights traced the second time (the first ones): the estimate sums over every
+#: texel, channel and light, so a few lights suffice, and the second solve's cost grows
+#: with their number.
+NOISE_LIGHTS = 8
 
 
 @dataclass(frozen=True)
@@ -130,6 +134,7 @@ def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
     lightmaps (the bake's and :func:`independent_lightmaps`). Ties go to the smaller radius."""
     f = np.asarray(f, dtype=np.float64)
     g = np.asarray(g, dtype=np.float64)
+    h = f.shape[1]
     norm2 = float((g * g).sum())
     if norm2 <= 0.0:  # no indirect light to judge by: the smallest radius, error unknown
         return float(min(radii)), tuple(float("nan") for _ in radii)
@@ -142,8 +147,8 @@ def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
         if r <= 0:
             risk = half_gap
         else:
-            wf = smooth_texels(texels, f, operator=ops[r])
-            wg = smooth_texels(texels, g, operator=ops[r])
+            both = smooth_texels(texels, np.concatenate([f, g], axis=1), operator=ops[r])
+            wf, wg = both[:, :h], both[:, h:]
             risk = 0.5 * (float(((wf - g) ** 2).sum()) + float(((wg - f) ** 2).sum())) \
                 - half_gap
         errors.append(float(np.sqrt(max(risk, 0.0) / norm2)))
@@ -154,11 +159,14 @@ def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
 def measure_noise(transport: Transport, lights: Sequence[Light], f: np.ndarray,
                   timer: StageTimer | None = None,
                   radii: Sequence[float] = DENOISE_RADII) -> TransportNoise:
-    """Trace the held-out ``lights`` a second time (:func:`independent_lightmaps`) and choose
-    the filter radius (:func:`choose_radius`). f : (T, H, 3) the bake's own indirect
-    lightmaps of the same lights. Timed as the stage "transport noise"."""
+    """Trace the first :data:`NOISE_LIGHTS` of the held-out ``lights`` a second time
+    (:func:`independent_lightmaps`) and choose the filter radius (:func:`choose_radius`).
+    f : (T, H, 3) the bake's own indirect lightmaps of ``lights``. Timed as the stage
+    "transport noise"."""
     timer = timer or StageTimer(quiet=True)
     t0 = time.perf_counter()
+    lights = tuple(lights)[:NOISE_LIGHTS]
+    f = f[:, :len(lights)]
     with timer.stage("transport noise"):
         g = independent_lightmaps(transport, lights, timer)
         radius, errors = choose_radius(transport.texels, f, g, radii)
