@@ -144,7 +144,9 @@ def test_prtcore_view_prints_the_url_and_serves(fake_bundle):
         url = re.search(r"http://127\.0\.0\.1:\d+/", line).group(0)
         assert _get(url)[0] == 200
         proc.send_signal(signal.SIGINT)  # Ctrl-C stops it cleanly
-        assert proc.wait(timeout=10) == 0
+        # 0.03 s on an idle machine; 10 s ran out once with the 2 cores saturated by a
+        # 9 GiB benchmark beside the suite: a hang still fails, load does not
+        assert proc.wait(timeout=60) == 0
         assert "viewer: stopped" in proc.stdout.read()
     finally:
         if proc.poll() is None:
