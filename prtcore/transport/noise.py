@@ -17,7 +17,7 @@ any linear filter W, because E⟨Wf − t, g − t⟩ = 0 and E‖g − t‖² =
 is an unbiased estimate of E‖W f − t‖², the error of the filtered bake lightmaps against
 the noiseless truth (W = I gives the transport's own noise). The radius with the least R
 ships. Measured against the path tracer with its noise removed (exterior house, truck,
-256², three held-out lights): R tracks the true error to within 0.5–4 % points at every
+256², three held-out lights): R tracks the true error to within 0.4–2.3 % points at every
 radius and picks the best one on both (``benchmarks/transport_noise.py``).
 """
 
