@@ -136,9 +136,13 @@ def test_server_refuses_a_non_bundle(tmp_path):
 def test_prtcore_view_prints_the_url_and_serves(fake_bundle):
     """`prtcore view DIR --port 0 --no-browser`: one line with the URL, then serves it until
     Ctrl-C, which ends it with status 0."""
+    # the child gets Ctrl-C as a terminal gives it: an ignored SIGINT is inherited across
+    # exec (Python then installs no KeyboardInterrupt handler), and in the whole suite an
+    # earlier test leaves it ignored in this process (the viewer then ran until killed)
     proc = subprocess.Popen([sys.executable, "-m", "prtcore", "view", str(fake_bundle),
                              "--port", "0", "--no-browser", "-q"], stdout=subprocess.PIPE,
-                            text=True)
+                            text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         line = proc.stdout.readline()
         url = re.search(r"http://127\.0\.0\.1:\d+/", line).group(0)
