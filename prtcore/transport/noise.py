@@ -86,11 +86,10 @@ class TransportNoise:
 
 def noise_line(record: dict) -> str:
     """One line for the terminal and report.txt from :meth:`TransportNoise.to_dict`."""
-    def pct(e: float | None) -> str:
-        return "—" if e is None or e != e else f"{100 * e:.1f} %"
+    def pct(e: float | None) -> str:  # to_dict writes an unmeasured error as None
+        return "—" if e is None else f"{100 * e:.1f} %"
 
-    if record["transport_noise"] is None or record["transport_noise"] != record[
-            "transport_noise"]:
+    if record["transport_noise"] is None:
         return (f"not measured: no indirect light in the {record['lights']} held-out lights; "
                 f"lightmap filter radius {record['radius']:g} texels")
     errs = ", ".join(f"{r:g}: {pct(e)}" for r, e in
