@@ -5,6 +5,7 @@ from __future__ import annotations
 from fastapi import Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 
 class ErrorBody(BaseModel):
@@ -42,6 +43,20 @@ async def validation_error_handler(_request: Request, exc: Exception) -> JSONRes
     return JSONResponse({"error": {"code": "invalid_request",
                                    "message": "; ".join(parts) or "invalid request"}},
                         status_code=422)
+
+
+_HTTP_CODES = {404: "not_found", 405: "method_not_allowed"}
+
+
+async def http_error_handler(_request: Request, exc: Exception) -> JSONResponse:
+    """Starlette's own refusals (no route matched, a method the route lacks) in the same
+    shape as every other error, not FastAPI's ``{"detail": ...}``: a path no route's
+    pattern matches (``{path:path}`` does not match a newline) ends here."""
+    assert isinstance(exc, StarletteHTTPException)
+    code = _HTTP_CODES.get(exc.status_code, f"http_{exc.status_code}")
+    message = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
+    return JSONResponse({"error": {"code": code, "message": message}},
+                        status_code=exc.status_code, headers=getattr(exc, "headers", None))
 
 
 def responses(*codes: int) -> dict:

@@ -304,6 +304,21 @@ def test_viewer_page_and_files_sit_behind_the_artifacts_token(app_client):
         assert c.get(f"{base}/static/{bad}", headers=ok).status_code == 404, bad
 
 
+def test_paths_no_route_matches_get_the_one_error_shape(app_client):
+    """A path no route's pattern matches (``{path:path}`` stops at a newline) and a method
+    a route lacks are Starlette's own refusals; they answer in the API's error shape,
+    not ``{"detail": ...}`` (CI: schemathesis sent ``viewer/static/%0A...``)."""
+    c = app_client()
+    for url, status, code in (
+            (f"/v1/bakes/{'0' * 32}/viewer/static/%0Aa.js", 404, "not_found"),
+            ("/v1/nothing-here", 404, "not_found")):
+        r = c.get(url)
+        assert r.status_code == status, url
+        assert r.json()["error"]["code"] == code and r.json()["error"]["message"], r.json()
+    r = c.request("PATCH", "/healthz")
+    assert r.status_code == 405 and r.json()["error"]["code"] == "method_not_allowed"
+
+
 def test_health_ready_metrics(app_client):
     c = app_client()
     assert c.get("/healthz").json() == {"status": "ok"}
