@@ -98,6 +98,10 @@ class TransportSpec:
     near_field: float = 1.0
     #: random walks per translucent texel through the medium (the subsurface operator)
     subsurface_walks: int = 32
+    #: the solve iterates on cells of this many × this many atlas texels, the first bounce
+    #: at full resolution (prtcore.transport.coarse); 1: every bounce at full resolution;
+    #: "auto": prtcore.transport.coarse.grid_factor
+    coarse_grid: int | str = "auto"
     #: scattering events after which a walk is dropped (its light counts as absorbed)
     subsurface_max_scatter: int = 4096
 
@@ -576,6 +580,8 @@ def _parse(data: Any) -> BakeSpec:
         near_field=_num(t.get("near_field", 1.0), "transport.near_field", lo=0.0, hi=16.0),
         subsurface_walks=_int(t.get("subsurface_walks", TransportSpec.subsurface_walks),
                               "transport.subsurface_walks", lo=1, hi=4096),
+        coarse_grid=_int_or_auto(t.get("coarse_grid", TransportSpec.coarse_grid),
+                                 "transport.coarse_grid", lo=1, hi=16),
         subsurface_max_scatter=_int(t.get("subsurface_max_scatter",
                                           TransportSpec.subsurface_max_scatter),
                                     "transport.subsurface_max_scatter", lo=1, hi=1 << 20),

@@ -55,6 +55,10 @@ DOCS: dict[str, str] = {
                             "0–16",
     "fit.basis": "n, basis elements including the mean (1–4096), or `auto` (the smallest "
                  "n whose held-out error is within 1 % of the best)",
+    "transport.coarse_grid": "the solve iterates on cells of s × s atlas texels, the "
+                             "first bounce and two closing steps at full resolution "
+                             "(prtcore/transport/coarse.py), 1–16 (1: every bounce at full "
+                             "resolution), or `auto` (atlas side / 128, at most 8)",
     "transport.subsurface_walks": "random walks per translucent texel through its medium "
                                   "(docs/subsurface.md), 1–4096",
     "transport.subsurface_max_scatter": "scattering events after which a walk is dropped "

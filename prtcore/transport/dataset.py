@@ -31,6 +31,7 @@ from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, TransportTerm, operator_for
+from prtcore.transport.coarse import coarsen_texels, grid_factor
 from prtcore.transport.direct import direct_radiance
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS, solve_indirect
 
@@ -228,10 +229,12 @@ def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
         first = _add_first_bounce(first, t.operator.first_bounce(
             t.term, scene, tracer, tuple(lights), direct, timer))
     rays2 = tracer.rays_traced
+    coarse = coarsen_texels(texels.xy, texels.position, texels.normal, texels.footprint,
+                            texels.coverage, grid_factor(spec.coarse_grid, texels.width))
     indirect, bounces, resid, solve_stats = solve_indirect(
         operator_matrix(traced), texels.albedo, direct, spec.max_bounces, spec.tolerance,
         timer, threads=tracer.threads, first_bounce=first,
-        channel_matrices=channel_matrices(traced))
+        channel_matrices=channel_matrices(traced), coarse=coarse)
     stats = {"rays": {"direct_texels": rays1 - rays0, "near_field": rays2 - rays1},
              "solve": solve_stats, "direct_samples": int(positions.shape[1])}
     return TexelLighting(direct=direct, indirect=indirect, iterations=bounces,
