@@ -15,6 +15,14 @@ estimate of the cell's gather from that texel's rays: the bounces it carries are
 later, the noise is averaged by the fine product); ``ρ_c`` is the cell's mean albedo
 weighted by coverage, as is the restriction ``R``.
 
+Against the path tracer the grid costs nothing measurable: Duck.glb at 512² (auto: 4 × 4
+cells), M = 64, a point light and a spot, reference 128 spp with its noise removed
+(``tests/test_transport.py``'s ``compare``): 15.9 % / 5.22 % relative RMSE at full
+resolution, 16.0 % / 5.24 % on the grid (bias −0.5 % / −0.2 % both), although the grid
+differs from the full solve of the same system by 2.6 % (benchmarks/coarse_solve.py): on an
+exterior object few gather rays hit anything (5 per texel), and the cells' means at the
+hit points are another estimate of the same light, not a further error.
+
 A cell holds only texels that are neighbours on the surface: texels of one atlas block
 that lie within a few texel footprints of the block's first texel and face its way;
 the others (chart borders, other charts sharing the block) are cells of their own.
