@@ -109,6 +109,12 @@ def load_sdf(path: str | os.PathLike) -> SdfScene:
     return parse_sdf(read_json(path, lambda what: AssetError(file, "", what)), file)
 
 
+def asset_sdf(path: str | os.PathLike) -> SdfScene | None:
+    """The field of an asset that is an SDF scene file (``*.sdf.json``), else None: what a
+    learnt_sh bake of the asset takes its training samples on (the zero level set)."""
+    return load_sdf(path) if is_sdf_file(path) else None
+
+
 def sdf_mesh_scene(sdf: SdfScene, file: str) -> Scene:
     """The mesh of an SDF scene as a :class:`Scene`: marching cubes, vertex normals the
     field's gradient, one material of the scene's albedo, no UVs (the bake generates the

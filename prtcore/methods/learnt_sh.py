@@ -59,7 +59,7 @@ from prtcore.fit.subscenes import (
     write_scenes,
 )
 from prtcore.io.imageio import read_image, write_exr, write_png
-from prtcore.io.sdf import is_sdf_file, load_sdf
+from prtcore.io.sdf import asset_sdf, load_sdf
 from prtcore.methods.base import BakeInputs, DirectMethod, register
 from prtcore.methods.sh_prt import (
     TEXTURE_BYTES,
@@ -354,14 +354,15 @@ class LearntShMethod(DirectMethod):
         spec = inputs.spec.learnt_sh
         scene, texels = inputs.intake.scene, inputs.intake.texels
         tracer = default_tracer(scene)
-        sdf_file = inputs.intake.source if is_sdf_file(inputs.intake.source) else None
+        sdf = asset_sdf(inputs.intake.source)
+        sdf_file = inputs.intake.source if sdf is not None else None
         with timer.stage("fit"):
             t0 = time.perf_counter()
             model = fit_scenes(scene, tracer, cells=spec.cells, overlap=spec.overlap,
                                samples=spec.samples, bands=spec.bands, strata=spec.strata,
                                width=spec.width, layers=spec.layers, steps=spec.steps,
                                batch=spec.batch, seed=spec.seed, glossy=spec.specular > 0,
-                               sdf=load_sdf(sdf_file) if sdf_file else None)
+                               sdf=sdf)
             seconds = time.perf_counter() - t0
         with timer.stage("report"):
             rho, albedo_image = albedo_atlas(scene, texels)

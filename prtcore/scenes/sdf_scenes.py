@@ -13,6 +13,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+#: Bake specs for the scenes: their marching-cubes meshes have many small UV charts
+#: (docs/learnt_sh.md "SDF scenes"); the bunny's fit a 256² atlas at padding 2, the old
+#: car's 1762 do not (384² do)
+BUNNY_SPEC = {"atlas": {"resolution": 256, "padding": 2}}
+OLD_CAR_SPEC = {"atlas": {"resolution": 384, "padding": 2}}
+
 BUNNY = {
     "primitives": [
         {"type": "ellipsoid", "centre": [0.0, 0.45, 0.0], "radii": [0.55, 0.45, 0.4]},
