@@ -9,6 +9,10 @@ forms for slabs with an index-matched boundary and isotropic scattering.
   identity ``∫₀¹ H dμ = 2/ϖ (1 − √(1 − ϖ))``;
 * finite absorbing slab (ϖ = 0), diffuse incidence: transmittance ``2 E₃(τ)``;
   normal incidence: Beer–Lambert ``e^(−τ)``;
+* finite scattering slab (τ = 1), diffuse and normal incidence, isotropic and
+  Henyey–Greenstein g = 0.5: total reflectance and transmittance against adding-doubling
+  (Prahl's ``iadpython``, an independent implementation; it gives 2E₃(τ) and e^(−τ) for
+  ϖ = 0 to 2e-4, the tolerance added to the walks' standard errors);
 * a conservative medium (ϖ = 1) in a closed box: every walk leaves (energy).
 """
 
@@ -99,6 +103,31 @@ def test_absorbing_slab_transmits_2_e3_diffuse_and_beer_lambert_at_normal_incide
     _, y, w = _walk(tau, 10.0, 0.0, normal)
     t = w[y < -tau / 2 + 1e-6].sum() / n
     assert t == pytest.approx(np.exp(-tau), abs=4 * np.sqrt(np.exp(-tau) / n))
+
+
+@pytest.mark.parametrize(("omega", "g"), [(0.5, 0.0), (0.9, 0.0), (0.9, 0.5)])
+def test_finite_scattering_slab_matches_adding_doubling(omega, g):
+    import iadpython as iad  # pinned dev dependency (pyproject.toml)
+
+    # UR1/UT1: collimated normal incidence (UT1 with the unscattered part), URU/UTU:
+    # diffuse incidence; index-matched boundary (n = 1 inside and out)
+    ur1, ut1, uru, utu = (float(x) for x in iad.Sample(
+        a=omega, b=1.0, g=g, n=1.0, n_above=1.0, n_below=1.0).rt())
+    tracer, faces = _slab(1.0, 200.0)
+    rng = np.random.default_rng(5)
+    n = 40_000
+    for directions, r_ref, t_ref in ((_cosine_down(n, rng), uru, utu),
+                                     (np.tile([0.0, -1.0, 0.0], (n, 1)), ur1, ut1)):
+        origin = np.tile([0.0, 0.5 - 1e-6, 0.0], (n, 1))
+        medium = Subsurface(sigma_t=np.ones(3), albedo=np.full(3, omega), anisotropy=g)
+        _, tri, bary, _, weight = medium_walk(tracer, medium, faces, origin, directions,
+                                              np.random.default_rng(6))
+        y = tracer.surface_point(tri, bary)[:, 1]
+        w = weight[:, 0]
+        for side, ref in ((y > 0.5 - 1e-6, r_ref), (y < -0.5 + 1e-6, t_ref)):
+            got = w[side].sum() / n
+            se = np.sqrt(max((w * side).var(), 1e-12) / n)
+            assert got == pytest.approx(ref, abs=4 * se + 2e-3), (omega, g, got, ref)
 
 
 def test_conservative_medium_in_a_closed_box_returns_all_light():

@@ -69,8 +69,9 @@ class LightFamily:
     #: Seed this family from the asset's KHR_lights_punctual lights ("jitter around these").
     from_asset: bool = False
     #: type "environment" only: "sky" (an analytic sky whose sun direction is drawn like a
-    #: directional light's) or an equirect map file turned about +y by the drawn direction's
-    #: azimuth (docs/lights.md, prtcore/emitters/environment_light.py)
+    #: directional light's), "ambient" (uniform radiance: beside a directional family, the
+    #: "directional lights plus an ambient term") or an equirect map file turned about +y
+    #: by the drawn direction's azimuth (docs/lights.md, emitters/environment_light.py)
     environment: str | None = None
 
 
@@ -454,7 +455,8 @@ def _family(v: Any, key: str) -> LightFamily:
     if t == "environment":
         env = d.get("environment", "sky")
         if not isinstance(env, str) or not env:
-            raise SpecError(f"{key}.environment", f'expected "sky" or a map file, got {env!r}')
+            raise SpecError(f"{key}.environment",
+                            f'expected "sky", "ambient" or a map file, got {env!r}')
         kw["environment"] = env
     elif d.get("environment") is not None:
         raise SpecError(f"{key}.environment", f"only environment lights have one, not {t}")

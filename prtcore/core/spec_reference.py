@@ -177,9 +177,11 @@ DOCS: dict[str, str] = {
     "family.from_asset": "jitter around the asset's own KHR_lights_punctual lights of "
                          "this type",
     "family.environment": "type environment only (default \"sky\"): \"sky\" — an analytic "
-                          "sky whose sun direction is drawn like a directional light's — or "
-                          "an equirect map file turned about +y by the drawn direction's "
-                          "azimuth; direct light = hemisphere integral (docs/lights.md)",
+                          "sky whose sun direction is drawn like a directional light's —, "
+                          "\"ambient\" — uniform radiance, an ambient term beside a "
+                          "directional family —, or an equirect map file turned about +y "
+                          "by the drawn direction's azimuth; direct light = hemisphere "
+                          "integral (docs/lights.md)",
 }
 
 

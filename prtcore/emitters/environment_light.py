@@ -7,6 +7,10 @@ Which environment (:attr:`prtcore.core.scene.Light.environment`):
 * ``"sky"`` — the analytic sky of :func:`prtcore.emitters.environment.sky_environment`
   about the sun direction ``−direction`` (a family of them is the spec's "sky with a
   random sun": the sun's glow, its direction drawn like a directional light's);
+* ``"ambient"`` — uniform radiance from every direction (an ambient term; the direction
+  is ignored): with a directional family beside it, the spec's "random directional lights
+  plus an ambient term" — the transfer is linear, so the engine adds the two lights'
+  direct light at the measurement points (docs/lights.md);
 * a file — an equirect map (:func:`~prtcore.emitters.environment.load_environment`) turned
   about +y by the azimuth of ``−direction`` (φ = atan2(t_x, −t_z), t = −direction: φ = 0
   for t toward −z), so a family of them is the "rotated environment".
@@ -42,6 +46,7 @@ from prtcore.core.scene import Light
 from prtcore.emitters.base import Emitter, register
 from prtcore.emitters.environment import (
     Environment,
+    constant_environment,
     load_environment,
     rotation_about_y,
     sky_environment,
@@ -53,6 +58,8 @@ STRATA = 8
 DIRECTION_SEED = 17
 #: the analytic sky's map height (pixels; width twice that)
 SKY_HEIGHT = 64
+#: the ambient term's (uniform) map height
+AMBIENT_HEIGHT = 8
 #: visibility cached across lights, at most this many bytes in all (then traced per light)
 CACHE_BYTES = 1 << 28
 
@@ -70,6 +77,8 @@ def _map(path: str) -> Environment:
 
 def environment_of(light: Light) -> Environment:
     """The light's environment (world space, unscaled)."""
+    if light.environment == "ambient":
+        return constant_environment(np.ones(3), AMBIENT_HEIGHT)
     t = to_light_axis(light)
     if light.environment in ("", "sky"):
         return sky_environment(t, SKY_HEIGHT)
