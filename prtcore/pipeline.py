@@ -165,7 +165,11 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         kfs = _keyframe_set(intake, len(train), len(hold), timer)
         if kfs is None:
             transport = open_transport(scene, texels, points, spec.transport, timer)
-            data = light_configurations(transport, (*train, *hold), len(train), timer)
+            # the texels' direct light serves the solve only: the solve writes over it
+            data = light_configurations(transport, (*train, *hold), len(train), timer,
+                                        keep_direct_texels=False)
+            if not sizing.automatic:  # nothing lights more configurations on the operators:
+                transport = transport.without_operators()  # freed before the second trace
             if spec.fit.denoise == "auto" and len(hold):
                 noise = measure_noise(transport, hold, data.indirect[:, len(train):], timer)
                 fit_spec = with_denoise(spec, noise.radius)

@@ -246,7 +246,8 @@ def size_bake(spec: BakeSpec, sizing: Sizing, transport: Transport, data: Datase
                     + (f"{chosen.ratio:.2f}× the bound)" if chosen.ratio is not None
                        else "no held-out light)"))
             break
-        extra = light_configurations(transport, train_pool[K:grow], grow - K, timer)
+        extra = light_configurations(transport, train_pool[K:grow], grow - K, timer,
+                                     keep_direct_texels=data.direct_texels is not None)
         pass_seconds = sum(extra.stats["seconds"].get(s, 0.0) for s in LIGHT_STAGES)
         pass_lights = grow - K
         transport_seconds += pass_seconds

@@ -449,6 +449,28 @@ def test_timer_records_sub_stages(block_on_floor):
     assert ds.direct_points.shape == (2, 4, 3)
 
 
+def test_a_bake_need_not_keep_the_texels_direct_light(block_on_floor):
+    """What the pipeline does to save memory — the solve written over the direct light,
+    the operators dropped before the noise stage's second trace — changes no number."""
+    from prtcore.transport.dataset import add_training, light_configurations, open_transport
+
+    scene, texels, _tracer, _ = block_on_floor
+    pts = points_on(scene, texels, np.arange(4), per=2)
+    train, hold = sample_configurations(
+        LightsSpec(count=3, holdout=1, families=(LightFamily(type="point"),)),
+        scene.center, scene.radius)
+    tr = open_transport(scene, texels, pts, TransportSpec(gather_rays=8))
+    full = light_configurations(tr, (*train, *hold), 3)
+    lean = light_configurations(tr, (*train, *hold), 3, keep_direct_texels=False)
+    assert lean.direct_texels is None
+    np.testing.assert_array_equal(lean.indirect, full.indirect)
+    np.testing.assert_array_equal(lean.direct_points, full.direct_points)
+    more = add_training(lean, light_configurations(tr, train[:1], 1))
+    assert more.direct_texels is None and more.indirect.shape[1] == 5
+    bare = tr.without_operators()
+    assert bare.traced == () and bare.operators == tr.operators == ("surface",)
+
+
 # ---------------------------------------------------------------------------------------
 # (7) Against the reference path tracer (prtcore.reference.pathtracer), real pipeline
 
@@ -611,3 +633,21 @@ def test_coarse_grid_against_the_full_solve(block_on_floor, block_problem, monke
     assert once > 1.5 * four, (once, four)  # the closing steps make the grid accurate
     one = solve_indirect(g, albedo, direct, 1, 1e-4, coarse=coarsen(texels, 4))[0]
     np.testing.assert_array_equal(one, solve_indirect(g, albedo, direct, 1, 1e-4)[0])
+
+
+def test_the_solve_may_write_over_the_direct_light(block_on_floor, block_problem, monkeypatch):
+    """``out=direct``: the same result, bit for bit, in the direct light's own array (each
+    block of configurations is read whole before its result is written; one light per
+    block here, so a wrong order would show), on the grid as at full resolution."""
+    _scene, texels, *_ = block_on_floor
+    g, albedo, direct = block_problem
+    monkeypatch.setattr(solve_module, "SOLVE_BLOCK_BYTES",
+                        solve_module.SOLVE_WORK_ARRAYS * 4 * 3 * g.shape[0])  # 1 light
+    for coarse in (None, coarsen(texels, 2)):
+        want = solve_indirect(g, albedo, direct, 30, 1e-4, coarse=coarse)[0]
+        mine = np.array(direct, dtype=np.float32, order="C")
+        got = solve_indirect(g, albedo, mine, 30, 1e-4, coarse=coarse, out=mine)[0]
+        assert got is mine
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="out must be"):
+        solve_indirect(g, albedo, direct, 30, 1e-4, out=np.zeros((2, 2, 3), np.float32))

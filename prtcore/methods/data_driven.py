@@ -35,7 +35,7 @@ from prtcore.io.bundle import (
 from prtcore.io.imageio import write_exr
 from prtcore.keyframes.pose import keyframe_files
 from prtcore.methods.base import BakeInputs, Method, register
-from prtcore.receivers.smoothing import denoise_lightmaps
+from prtcore.receivers.smoothing import denoise_lightmaps, smoothing_operator
 from prtcore.report import (
     error_vs_runtime,
     fit_for_table,
@@ -87,8 +87,12 @@ class DataDriven(Method):
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
             with timer.stage("denoise"):  # one filter for training and held-out lightmaps
-                both = denoise_lightmaps(texels, data.indirect, spec.fit.denoise)
-                I, Ih = both[:, :K], both[:, K:]
+                W = smoothing_operator(texels, radius=spec.fit.denoise)
+                # the training lightmaps in place (nothing after reads them raw: a copy of
+                # the largest array of the bake saved); the held-out ones stay raw for the
+                # report's worst-light image
+                I = denoise_lightmaps(texels, I, operator=W, out=I)
+                Ih = denoise_lightmaps(texels, Ih, operator=W)
             reference += f", denoised (radius {spec.fit.denoise:g} texels)"
         holdout = (Dh, Ih) if len(inputs.hold) else None
         per_group = kfs is not None and kfs.transfer == "per_keyframe"

@@ -126,12 +126,15 @@ def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True
     return y.reshape(v.shape).astype(out_dtype)
 
 
-def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float,
-                      block: int = 16) -> np.ndarray:
-    """Lightmaps I (T, K, 3) through the seam-aware filter of ``radius`` texels, ``block``
-    configurations at a time: (T, K, 3) float32 (the fit's ``fit.denoise``)."""
-    W = smoothing_operator(texels, radius=radius)
-    out = np.empty(I.shape, dtype=np.float32)
+def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float | None = None,
+                      block: int = 16, *, operator: sp.csr_matrix | None = None,
+                      out: np.ndarray | None = None) -> np.ndarray:
+    """Lightmaps I (T, K, 3) through the seam-aware filter of ``radius`` texels (or the
+    given ``operator``), ``block`` configurations at a time: (T, K, 3) float32 (the fit's
+    ``fit.denoise``). ``out`` may be I itself (in place: each block is read whole before
+    it is written), which saves a copy of the lightmaps."""
+    W = operator if operator is not None else smoothing_operator(texels, radius=radius)
+    out = np.empty(I.shape, dtype=np.float32) if out is None else out
     for k0 in range(0, I.shape[1], block):
         out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
     return out

@@ -16,6 +16,7 @@ A new operator (the subsurface random walk, ``prtcore/transport/subsurface.py``;
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -73,7 +74,9 @@ class Dataset:
         says how many are training; the caller splits)
     direct_points : (P, K, 3) float32 direct outgoing radiance ρ/π·E_d at the measurement
         points, each the average of its supersample cluster
-    direct_texels : (T, K, 3) float32 direct outgoing radiance at the texels
+    direct_texels : (T, K, 3) float32 direct outgoing radiance at the texels, or None once
+        released (:meth:`without_direct_texels`: the fit never reads it, and it is as large
+        as the lightmaps themselves — 1.2 GB for a 1024² atlas and 144 lights)
     indirect : (T, K, 3) float32 indirect outgoing radiance ρ/π·E_ind at the texels (light
         that bounced at least once, all bounces)
     iterations : bounces computed (1 = single bounce)
@@ -84,11 +87,15 @@ class Dataset:
 
     lights: tuple[Light, ...]
     direct_points: np.ndarray
-    direct_texels: np.ndarray
+    direct_texels: np.ndarray | None
     indirect: np.ndarray
     iterations: int
     residual: float
     stats: dict = field(default_factory=dict)
+
+    def without_direct_texels(self) -> Dataset:
+        """The same dataset without ``direct_texels`` (its memory freed once unreferenced)."""
+        return dataclasses.replace(self, direct_texels=None)
 
 
 
@@ -194,12 +201,13 @@ def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int,
 class TexelLighting:
     """Direct and indirect outgoing radiance at the texels for K lights.
 
-    direct, indirect : (T, K, 3) float32; iterations, residual : as :class:`Dataset`;
+    direct, indirect : (T, K, 3) float32 (direct None when not kept); iterations,
+    residual : as :class:`Dataset`;
     stats : "rays" (direct texels, first-bounce corrections such as the near field),
     "solve", "direct_samples".
     """
 
-    direct: np.ndarray
+    direct: np.ndarray | None
     indirect: np.ndarray
     iterations: int
     residual: float
@@ -208,12 +216,14 @@ class TexelLighting:
 
 def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
                  traced: Sequence[Traced], lights: Sequence[Light], spec: TransportSpec,
-                 timer: StageTimer | None = None) -> TexelLighting:
+                 timer: StageTimer | None = None, keep_direct: bool = True) -> TexelLighting:
     """Direct light at the texels (averaged over the points an operator chose,
     :meth:`~prtcore.transport.base.TransportOperator.direct_position`, else at the texel
     samples), the operators' first-bounce corrections (the near field) and all bounces
     (:func:`solve_indirect`) for ``lights``, on operators traced once
-    (:func:`trace_operators`). Sub-stages "direct texels", "near field", "indirect solve"."""
+    (:func:`trace_operators`). Sub-stages "direct texels", "near field", "indirect solve".
+    keep_direct False: the solve writes the indirect light over the direct light's array
+    (one (T, K, 3) float32 array less at the solve's peak) and ``direct`` is None."""
     timer = timer or StageTimer(quiet=True)
     positions = next((p for p in (t.operator.direct_position(t.term) for t in traced)
                       if p is not None), None)
@@ -234,7 +244,10 @@ def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
     indirect, bounces, resid, solve_stats = solve_indirect(
         operator_matrix(traced), texels.albedo, direct, spec.max_bounces, spec.tolerance,
         timer, threads=tracer.threads, first_bounce=first,
-        channel_matrices=channel_matrices(traced), coarse=coarse)
+        channel_matrices=channel_matrices(traced), coarse=coarse,
+        out=None if keep_direct else direct)
+    if not keep_direct:
+        direct = None
     stats = {"rays": {"direct_texels": rays1 - rays0, "near_field": rays2 - rays1},
              "solve": solve_stats, "direct_samples": int(positions.shape[1])}
     return TexelLighting(direct=direct, indirect=indirect, iterations=bounces,
@@ -272,6 +285,14 @@ class Transport:
     traced: tuple[Traced, ...]
     rays: int
     seconds: dict
+    #: the registry names of the operators traced (kept by :meth:`without_operators`)
+    operators: tuple[str, ...] = ()
+
+    def without_operators(self) -> Transport:
+        """The same geometry with its traced operators dropped (their memory freed once
+        unreferenced): what :func:`prtcore.transport.noise.independent_lightmaps`, which
+        traces its own, still needs."""
+        return dataclasses.replace(self, traced=())
 
 
 def open_transport(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
@@ -291,11 +312,13 @@ def open_transport(scene: Scene, texels: TexelSpace, points: MeasurementPoints,
     seconds = {t.operator.stage: timer.seconds[t.operator.stage]
                - before.get(t.operator.stage, 0.0) for t in traced}
     return Transport(scene=scene, texels=texels, points=points, spec=spec, tracer=tracer,
-                     traced=traced, rays=tracer.rays_traced - rays0, seconds=seconds)
+                     traced=traced, rays=tracer.rays_traced - rays0, seconds=seconds,
+                     operators=tuple(t.operator.name for t in traced))
 
 
 def light_configurations(tr: Transport, lights: Sequence[Light], n_train: int,
-                         timer: StageTimer | None = None) -> Dataset:
+                         timer: StageTimer | None = None,
+                         keep_direct_texels: bool = True) -> Dataset:
     """Direct light at the measurement points and the texels, and all bounces, for
     ``lights`` (the first ``n_train`` training, the rest held out) on operators traced once.
     Sub-stages "direct points", "direct texels", "near field", "indirect solve"."""
@@ -306,7 +329,8 @@ def light_configurations(tr: Transport, lights: Sequence[Light], n_train: int,
     rays1 = tracer.rays_traced
     direct_p = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
-    lit = light_texels(scene, tr.texels, tracer, tr.traced, lights, tr.spec, timer)
+    lit = light_texels(scene, tr.texels, tracer, tr.traced, lights, tr.spec, timer,
+                       keep_direct=keep_direct_texels)
     _, clamped = clamp_albedo(np.asarray(tr.texels.albedo, dtype=np.float64))
     stats = {
         "train": int(n_train), "holdout": len(lights) - int(n_train),
@@ -332,7 +356,9 @@ def add_training(data: Dataset, extra: Dataset) -> Dataset:
     add up; iterations and residual are the worse of the two passes."""
     k = data.stats["train"]
 
-    def cat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    def cat(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+        if a is None or b is None:  # released (Dataset.without_direct_texels)
+            return None
         return np.concatenate([a[:, :k], b, a[:, k:]], axis=1)
 
     stats = dict(data.stats)

@@ -119,7 +119,7 @@ def independent_lightmaps(transport: Transport, lights: Sequence[Light],
     independent of the bake's). The operators are dropped on return."""
     spec = dataclasses.replace(transport.spec, seed=second_seed(transport.spec.seed))
     quiet = StageTimer(quiet=True)
-    names = tuple(t.operator.name for t in transport.traced)
+    names = transport.operators
     traced = trace_operators(transport.scene, transport.texels, transport.tracer, spec,
                              quiet, names)
     return light_texels(transport.scene, transport.texels, transport.tracer, traced,

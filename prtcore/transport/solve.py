@@ -167,7 +167,7 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
                    method: str = "chebyshev", threads: int = 2,
                    first_bounce: tuple[np.ndarray, np.ndarray] | None = None,
                    channel_matrices: tuple | None = None,
-                   coarse: Coarsening | None = None
+                   coarse: Coarsening | None = None, out: np.ndarray | None = None
                    ) -> tuple[np.ndarray, int, float, dict]:
     """All bounces of indirect light for every configuration and channel at once.
 
@@ -207,6 +207,11 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     coarse cells, ``E ≈ b + A·P·(I − A_c)⁻¹·R·b`` (:mod:`prtcore.transport.coarse`;
     ``stats["coarse"]``). Ignored with channel_matrices and for max_bounces = 1.
 
+    out : a C-contiguous (T, K, 3) float32 array for the result, or None (a new one). It may
+    be ``direct`` itself: each block of configurations is read whole before its result is
+    written, which saves the memory of one (T, K, 3) array when the caller no longer needs
+    the direct light.
+
     Returns the indirect outgoing radiance ρ/π·E_ind (T, K, 3) float32, the number of
     products (bounces), the residual (the largest last relative change; 1.0 after a single
     bounce) and stats.
@@ -217,18 +222,23 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     ctx = timer.stage("indirect solve") if timer is not None else nullcontext()
     with ctx:
         return _solve(matrix, albedo, direct, int(max_bounces), float(tolerance), method,
-                      threads, first_bounce, channel_matrices, coarse)
+                      threads, first_bounce, channel_matrices, coarse, out)
 
 
 def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extra=None,
-           channel_matrices=None, coarse=None):
+           channel_matrices=None, coarse=None, out=None):
     t, k = direct.shape[:2]
     rho, _ = clamp_albedo(np.asarray(albedo, dtype=np.float64))
     rho32 = rho.astype(np.float32)
     g = matrix if matrix.dtype == np.float32 else matrix.astype(np.float32)
-    out = np.zeros((t, k, 3), dtype=np.float32)
+    if out is None:
+        out = np.zeros((t, k, 3), dtype=np.float32)
+    elif out.shape != (t, k, 3) or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"solve_indirect: out must be C-contiguous float32 {(t, k, 3)}, got "
+                         f"{out.dtype} {out.shape}")
     stats: dict = {"method": method, "converged": True, "blocks": []}
     if max_bounces < 1 or t == 0 or k == 0:
+        out[...] = 0
         return out, 0, 0.0, stats
     product = SparseProduct(g, threads) if channel_matrices is None else \
         ChannelProduct(g, channel_matrices, threads)
