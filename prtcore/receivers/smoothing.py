@@ -105,25 +105,32 @@ def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True
         in that channel is > 0, and multiply back, so albedo edges stay sharp; a texel with
         zero albedo in a channel stays 0 there (its outgoing radiance)
     operator : a W from :func:`smoothing_operator` (built from ``kw`` when None)
-    Returns the same shape, float32 when ``values`` is float32, else float64.
+    Returns the same shape, float32 when ``values`` is float32 (computed in float32), else
+    float64.
     """
     v = np.asarray(values)
     if v.shape[0] != texels.count or v.shape[-1] != 3 or v.ndim not in (2, 3):
         raise ValueError(f"smooth_texels: values {v.shape}, expected ({texels.count}, 3) "
                          f"or ({texels.count}, K, 3)")
     W = operator if operator is not None else smoothing_operator(texels, **kw)
-    x = v.astype(np.float64).reshape(texels.count, -1, 3)
+    # in the values' own precision (float32 lightmaps: float32 sums of a few dozen
+    # weights), three passes over the values: scale, product, scale back
+    dt = np.float32 if v.dtype == np.float32 else np.float64
+    x = v.astype(dt, copy=False).reshape(texels.count, -1, 3)
+    Wd = W if W.dtype == dt else W.astype(dt)
     if albedo:
         rho, _ = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
         valid = (rho > 0).astype(np.float64)  # (T, 3)
-        e = x / np.where(rho > 0, rho, 1.0)[:, None, :] * valid[:, None, :]
-        num = (W @ e.reshape(texels.count, -1)).reshape(x.shape)
+        inv = np.divide(1.0, rho, out=np.zeros_like(rho), where=rho > 0).astype(dt)
         den = np.asarray(W @ valid)  # (T, 3)
-        y = num / np.where(den > 0, den, 1.0)[:, None, :] * rho[:, None, :]
+        back = (rho / np.where(den > 0, den, 1.0)).astype(dt)
+        e = x * inv[:, None, :]  # irradiance; 0 where the albedo is
+        y = (Wd @ e.reshape(texels.count, -1)).reshape(x.shape)
+        del e
+        y *= back[:, None, :]
     else:
-        y = (W @ x.reshape(texels.count, -1)).reshape(x.shape)
-    out_dtype = np.float32 if v.dtype == np.float32 else np.float64
-    return y.reshape(v.shape).astype(out_dtype)
+        y = (Wd @ x.reshape(texels.count, -1)).reshape(x.shape)
+    return y.reshape(v.shape)
 
 
 def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float | None = None,
