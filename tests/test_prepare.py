@@ -389,6 +389,44 @@ def test_generate_box_uv1():
     assert c.texel_density ** 2 * 24.0 == pytest.approx(area.sum())
 
 
+def test_xatlas_killed_by_a_signal_is_run_again_and_an_error_is_not(monkeypatch):
+    """A child killed by a signal (xatlas died once on the Cornell box, mapped every other
+    time) runs again and the result is the one of a clean run; a child that fails by
+    itself is refused at once, naming the asset and the exit status."""
+    import subprocess
+
+    from prtcore.core.errors import AssetError
+    from prtcore.intake import uv as uv_module
+
+    m = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    s = make_scene([(m.vertices, m.faces)])
+    want = generate_uv1(s, 64, 2).uv1
+    real, calls = subprocess.run, []
+
+    def dies_once(cmd, **kw):
+        calls.append(cmd)
+        if len(calls) == 1:
+            return subprocess.CompletedProcess(cmd, -11, b"", b"")
+        return real(cmd, **kw)
+
+    monkeypatch.setattr(uv_module.subprocess, "run", dies_once)
+    np.testing.assert_array_equal(generate_uv1(s, 64, 2).uv1, want)
+    assert len(calls) == 2
+
+    def always(code):
+        def run(cmd, **kw):
+            calls.append(cmd)
+            return subprocess.CompletedProcess(cmd, code, b"", b"boom")
+        return run
+
+    for code, runs in ((-11, uv_module.XATLAS_TRIES), (1, 1)):
+        calls.clear()
+        monkeypatch.setattr(uv_module.subprocess, "run", always(code))
+        with pytest.raises(AssetError, match=f"exit status {code}, boom"):
+            generate_uv1(s, 64, 2)
+        assert len(calls) == runs
+
+
 def test_generate_two_instances_keeps_instance_invariants():
     box = trimesh.creation.box()
     ico = trimesh.creation.icosphere(subdivisions=2, radius=0.7)
