@@ -89,6 +89,17 @@ def test_memory_estimate_is_the_stage_plus_each_operator():
     assert estimate_bake_bytes(t, k, TransportSpec(gather_rays=rays)) == own + surface
     assert estimate_bake_bytes(t, k, rays, operators=("surface", "surface")) \
         == own + 2 * surface
+    # on the coarse grid the solve holds SOLVE_WORK_ARRAYS_COARSE full-resolution arrays
+    from prtcore.transport.dataset import solve_uses_grid
+    from prtcore.transport.solve import SOLVE_WORK_ARRAYS_COARSE
+
+    assert own + surface - estimate_bake_bytes(t, k, rays, coarse=True) == \
+        (SOLVE_WORK_ARRAYS - SOLVE_WORK_ARRAYS_COARSE) * t * k * 12
+    spec = TransportSpec()  # coarse_grid "auto": a grid from 256² up, never with the walks
+    assert [solve_uses_grid(spec, w, ("surface",)) for w in (128, 256, 1024)] == \
+        [False, True, True]
+    assert not solve_uses_grid(spec, 1024, ("surface", "subsurface"))
+    assert not solve_uses_grid(TransportSpec(coarse_grid=1), 1024, ("surface",))
 
 
 def test_solver_runs_over_a_list_of_operators(cornell32):

@@ -79,6 +79,9 @@ class TransportOperator:
     name: ClassVar[str]
     stage: ClassVar[str]
     stats_key: ClassVar[str]
+    #: its terms carry ``channel_matrices`` (one matrix per colour channel): the solve then
+    #: iterates at full resolution (no coarse grid)
+    per_channel: ClassVar[bool] = False
 
     def build(self, scene: Scene, receiver: Receiver, tracer: RayTracer,
               spec: TransportSpec, timer: StageTimer | None = None) -> TransportTerm:

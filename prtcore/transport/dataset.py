@@ -34,7 +34,12 @@ from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, TransportTerm, operator_for
 from prtcore.transport.coarse import coarsen_texels, grid_factor
 from prtcore.transport.direct import direct_radiance
-from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS, solve_indirect
+from prtcore.transport.solve import (
+    SOLVE_BLOCK_BYTES,
+    SOLVE_WORK_ARRAYS,
+    SOLVE_WORK_ARRAYS_COARSE,
+    solve_indirect,
+)
 
 #: The operators a bake runs, in order (registry names, :mod:`prtcore.transport.base`).
 DEFAULT_OPERATORS = ("surface",)
@@ -162,18 +167,30 @@ def _add_first_bounce(a: tuple[np.ndarray, np.ndarray] | None,
 
 
 def estimate_bake_bytes(texels: int, configurations: int, transport: TransportSpec | int,
-                        operators: Sequence[str] = DEFAULT_OPERATORS) -> int:
+                        operators: Sequence[str] = DEFAULT_OPERATORS,
+                        coarse: bool = False) -> int:
     """Peak memory of a bake with ``texels`` covered texels and ``configurations`` lights
     (training + held-out), from the measured model above (transport is the peak stage):
     this stage's arrays and every operator's
     :meth:`~prtcore.transport.base.TransportOperator.estimate_bytes`. transport : the
-    transport spec, or its gather rays (the other keys at their defaults)."""
+    transport spec, or its gather rays (the other keys at their defaults); coarse : the
+    solve iterates on the coarse grid (fewer full-resolution work arrays,
+    :func:`solve_uses_grid`)."""
     if not isinstance(transport, TransportSpec):
         transport = TransportSpec(gather_rays=int(transport))
     t, k = int(texels), int(configurations)
+    arrays = SOLVE_WORK_ARRAYS_COARSE if coarse else SOLVE_WORK_ARRAYS
     own = MEM_PROCESS + t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(
-        SOLVE_WORK_ARRAYS * t * k * 12, SOLVE_BLOCK_BYTES)
+        arrays * t * k * 12, SOLVE_BLOCK_BYTES)
     return int(own + sum(operator_for(n).estimate_bytes(t, k, transport) for n in operators))
+
+
+def solve_uses_grid(spec: TransportSpec, width: int, operators: Sequence[str]) -> bool:
+    """Whether the solve of a surface bake iterates on the coarse grid: a grid factor above
+    1 for the atlas ``width``, and no operator with per-channel matrices (the subsurface
+    walks, which keep the full-resolution solve: :func:`light_texels`)."""
+    return grid_factor(spec.coarse_grid, width) > 1 and not any(
+        operator_for(n).per_channel for n in operators)
 
 
 def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int,
@@ -185,7 +202,8 @@ def check_bake_memory(source: str, texels: TexelSpace, spec, limit_bytes: int,
     first pass (default ``spec.lights.count``, which must then be a number). Returns the
     estimate."""
     k = int(spec.lights.count if training is None else training) + spec.lights.holdout
-    need = estimate_bake_bytes(texels.count, k, spec.transport, operators)
+    need = estimate_bake_bytes(texels.count, k, spec.transport, operators,
+                               coarse=solve_uses_grid(spec.transport, texels.width, operators))
     if need > limit_bytes:
         gib = 1 << 30
         raise LimitExceeded(

@@ -39,6 +39,9 @@ SOLVE_BLOCK_BYTES = 2 << 30
 #: The Chebyshev iteration's working arrays: solution, residual, step and ρ∘step, and the
 #: next step and its ρ∘step (the fused step reads the old ones while writing the new).
 SOLVE_WORK_ARRAYS = 6
+#: … and on the coarse grid (prtcore.transport.coarse): the first bounce, the solution and
+#: ρ∘solution at full resolution (the cells' arrays are a few per cent of these).
+SOLVE_WORK_ARRAYS_COARSE = 3
 #: Full-resolution steps ``E ← b + A·E`` after the coarse grid's solution (see
 #: :mod:`prtcore.transport.coarse`).
 #: Each damps the grid's error by about the spectral radius of A and smooths it: the

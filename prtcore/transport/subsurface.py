@@ -226,6 +226,7 @@ class SubsurfaceWalk(TransportOperator):
 
     name = "subsurface"
     stage = "subsurface walks"
+    per_channel = True
     stats_key = "subsurface"
 
     def build(self, scene: Scene, receiver: TexelSpace, tracer: RayTracer,
