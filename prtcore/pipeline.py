@@ -191,7 +191,8 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
             data = bake_keyframe_dataset(kfs, texels, train, hold, spec.transport, timer)
     inputs = BakeInputs(spec=fit_spec, intake=intake, train=train, hold=hold, keyframes=kfs,
-                        data=data, indirect=indirect, sizing=record, models=models)
+                        data=data, indirect=indirect, sizing=record, models=models,
+                        denoise_operator=None if noise is None else noise.operator)
     result = m.fit(inputs, timer)
 
     def write(tmp: Path) -> dict:

@@ -104,6 +104,13 @@ def test_measured_noise_agrees_with_a_far_less_noisy_transport(box):
     np.testing.assert_allclose(noise.expected_error, true, rtol=0.2)
     assert noise.radius == noise.radii[int(np.argmin(noise.expected_error))]
     assert noise.seed == second_seed(spec.transport.seed) != spec.transport.seed
+    # the chosen filter travels to the denoise stage: it is smoothing_operator's, bit for bit
+    if noise.radius > 0:
+        w = smoothing_operator(intake.texels, noise.radius)
+        for a in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(noise.operator, a), getattr(w, a))
+    else:
+        assert noise.operator is None
 
 
 def test_bake_records_the_choice_and_a_given_radius_skips_it(box, tmp_path):

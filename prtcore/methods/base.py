@@ -46,6 +46,9 @@ class BakeInputs:
     #: None, or (model, full) already fitted by automatic sizing on exactly these inputs
     #: (:func:`prtcore.report.fit_for_table`)
     models: Any = None
+    #: None, or the filter of ``spec.fit.denoise`` already built (T × T CSR: the noise
+    #: stage's, :class:`prtcore.transport.noise.TransportNoise`)
+    denoise_operator: Any = None
 
 
 class Method:

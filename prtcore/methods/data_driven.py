@@ -87,7 +87,8 @@ class DataDriven(Method):
             # noise as error (against the path tracer, noise removed, the Cornell example
             # at n = 16 goes from 4.06 % to 3.71 % with the filter)
             with timer.stage("denoise"):  # one filter for training and held-out lightmaps
-                W = smoothing_operator(texels, radius=spec.fit.denoise)
+                W = inputs.denoise_operator if inputs.denoise_operator is not None else \
+                    smoothing_operator(texels, radius=spec.fit.denoise)
                 # the training lightmaps in place (nothing after reads them raw: a copy of
                 # the largest array of the bake saved); the held-out ones stay raw for the
                 # report's worst-light image

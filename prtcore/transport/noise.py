@@ -26,7 +26,8 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,10 @@ class TransportNoise:
     per candidate, sqrt(R(W)) / ‖g‖ pooled over the held-out lights and channels (the
     expected relative error of the filtered bake lightmaps against the noiseless truth;
     the unfiltered one is the transport's own noise); lights : held-out lights used;
-    seed : the second transport's seed; seconds : its wall time.
+    seed : the second transport's seed; seconds : its wall time; operator : the chosen
+    radius's filter W (T × T CSR, :func:`~prtcore.receivers.smoothing.smoothing_operator`'s
+    matrix, bit for bit), for the denoise stage to apply rather than build again; None for
+    radius 0 (not in :meth:`to_dict`).
     """
 
     radius: float
@@ -64,6 +68,7 @@ class TransportNoise:
     lights: int
     seed: int
     seconds: float
+    operator: Any = field(default=None, repr=False, compare=False)
 
     @property
     def noise(self) -> float:
@@ -127,10 +132,13 @@ def independent_lightmaps(transport: Transport, lights: Sequence[Light],
 
 
 def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
-                  radii: Sequence[float] = DENOISE_RADII) -> tuple[float, tuple[float, ...]]:
+                  radii: Sequence[float] = DENOISE_RADII,
+                  operators: dict | None = None) -> tuple[float, tuple[float, ...]]:
     """The radius of ``radii`` with the least expected error R (module docstring), and every
     candidate's sqrt(R) / ‖g‖. f, g : (T, H, 3) two independent estimates of the same
-    lightmaps (the bake's and :func:`independent_lightmaps`). Ties go to the smaller radius."""
+    lightmaps (the bake's and :func:`independent_lightmaps`). Ties go to the smaller radius.
+    operators : radius → W for the radii > 0 (:func:`smoothing_operators`), built here when
+    None."""
     f = np.asarray(f, dtype=np.float64)
     g = np.asarray(g, dtype=np.float64)
     h = f.shape[1]
@@ -139,8 +147,8 @@ def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
         return float(min(radii)), tuple(float("nan") for _ in radii)
     half_gap = 0.5 * float(((f - g) ** 2).sum())
     positive = tuple(r for r in radii if r > 0)
-    ops = dict(zip(positive, smoothing_operators(texels, positive), strict=True)) \
-        if positive else {}
+    ops = operators if operators is not None else dict(
+        zip(positive, smoothing_operators(texels, positive), strict=True)) if positive else {}
     errors = []
     for r in radii:
         if r <= 0:
@@ -168,8 +176,11 @@ def measure_noise(transport: Transport, lights: Sequence[Light], f: np.ndarray,
     f = f[:, :len(lights)]
     with timer.stage("transport noise"):
         g = independent_lightmaps(transport, lights, timer)
-        radius, errors = choose_radius(transport.texels, f, g, radii)
+        positive = tuple(r for r in radii if r > 0)
+        ops = dict(zip(positive, smoothing_operators(transport.texels, positive),
+                       strict=True)) if positive else {}
+        radius, errors = choose_radius(transport.texels, f, g, radii, ops)
     return TransportNoise(radius=radius, radii=tuple(float(r) for r in radii),
                           expected_error=errors, lights=len(lights),
                           seed=second_seed(transport.spec.seed),
-                          seconds=time.perf_counter() - t0)
+                          seconds=time.perf_counter() - t0, operator=ops.get(radius))
