@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from render_passes import render_passes
 
 from prtcore.cli import main as cli_main
 from prtcore.core.errors import SpecError
@@ -89,16 +90,9 @@ def test_hair_bake_refuses_what_it_cannot_do_by_key(tmp_path, key, value):
 
 def test_render_draws_the_strands(bundle, light, tmp_path):
     _, out = bundle
-    cam = tmp_path / "cam.json"
-    cam.write_text(json.dumps({"position": [0, 0.02, 0.12], "target": [0, 0, 0],
-                               "fov_y_deg": 40, "width": 48, "height": 48}))
-    images = {}
-    for mode, flag in (("full", []), ("indirect", ["--indirect-only"]),
-                       ("direct", ["--no-indirect"])):
-        exr = tmp_path / f"{mode}.exr"
-        assert cli_main(["render", str(out), "--light", str(light), "--camera", str(cam),
-                         "--out", str(exr), *flag]) == 0
-        images[mode] = read_image(exr)
+    images = render_passes(out, light, {"position": [0, 0.02, 0.12], "target": [0, 0, 0],
+                                        "fov_y_deg": 40, "width": 48, "height": 48},
+                           tmp_path)
     seen = images["full"][:, :, 3] > 0.5
     assert 0.05 < seen.mean() < 0.9  # fibres of the ball, not the whole frame
     assert images["indirect"][seen, :3].mean() > 0 and images["direct"][seen, :3].mean() > 0
@@ -107,8 +101,8 @@ def test_render_draws_the_strands(bundle, light, tmp_path):
                                rtol=1e-5, atol=1e-7)
     # --cpu: the fibre tubes ray traced on the CPU, the same fibres seen
     exr = tmp_path / "cpu.exr"
-    assert cli_main(["render", str(out), "--light", str(light), "--camera", str(cam),
-                     "--out", str(exr), "--cpu"]) == 0
+    assert cli_main(["render", str(out), "--light", str(light), "--camera",
+                     str(tmp_path / "camera.json"), "--out", str(exr), "--cpu"]) == 0
     assert ((read_image(exr)[:, :, 3] > 0.5) != seen).mean() < 0.02
 
 

@@ -209,19 +209,11 @@ def test_prtcore_bake_relight_report_on_a_translucent_asset(tmp_path, capsys):
     assert main(["report", str(out)]) == 0
     # render (GL): the surface's direct light plus the reconstructed indirect (which
     # carries the light that came through the medium); the passes add up to the image
-    from prtcore.io.imageio import read_image
+    from render_passes import render_passes
 
-    camera = tmp_path / "camera.json"
-    camera.write_text(json.dumps({"position": [0.0, 0.4, 3.0], "target": [0, 0, 0],
-                                  "up": [0, 1, 0], "fov_y_deg": 40, "width": 64,
-                                  "height": 64}))
-    images = {}
-    for name, flags in (("full", []), ("direct", ["--no-indirect"]),
-                        ("indirect", ["--indirect-only"])):
-        path = tmp_path / f"{name}.exr"
-        assert main(["render", str(out), "--light", str(light), "--camera", str(camera),
-                     "--out", str(path), *flags]) == 0
-        images[name] = read_image(path)[:, :, :3].astype(np.float64)
+    images = {name: im[:, :, :3].astype(np.float64) for name, im in render_passes(
+        out, light, {"position": [0.0, 0.4, 3.0], "target": [0, 0, 0], "up": [0, 1, 0],
+                     "fov_y_deg": 40, "width": 64, "height": 64}, tmp_path).items()}
     assert images["indirect"].max() > 0 and images["direct"].max() > 0
     np.testing.assert_allclose(images["full"], images["direct"] + images["indirect"],
                                atol=1e-4 * images["full"].max())

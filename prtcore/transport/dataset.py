@@ -79,9 +79,10 @@ class Dataset:
         says how many are training; the caller splits)
     direct_points : (P, K, 3) float32 direct outgoing radiance ρ/π·E_d at the measurement
         points, each the average of its supersample cluster
-    direct_texels : (T, K, 3) float32 direct outgoing radiance at the texels, or None once
-        released (:meth:`without_direct_texels`: the fit never reads it, and it is as large
-        as the lightmaps themselves — 1.2 GB for a 1024² atlas and 144 lights)
+    direct_texels : (T, K, 3) float32 direct outgoing radiance at the texels, or None when
+        not kept (:func:`light_configurations` ``keep_direct_texels``: the fit never reads
+        it, and it is as large as the lightmaps themselves — 1.2 GB for a 1024² atlas and
+        144 lights)
     indirect : (T, K, 3) float32 indirect outgoing radiance ρ/π·E_ind at the texels (light
         that bounced at least once, all bounces)
     iterations : bounces computed (1 = single bounce)
@@ -97,10 +98,6 @@ class Dataset:
     iterations: int
     residual: float
     stats: dict = field(default_factory=dict)
-
-    def without_direct_texels(self) -> Dataset:
-        """The same dataset without ``direct_texels`` (its memory freed once unreferenced)."""
-        return dataclasses.replace(self, direct_texels=None)
 
 
 
@@ -258,7 +255,8 @@ def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
             t.term, scene, tracer, tuple(lights), direct, timer))
     rays2 = tracer.rays_traced
     coarse = coarsen_texels(texels.xy, texels.position, texels.normal, texels.footprint,
-                            texels.coverage, grid_factor(spec.coarse_grid, texels.width))
+                            texels.coverage, grid_factor(spec.coarse_grid, texels.width)) \
+        if solve_uses_grid(spec, texels.width, [t.operator.name for t in traced]) else None
     indirect, bounces, resid, solve_stats = solve_indirect(
         operator_matrix(traced), texels.albedo, direct, spec.max_bounces, spec.tolerance,
         timer, threads=tracer.threads, first_bounce=first,
@@ -375,7 +373,7 @@ def add_training(data: Dataset, extra: Dataset) -> Dataset:
     k = data.stats["train"]
 
     def cat(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
-        if a is None or b is None:  # released (Dataset.without_direct_texels)
+        if a is None or b is None:  # not kept (keep_direct_texels=False)
             return None
         return np.concatenate([a[:, :k], b, a[:, k:]], axis=1)
 

@@ -131,14 +131,21 @@ def independent_lightmaps(transport: Transport, lights: Sequence[Light],
                         tuple(lights), spec, quiet).indirect
 
 
+def filters(texels: TexelSpace, radii: Sequence[float]) -> dict:
+    """radius → the filter W (T × T CSR) for each radius > 0 of ``radii``, from one
+    neighbour search (:func:`~prtcore.receivers.smoothing.smoothing_operators`)."""
+    positive = tuple(r for r in radii if r > 0)
+    return dict(zip(positive, smoothing_operators(texels, positive), strict=True)) \
+        if positive else {}
+
+
 def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
                   radii: Sequence[float] = DENOISE_RADII,
                   operators: dict | None = None) -> tuple[float, tuple[float, ...]]:
     """The radius of ``radii`` with the least expected error R (module docstring), and every
     candidate's sqrt(R) / ‖g‖. f, g : (T, H, 3) two independent estimates of the same
     lightmaps (the bake's and :func:`independent_lightmaps`). Ties go to the smaller radius.
-    operators : radius → W for the radii > 0 (:func:`smoothing_operators`), built here when
-    None."""
+    operators : :func:`filters` of ``radii``, built here when None."""
     f = np.asarray(f, dtype=np.float64)
     g = np.asarray(g, dtype=np.float64)
     h = f.shape[1]
@@ -146,9 +153,7 @@ def choose_radius(texels: TexelSpace, f: np.ndarray, g: np.ndarray,
     if norm2 <= 0.0:  # no indirect light to judge by: the smallest radius, error unknown
         return float(min(radii)), tuple(float("nan") for _ in radii)
     half_gap = 0.5 * float(((f - g) ** 2).sum())
-    positive = tuple(r for r in radii if r > 0)
-    ops = operators if operators is not None else dict(
-        zip(positive, smoothing_operators(texels, positive), strict=True)) if positive else {}
+    ops = operators if operators is not None else filters(texels, radii)
     errors = []
     for r in radii:
         if r <= 0:
@@ -176,9 +181,7 @@ def measure_noise(transport: Transport, lights: Sequence[Light], f: np.ndarray,
     f = f[:, :len(lights)]
     with timer.stage("transport noise"):
         g = independent_lightmaps(transport, lights, timer)
-        positive = tuple(r for r in radii if r > 0)
-        ops = dict(zip(positive, smoothing_operators(transport.texels, positive),
-                       strict=True)) if positive else {}
+        ops = filters(transport.texels, radii)
         radius, errors = choose_radius(transport.texels, f, g, radii, ops)
     return TransportNoise(radius=radius, radii=tuple(float(r) for r in radii),
                           expected_error=errors, lights=len(lights),
