@@ -113,23 +113,38 @@ def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True
         raise ValueError(f"smooth_texels: values {v.shape}, expected ({texels.count}, 3) "
                          f"or ({texels.count}, K, 3)")
     W = operator if operator is not None else smoothing_operator(texels, **kw)
-    # in the values' own precision (float32 lightmaps: float32 sums of a few dozen
-    # weights), three passes over the values: scale, product, scale back
     dt = np.float32 if v.dtype == np.float32 else np.float64
-    x = v.astype(dt, copy=False).reshape(texels.count, -1, 3)
+    return _filtered(v.astype(dt, copy=False), _prepared(texels, W, dt, albedo))
+
+
+def _prepared(texels: TexelSpace, W: sp.csr_matrix, dt: type, albedo: bool) -> tuple:
+    """What :func:`_filtered` needs, computed once per filter: W in the values' precision
+    ``dt``, and with ``albedo`` the per-texel scale to irradiance (1/ρ, 0 where ρ = 0) and
+    back (ρ over the filtered weight of the neighbours with ρ > 0), (T, 3) ``dt``."""
     Wd = W if W.dtype == dt else W.astype(dt)
-    if albedo:
-        rho, _ = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
-        valid = (rho > 0).astype(np.float64)  # (T, 3)
-        inv = np.divide(1.0, rho, out=np.zeros_like(rho), where=rho > 0).astype(dt)
-        den = np.asarray(W @ valid)  # (T, 3)
-        back = (rho / np.where(den > 0, den, 1.0)).astype(dt)
+    if not albedo:
+        return Wd, None, None
+    rho, _ = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
+    valid = (rho > 0).astype(np.float64)  # (T, 3)
+    inv = np.divide(1.0, rho, out=np.zeros_like(rho), where=rho > 0).astype(dt)
+    den = np.asarray(W @ valid)  # (T, 3)
+    back = (rho / np.where(den > 0, den, 1.0)).astype(dt)
+    return Wd, inv, back
+
+
+def _filtered(v: np.ndarray, prepared: tuple) -> np.ndarray:
+    """Values (T, 3) or (T, K, 3) through a :func:`_prepared` filter, in their own precision
+    (float32 lightmaps: float32 sums of a few dozen weights): three passes over the values,
+    scale, product, scale back."""
+    Wd, inv, back = prepared
+    x = v.reshape(len(v), -1, 3)
+    if inv is None:
+        y = (Wd @ x.reshape(len(v), -1)).reshape(x.shape)
+    else:
         e = x * inv[:, None, :]  # irradiance; 0 where the albedo is
-        y = (Wd @ e.reshape(texels.count, -1)).reshape(x.shape)
+        y = (Wd @ e.reshape(len(v), -1)).reshape(x.shape)
         del e
         y *= back[:, None, :]
-    else:
-        y = (Wd @ x.reshape(texels.count, -1)).reshape(x.shape)
     return y.reshape(v.shape)
 
 
@@ -141,7 +156,9 @@ def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float | None = 
     ``fit.denoise``). ``out`` may be I itself (in place: each block is read whole before
     it is written), which saves a copy of the lightmaps."""
     W = operator if operator is not None else smoothing_operator(texels, radius=radius)
+    prepared = _prepared(texels, W, np.float32, True)  # once, not per block
     out = np.empty(I.shape, dtype=np.float32) if out is None else out
     for k0 in range(0, I.shape[1], block):
-        out[:, k0:k0 + block] = smooth_texels(texels, I[:, k0:k0 + block], operator=W)
+        out[:, k0:k0 + block] = _filtered(
+            np.asarray(I[:, k0:k0 + block], dtype=np.float32), prepared)
     return out
