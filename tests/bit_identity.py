@@ -5,11 +5,22 @@ result file (everything in the bundle's manifest ``checksums``) to
 ``tests/data/bundle_checksums.json``; ``tests/test_bit_identity.py`` bakes the same cases
 and compares. Re-record only for a change that is meant to alter numbers, and say in the
 commit which change and what it measured against the path tracer.
+
+The bytes depend on the machine's floating point paths, not only on the code: numpy picks
+its SIMD kernels (exp, sin, sums) and OpenBLAS its LAPACK kernels (the Q-DEIM pivots of the
+measurement points) by CPU at run time, and they round differently (the same commit gives
+other bundles on an AVX-512 machine than on an AVX2 one). So the record holds one set of
+checksums per platform (:func:`platform_key`), and a bake passes when it matches the set
+recorded for any platform: a regression would have to reproduce another machine's bytes.
+``record`` replaces the whole file with this platform's set (after a numerical change the
+others are stale); ``record --add`` adds or replaces this platform's set and keeps the
+others (a new machine, the code unchanged — check first that the recorded platforms pass).
 """
 
 from __future__ import annotations
 
 import json
+import platform
 import sys
 import tempfile
 from pathlib import Path
@@ -51,17 +62,35 @@ def bake_checksums(name: str, out: Path) -> dict[str, str]:
     return dict(sorted(read_manifest(bundle)["checksums"].items()))
 
 
-def record() -> None:
+def platform_key() -> str:
+    """The floating point paths this machine takes: the architecture and the widest SIMD
+    extension numpy dispatches to (and OpenBLAS with it)."""
+    from numpy._core._multiarray_umath import __cpu_features__ as cpu
+
+    simd = next((name for name, flag in (("avx512", "AVX512_SKX"), ("avx2", "AVX2"),
+                                         ("sse4", "SSE42")) if cpu.get(flag)), "baseline")
+    return f"{platform.machine()}-{simd}"
+
+
+def recorded() -> dict[str, dict]:
+    """platform key → case name → checksums."""
+    return json.loads(RECORD.read_text())["platforms"]
+
+
+def record(add: bool = False) -> None:
     result = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in cases():
             result[name] = bake_checksums(name, Path(tmp))
             print(f"{name}: {len(result[name])} files")
-    RECORD.write_text(json.dumps(result, indent=1) + "\n")
-    print(f"wrote {RECORD}")
+    platforms = dict(recorded()) if add else {}
+    platforms[platform_key()] = result
+    RECORD.write_text(json.dumps({"platforms": dict(sorted(platforms.items()))}, indent=1)
+                      + "\n")
+    print(f"wrote {RECORD} ({platform_key()}; platforms: {', '.join(sorted(platforms))})")
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] != ["record"]:
-        sys.exit("usage: python tests/bit_identity.py record")
-    record()
+    if sys.argv[1:] not in (["record"], ["record", "--add"]):
+        sys.exit("usage: python tests/bit_identity.py record [--add]")
+    record(add=sys.argv[2:] == ["--add"])
