@@ -22,6 +22,8 @@ channel, multiplied back after), so an albedo edge stays sharp.
 
 from __future__ import annotations
 
+from itertools import chain
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
@@ -72,10 +74,10 @@ def smoothing_operators(texels: TexelSpace, radii: tuple[float, ...],
     parts = []  # per block of rows: (i, j, |p_j − p_i|²) of the pairs that pass the tests
     for a in range(0, t, 4096):
         b = min(a + 4096, t)
-        hits = tree.query_ball_point(pos[a:b], r_max[a:b])
-        lens = np.fromiter((len(x) for x in hits), dtype=np.int64, count=b - a)
+        hits = tree.query_ball_point(pos[a:b], r_max[a:b], workers=-1)
+        lens = np.fromiter(map(len, hits), dtype=np.int64, count=b - a)
         i = np.repeat(np.arange(a, b), lens)
-        j = np.fromiter((j for x in hits for j in x), dtype=np.int64, count=int(lens.sum()))
+        j = np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(lens.sum()))
         d = pos[j] - pos[i]
         ok = (np.einsum("ij,ij->i", nrm[i], nrm[j]) >= cos_min) & (
             np.abs(np.einsum("ij,ij->i", nrm[i], d)) <= plane_tol * h[i])
