@@ -10,6 +10,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
@@ -23,6 +24,36 @@ def default_threads() -> int:
     """Worker threads for ray queries (``PRT_THREADS`` overrides; default: all cores)."""
     env = os.environ.get("PRT_THREADS")
     return max(1, int(env)) if env else max(1, os.cpu_count() or 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _hit_records(prim, u, v, tfar, d, normals, tri, t, bary, front):  # pragma: no cover
+    """Embree's closest-hit outputs of one chunk (prim (n,) int32, u, v, tfar (n,) float32)
+    and its directions d (n, 3) float32 → the :class:`Hits` arrays' rows (written): tri
+    (n,) int64, t (n,) float64, bary (n, 3) float64, front (n,) bool against the faces'
+    normals (f, 3) float64. Rounds as numpy would: (1 − u) − v, and the float64 dot product
+    summed in index order, no fused multiply-add. Compiled, releases the GIL: each ray
+    thread converts its own chunk."""
+    for i in range(len(prim)):
+        p = prim[i]
+        if p < 0:
+            tri[i] = -1
+            t[i] = np.inf
+            bary[i, 0] = 0.0
+            bary[i, 1] = 0.0
+            bary[i, 2] = 0.0
+            front[i] = False
+            continue
+        uu = np.float64(u[i])
+        vv = np.float64(v[i])
+        tri[i] = p
+        t[i] = np.float64(tfar[i])
+        bary[i, 0] = 1.0 - uu - vv
+        bary[i, 1] = uu
+        bary[i, 2] = vv
+        dot = normals[p, 0] * np.float64(d[i, 0]) + normals[p, 1] * np.float64(d[i, 1])
+        dot += normals[p, 2] * np.float64(d[i, 2])
+        front[i] = dot < 0
 
 
 @dataclass(frozen=True)
@@ -95,29 +126,19 @@ class RayTracer:
         o, d = self._prep(origins, directions)
         n = len(o)
         tm = self._tmax(tmax, n)
+        tri = np.empty(n, dtype=np.int64)
+        t = np.empty(n)
+        bary = np.empty((n, 3))
+        front = np.empty(n, dtype=bool)
 
         def run(s: slice):
-            return self._scene.run(o[s], d[s], dists=tm[s].copy(), output=1)
+            res = self._scene.run(o[s], d[s], dists=tm[s].copy(), output=1)
+            _hit_records(res["primID"], res["u"], res["v"], res["tfar"], d[s],
+                         self.face_normals, tri[s], t[s], bary[s], front[s])
 
-        parts = self._map(run, n)
+        self._map(run, n)
         self.rays_traced += n
-        prim = np.concatenate([p["primID"] for p in parts]).astype(np.int64) if parts else \
-            np.zeros(0, np.int64)
-        u = np.concatenate([p["u"] for p in parts]).astype(np.float64) if parts else \
-            np.zeros(0)
-        v = np.concatenate([p["v"] for p in parts]).astype(np.float64) if parts else \
-            np.zeros(0)
-        t = np.concatenate([p["tfar"] for p in parts]).astype(np.float64) if parts else \
-            np.zeros(0)
-        hit = prim >= 0
-        bary = np.zeros((n, 3))
-        bary[hit] = np.stack([1.0 - u[hit] - v[hit], u[hit], v[hit]], axis=1)
-        t = np.where(hit, t, np.inf)
-        front = np.zeros(n, dtype=bool)
-        if hit.any():
-            fn = self.face_normals[prim[hit]]
-            front[hit] = np.einsum("ij,ij->i", fn, d[hit].astype(np.float64)) < 0
-        return Hits(triangle=np.where(hit, prim, -1), t=t, barycentric=bary, front=front)
+        return Hits(triangle=tri, t=t, barycentric=bary, front=front)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray,
                  tmax: np.ndarray | float | None = None) -> np.ndarray:

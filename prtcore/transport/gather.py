@@ -32,6 +32,7 @@ import math
 from contextlib import nullcontext
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
@@ -223,6 +224,27 @@ def _texel_lookup(texels: TexelSpace) -> np.ndarray:
     return lut
 
 
+@numba.njit(cache=True, nogil=True)
+def _uv_texels(tri, bary, x0, x1, x2, y0, y1, y2, width, height, lut, texel_triangle, tex,
+               own):  # pragma: no cover - compiled
+    """Each hit's atlas texel: (⌊x⌋, ⌊y⌋) of its TEXCOORD_1 point in pixels (corner 0 plus
+    the barycentric-weighted edges, summed in that order, as numpy would), looked up in
+    ``lut`` (H·W,) int64. tri (n,) int64, bary (n, 3) float64; x0 … y2 : (F,) float64 per
+    face (:class:`HitMapper`); writes tex (n,) int64 (−1 off the atlas or on an empty
+    texel) and own (n,) bool: the texel was sampled on the hit's own face."""
+    for i in range(len(tri)):
+        f = tri[i]
+        b1 = bary[i, 1]
+        b2 = bary[i, 2]
+        x = np.floor(x0[f] + b1 * x1[f] + b2 * x2[f])
+        y = np.floor(y0[f] + b1 * y1[f] + b2 * y2[f])
+        k = -1
+        if x >= 0 and x < width and y >= 0 and y < height:
+            k = lut[np.int64(y) * width + np.int64(x)]
+        tex[i] = k
+        own[i] = k >= 0 and texel_triangle[k] == f
+
+
 class HitMapper:
     """Surface hit (triangle, barycentric) → texel index (see :func:`gather_operator`)."""
 
@@ -237,6 +259,7 @@ class HitMapper:
             fuv[:, 0, 0], fuv[:, 1, 0] - fuv[:, 0, 0], fuv[:, 2, 0] - fuv[:, 0, 0],
             fuv[:, 0, 1], fuv[:, 1, 1] - fuv[:, 0, 1], fuv[:, 2, 1] - fuv[:, 0, 1])]
         self.lut_flat = self.lut.reshape(-1)
+        self.triangle = np.ascontiguousarray(texels.triangle, dtype=np.int64)
         self.position32 = texels.position.astype(np.float32)
         fp = np.linalg.norm(texels.footprint, axis=2).sum(axis=1)  # |dP/dx| + |dP/dy|
         self.reach2 = ((MAP_SLACK_FOOTPRINTS * fp + 2.0 * tracer.offset) ** 2).astype(
@@ -249,17 +272,13 @@ class HitMapper:
         """tri : (n,) faces, bary : (n, 3) barycentrics, t : (n,) float64 distances of n
         front hits of rays ``ray`` (n,) int64 into origin, direction ((r, 3) float32).
         Returns (n,) int64 texel indices."""
-        b1, b2 = bary[:, 1], bary[:, 2]
-        x0, x1, x2, y0, y1, y2 = self.px
-        x = np.floor(x0[tri] + b1 * x1[tri] + b2 * x2[tri])
-        y = np.floor(y0[tri] + b1 * y1[tri] + b2 * y2[tri])
-        w, h = self.texels.width, self.texels.height
-        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-        flat = np.clip(y, 0, h - 1).astype(np.int64) * w + np.clip(x, 0, w - 1).astype(np.int64)
-        tex = np.where(inside, self.lut_flat[flat], -1)
+        tex = np.empty(len(tri), dtype=np.int64)
+        own = np.empty(len(tri), dtype=bool)
+        _uv_texels(tri, bary, *self.px, self.texels.width, self.texels.height, self.lut_flat,
+                   self.triangle, tex, own)
         # A texel sampled on the hit's own face is right by construction; others must be
         # near the hit point (a texel of another chart means overlapping UVs).
-        other = np.flatnonzero((tex < 0) | (self.texels.triangle[tex] != tri))
+        other = np.flatnonzero(~own)
         tk = tex[other]
         ro = ray[other]
         point = origin[ro] + direction[ro] * t[other].astype(np.float32)[:, None]
