@@ -61,6 +61,8 @@ MAP_SLACK_FOOTPRINTS = 3.0
 #: Texels covered less than 1 − this are "partly covered" (their sample may sit on the
 #: chart border; see :class:`Gather`).
 PARTIAL_COVERAGE_EPS = 1e-3
+#: Texels per chunk of :func:`jittered_origins`' temporaries.
+ORIGIN_CHUNK = 1 << 16
 #: Golden-ratio conjugate: the rank-1 (Fibonacci) lattice generator.
 PHI = 0.6180339887498949
 
@@ -175,10 +177,18 @@ def jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
     """
     t = texels.count
     size = np.array([texels.width, texels.height], dtype=np.float64)
-    corner, inv = _uv_frames(scene.uv1[scene.faces[texels.triangle]] * size)
     centre = texels.xy.astype(np.float64) + 0.5
-    q = fibonacci_lattice(per_texel, rng.random((t, 2))) - 0.5 + centre[:, None, :]
-    bary = _uv_barycentric(corner[:, None], inv[:, None], q).reshape(-1, 3)  # (T·S, 3)
+    shift = rng.random((t, 2))
+    # the lattice points' barycentrics, texels in chunks (bounds the temporaries: the
+    # lattice, its pixel positions and the frames per point cost ~6× the result)
+    bary = np.empty((t * per_texel, 3))
+    for a in range(0, t, ORIGIN_CHUNK):
+        b = min(t, a + ORIGIN_CHUNK)
+        corner, inv = _uv_frames(scene.uv1[scene.faces[texels.triangle[a:b]]] * size)
+        q = fibonacci_lattice(per_texel, shift[a:b]) - 0.5 + centre[a:b, None, :]
+        bary[a * per_texel:b * per_texel] = _uv_barycentric(
+            corner[:, None], inv[:, None], q).reshape(-1, 3)
+        del q, corner, inv
     owner = np.repeat(np.arange(t), per_texel)
     inside = (bary >= -BARY_EPS).all(axis=1)
     part = np.unique(owner[~inside])  # texels with a lattice point off their triangle
@@ -203,10 +213,14 @@ def jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
         dist = np.linalg.norm(to_mid, axis=1)
         eps = np.minimum(1.0, np.divide(step, dist, out=np.ones_like(dist), where=dist > 0))
         bary[lost] = (1.0 - eps)[:, None] * b0 + (eps / 3.0)[:, None]
-    bary = np.clip(bary, 0.0, None)
+    del owner
+    np.clip(bary, 0.0, None, out=bary)
     bary /= bary.sum(axis=1, keepdims=True)
-    verts = scene.positions[scene.faces[texels.triangle]]  # (T, 3, 3)
-    pos = np.einsum("tsk,tkj->tsj", bary.reshape(t, per_texel, 3), verts)
+    pos = bary.reshape(t, per_texel, 3)  # the positions overwrite the barycentrics
+    for a in range(0, t, ORIGIN_CHUNK):
+        b = min(t, a + ORIGIN_CHUNK)
+        verts = scene.positions[scene.faces[texels.triangle[a:b]]]  # (n, 3, 3)
+        pos[a:b] = np.einsum("tsk,tkj->tsj", pos[a:b], verts)
     return pos, inside.reshape(t, per_texel)
 
 
@@ -359,8 +373,6 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     shade = np.asarray(texels.normal, dtype=np.float64)
     geo = np.asarray(texels.geometric_normal, dtype=np.float64)
     geo = geo * np.where(np.einsum("ij,ij->i", shade, geo) < 0, -1.0, 1.0)[:, None]
-    start = offset_origins(origins.reshape(-1, 3), np.repeat(geo, s, axis=0),
-                           tracer.scale).reshape(t, s, 3)
     tan, bit = orthonormal_frame(shade)
     # frame rows (tangent, bitangent, normal) in float32 for the Embree-bound directions
     frame = np.stack([tan, bit, shade], axis=1).astype(np.float32)  # (T, 3, 3)
@@ -400,7 +412,9 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         else:
             above = np.einsum("tmk,tk->tm", local, up[b0:b1].astype(np.float32)) > 0
         del local
-        o = start[b0:b1][:, ray_o]  # (nt, m, 3) float32
+        # the batch's origins off their surface (float32), each texel's S of them per ray
+        o = offset_origins(origins[b0:b1].reshape(-1, 3), np.repeat(geo[b0:b1], s, axis=0),
+                           tracer.scale).reshape(nt, s, 3)[:, ray_o]  # (nt, m, 3)
         sel = np.flatnonzero(above.reshape(-1))
         traced_all = len(sel) == nt * m
         d = d.reshape(-1, 3)
@@ -441,13 +455,19 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
                                hits.barycentric[npos],
                                (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32)))
         del hits, d, o, cols
+    del frame, up, dir_shift  # the rays' inputs: freed before the matrix is joined
 
     indptr = np.zeros(t + 1, dtype=np.int64)
     if parts:
         np.cumsum(np.concatenate([p[0] for p in parts]), out=indptr[1:])
-    col = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
-    weight = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.float32)
-    del parts
+    # each kind joined and its parts dropped before the next (one copy in flight, not two)
+    lens, cols_b, weights_b = (list(x) for x in zip(*parts, strict=True)) if parts else \
+        ([], [], [])
+    del parts, lens
+    col = np.concatenate(cols_b) if cols_b else np.zeros(0, np.int32)
+    cols_b.clear()
+    weight = np.concatenate(weights_b) if weights_b else np.zeros(0, np.float32)
+    weights_b.clear()
     matrix = sp.csr_matrix((weight, col, indptr), shape=(t, t))
     matrix.has_sorted_indices = True
     matrix.has_canonical_format = True
