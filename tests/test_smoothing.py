@@ -89,3 +89,28 @@ def test_zero_albedo_channel_stays_zero(box_texels):
 def test_shape_is_checked(box_texels):
     with pytest.raises(ValueError, match="smooth_texels"):
         smooth_texels(box_texels, np.zeros((box_texels.count + 1, 3)))
+
+
+def test_the_filter_is_built_as_the_diagonal_product_left_it(box_texels):
+    """_row_stochastic builds W in place; its entries, and their order within each row (the
+    order the filter sums a texel's neighbours in), are those of diag(1/Σw) @ W, the
+    construction bundles were made with."""
+    import scipy.sparse as sp
+
+    from prtcore.receivers.smoothing import _row_stochastic
+
+    rng = np.random.default_rng(3)
+    t = 500
+    i = np.sort(rng.integers(0, t, 4000))
+    j = rng.integers(0, t, 4000)
+    pairs = np.unique(np.stack([np.concatenate([i, np.arange(t)]),
+                                np.concatenate([j, np.arange(t)])], axis=1), axis=0)
+    i, j = pairs[:, 0], pairs[:, 1]
+    w = rng.random(len(i)) + 0.1
+    W0 = sp.csr_matrix((w, (i, j)), shape=(t, t))
+    ref = sp.diags(1.0 / np.asarray(W0.sum(axis=1)).ravel()) @ W0
+    got = _row_stochastic(i, j, w.copy(), t)
+    for a in ("indptr", "indices", "data"):
+        np.testing.assert_array_equal(getattr(got, a), getattr(ref, a))
+    x = rng.random((t, 6))
+    np.testing.assert_array_equal(got @ x, ref @ x)
