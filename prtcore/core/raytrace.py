@@ -31,9 +31,11 @@ def _hit_records(prim, u, v, tfar, d, normals, tri, t, bary, front):  # pragma: 
     """Embree's closest-hit outputs of one chunk (prim (n,) int32, u, v, tfar (n,) float32)
     and its directions d (n, 3) float32 → the :class:`Hits` arrays' rows (written): tri
     (n,) int64, t (n,) float64, bary (n, 3) float64, front (n,) bool against the faces'
-    normals (f, 3) float64. Rounds as numpy would: (1 − u) − v, and the float64 dot product
-    summed in index order, no fused multiply-add. Compiled, releases the GIL: each ray
-    thread converts its own chunk."""
+    normals (f, 3) float64. Rounds as numpy did: (1 − u) − v; the front test's float64 dot
+    product as numpy's einsum sums three terms on AVX2, (x₀y₀ + x₂y₂) + x₁y₁ (einsum's
+    order is its SIMD kernel's and may differ on other CPUs; only the sign is used, which
+    differs only for rays within rounding of the face's plane), no fused multiply-add.
+    Compiled, releases the GIL: each ray thread converts its own chunk."""
     for i in range(len(prim)):
         p = prim[i]
         if p < 0:
@@ -51,8 +53,8 @@ def _hit_records(prim, u, v, tfar, d, normals, tri, t, bary, front):  # pragma: 
         bary[i, 0] = 1.0 - uu - vv
         bary[i, 1] = uu
         bary[i, 2] = vv
-        dot = normals[p, 0] * np.float64(d[i, 0]) + normals[p, 1] * np.float64(d[i, 1])
-        dot += normals[p, 2] * np.float64(d[i, 2])
+        dot = normals[p, 0] * np.float64(d[i, 0]) + normals[p, 2] * np.float64(d[i, 2])
+        dot += normals[p, 1] * np.float64(d[i, 1])
         front[i] = dot < 0
 
 
