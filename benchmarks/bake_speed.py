@@ -29,6 +29,12 @@ s: 2.9×), report 1.23 → 0.47 s, held-out rRMSE at every n unchanged (3.13 % a
 1024² bake 204.5 → 148.1 s (×3.98 → ×4.43 the 512² bake), peak RSS 6.13 → 6.12 GiB
 (the transport-noise and denoise stages set it); direct texels ×1.41 raw embreex CPU per ray.
 
+2026-12-03, another machine (AMD EPYC, AVX2; ``--skip-reference``, each run alone on it):
+222b269 → c351fd1 (compiled hit records and UV lookup, the gather's and the filters' memory):
+whole 512² bake 30.7 → 27.5 s wall (42.0 → 40.6 CPU s; gather operator 5.1 → 3.4 s, transport
+noise 8.0 → 6.7 s), 1024² bake 121.2 → 112.1 s (×3.95 → ×4.07 the 512² bake), 1024² peak RSS
+3.66 → 3.48 GiB, held-out rRMSE unchanged; direct texels ×1.21 raw embreex CPU per ray.
+
 The machine's load average is recorded at start and end: on a shared machine compare
 ratios measured in one run, not absolute seconds across runs.
 

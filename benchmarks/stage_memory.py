@@ -8,7 +8,9 @@ the peak resident memory per stage and writes benchmarks/results/stage_memory.js
 Figures (2026-12-03, 1024²): before the memory work (peak set by the noise and denoise
 stages) solve 5.04, transport noise 6.33, denoise 6.54, fit 5.42 GiB; after (solve written
 over the direct light, operators dropped before the second trace, in-place denoise) 3.97,
-4.45, 3.63, 2.68 GiB; the gather operator stage 2.68 GiB both times.
+4.45, 3.63, 2.68 GiB; the gather operator stage 2.68 GiB both times. After the gather's and
+the filters' temporaries were cut (dbc0eca, f80ecec; AMD EPYC machine): gather operator
+2.43, solve 3.85, transport noise 3.65, denoise 2.54, fit 2.47 GiB — the solve sets the peak.
 
 Usage: python benchmarks/stage_memory.py [--resolution 1024]
 """
