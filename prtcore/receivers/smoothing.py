@@ -29,6 +29,8 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from prtcore.core.materials import clamp_albedo
+from prtcore.core.raytrace import default_threads
+from prtcore.core.sparse import SparseProduct
 from prtcore.receivers.texels import TexelSpace
 
 #: Defaults: Gaussian of σ = radius/2 over 1.5 texel sizes, normals within ~25°, at most
@@ -146,9 +148,10 @@ def smooth_texels(texels: TexelSpace, values: np.ndarray, *, albedo: bool = True
 
 def _prepared(texels: TexelSpace, W: sp.csr_matrix, dt: type, albedo: bool) -> tuple:
     """What :func:`_filtered` needs, computed once per filter: W in the values' precision
-    ``dt``, and with ``albedo`` the per-texel scale to irradiance (1/ρ, 0 where ρ = 0) and
-    back (ρ over the filtered weight of the neighbours with ρ > 0), (T, 3) ``dt``."""
-    Wd = W if W.dtype == dt else W.astype(dt)
+    ``dt`` (a :class:`~prtcore.core.sparse.SparseProduct`: scipy's product on all cores),
+    and with ``albedo`` the per-texel scale to irradiance (1/ρ, 0 where ρ = 0) and back
+    (ρ over the filtered weight of the neighbours with ρ > 0), (T, 3) ``dt``."""
+    Wd = SparseProduct(W, default_threads(), dt)  # W @ x on all cores, scipy's rounding
     if not albedo:
         return Wd, None, None
     rho, _ = clamp_albedo(np.asarray(texels.albedo, dtype=np.float64))
@@ -166,10 +169,10 @@ def _filtered(v: np.ndarray, prepared: tuple) -> np.ndarray:
     Wd, inv, back = prepared
     x = v.reshape(len(v), -1, 3)
     if inv is None:
-        y = (Wd @ x.reshape(len(v), -1)).reshape(x.shape)
+        y = Wd(x.reshape(len(v), -1)).reshape(x.shape)
     else:
         e = x * inv[:, None, :]  # irradiance; 0 where the albedo is
-        y = (Wd @ e.reshape(len(v), -1)).reshape(x.shape)
+        y = Wd(e.reshape(len(v), -1)).reshape(x.shape)
         del e
         y *= back[:, None, :]
     return y.reshape(v.shape)

@@ -1,5 +1,6 @@
-"""Compiled (numba) kernels of the indirect solve: CSR × dense products, and one Chebyshev
-step fused into a single pass over the texels (:mod:`prtcore.transport.solve`).
+"""Compiled (numba) kernels of the indirect solve: one Chebyshev step fused into a single
+pass over the texels (:mod:`prtcore.transport.solve`); the CSR × dense product it builds on
+is :mod:`prtcore.core.sparse`'s (re-exported here).
 
 Why: the solve is memory-bound. With numpy, a Chebyshev step reads and writes the
 (T, 3K) float32 arrays about ten times (ρ∘d, the product, four updates, two column
@@ -19,38 +20,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-#: Row chunks per thread (load balance: texel rows differ in their non-zeros).
-CHUNKS_PER_THREAD = 8
-
-
-def row_chunks(rows: int, threads: int) -> np.ndarray:
-    """Boundaries (c + 1,) int64 of the row chunks the kernels split ``rows`` into."""
-    c = max(1, min(rows, CHUNKS_PER_THREAD * max(1, threads)))
-    return np.linspace(0, rows, c + 1).astype(np.int64)
-
-
-@numba.njit(inline="always", cache=True)
-def _row_product(indptr, indices, data, x, i, acc):  # pragma: no cover - compiled
-    """acc (c,) float32 ← Σ_jj data[jj]·x[indices[jj]] over row i (zeroed first)."""
-    acc[:] = 0
-    for jj in range(indptr[i], indptr[i + 1]):
-        g = data[jj]
-        xj = x[indices[jj]]
-        for col in range(len(acc)):
-            acc[col] += g * xj[col]
-
-
-@numba.njit(parallel=True, cache=True, nogil=True)
-def csr_dense(indptr, indices, data, x, out, chunks):  # pragma: no cover - compiled
-    """out[i] = Σ_jj data[jj]·x[indices[jj]] for every row i (float32, scipy's order).
-
-    indptr (T + 1,) int64 / indices (nnz,) int32 or int64 / data (nnz,) float32: CSR;
-    x (n, c) float32 C-contiguous; out (T, c) float32, overwritten; chunks :
-    :func:`row_chunks`.
-    """
-    for ci in numba.prange(len(chunks) - 1):
-        for i in range(chunks[ci], chunks[ci + 1]):
-            _row_product(indptr, indices, data, x, i, out[i])
+from prtcore.core.sparse import _row_product, csr_dense, row_chunks  # noqa: F401 (re-exported)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)

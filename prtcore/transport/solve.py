@@ -19,6 +19,7 @@ import scipy.sparse as sp
 
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
+from prtcore.core.sparse import SparseProduct
 from prtcore.transport import kernels
 from prtcore.transport.coarse import Coarsening
 
@@ -50,33 +51,6 @@ SOLVE_WORK_ARRAYS_COARSE = 3
 FINE_STEPS = 2
 #: Solver methods (see :func:`solve_indirect`).
 SOLVE_METHODS = ("chebyshev", "neumann")
-
-
-class SparseProduct:
-    """``matrix @ x`` for a CSR matrix and dense (n, c) float32 arrays, rows split over
-    ``threads`` threads (:func:`prtcore.transport.kernels.csr_dense`, rounding as scipy's
-    kernel). The CSR arrays and row chunks are prepared once, not per product.
-    """
-
-    def __init__(self, matrix: sp.csr_matrix, threads: int = 2):
-        m = matrix if matrix.dtype == np.float32 else matrix.astype(np.float32)
-        self.shape = m.shape
-        self.indptr = m.indptr.astype(np.int64)
-        # int32 columns as scipy stores them (a copy as int64 would cost 4 bytes per
-        # non-zero: 140 MB for the 1024² Cornell box)
-        self.indices = m.indices.astype(np.int32, copy=False)
-        self.data = np.ascontiguousarray(m.data)
-        self.threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
-        self.chunks = kernels.row_chunks(m.shape[0], self.threads)
-
-    def __call__(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """x : (n, c); out : optional (m, c) C-contiguous float32 array to fill."""
-        x = np.ascontiguousarray(x, dtype=np.float32)
-        if out is None:
-            out = np.empty((self.shape[0], x.shape[1]), dtype=np.float32)
-        numba.set_num_threads(self.threads)
-        kernels.csr_dense(self.indptr, self.indices, self.data, x, out, self.chunks)
-        return out
 
 
 class ChannelProduct:
