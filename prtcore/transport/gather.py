@@ -238,18 +238,20 @@ def _texel_lookup(texels: TexelSpace) -> np.ndarray:
     return lut
 
 
-@numba.njit(cache=True, nogil=True)
-def _uv_texels(tri, bary, x0, x1, x2, y0, y1, y2, width, height, lut, texel_triangle, tex,
-               own):  # pragma: no cover - compiled
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _uv_texels(index, tri, bary, x0, x1, x2, y0, y1, y2, width, height, lut, texel_triangle,
+               tex, own):  # pragma: no cover - compiled
     """Each hit's atlas texel: (⌊x⌋, ⌊y⌋) of its TEXCOORD_1 point in pixels (corner 0 plus
     the barycentric-weighted edges, summed in that order, as numpy would), looked up in
-    ``lut`` (H·W,) int64. tri (n,) int64, bary (n, 3) float64; x0 … y2 : (F,) float64 per
-    face (:class:`HitMapper`); writes tex (n,) int64 (−1 off the atlas or on an empty
-    texel) and own (n,) bool: the texel was sampled on the hit's own face."""
-    for i in range(len(tri)):
-        f = tri[i]
-        b1 = bary[i, 1]
-        b2 = bary[i, 2]
+    ``lut`` (H·W,) int64. Hit i is row index[i] of tri (·,) int64 and bary (·, 3) float64;
+    x0 … y2 : (F,) float64 per face (:class:`HitMapper`); writes tex (n,) int64 (−1 off
+    the atlas or on an empty texel) and own (n,) bool: the texel was sampled on the hit's
+    own face."""
+    for i in numba.prange(len(index)):
+        h = index[i]
+        f = tri[h]
+        b1 = bary[h, 1]
+        b2 = bary[h, 2]
         x = np.floor(x0[f] + b1 * x1[f] + b2 * x2[f])
         y = np.floor(y0[f] + b1 * y1[f] + b2 * y2[f])
         k = -1
@@ -282,26 +284,32 @@ class HitMapper:
         self.remapped = 0
 
     def __call__(self, tri: np.ndarray, bary: np.ndarray, ray: np.ndarray,
-                 origin: np.ndarray, direction: np.ndarray, t: np.ndarray) -> np.ndarray:
+                 origin: np.ndarray, direction: np.ndarray, t: np.ndarray,
+                 index: np.ndarray | None = None) -> np.ndarray:
         """tri : (n,) faces, bary : (n, 3) barycentrics, t : (n,) float64 distances of n
-        front hits of rays ``ray`` (n,) int64 into origin, direction ((r, 3) float32).
+        front hits of rays ``ray`` (n,) int64 into origin, direction ((r, 3) float32);
+        with ``index`` (n,) int64 the hits are rows ``index`` of tri, bary and t (a
+        :class:`~prtcore.core.raytrace.Hits`' arrays, not gathered first).
         Returns (n,) int64 texel indices."""
-        tex = np.empty(len(tri), dtype=np.int64)
-        own = np.empty(len(tri), dtype=bool)
-        _uv_texels(tri, bary, *self.px, self.texels.width, self.texels.height, self.lut_flat,
-                   self.triangle, tex, own)
+        if index is None:
+            index = np.arange(len(tri))
+        tex = np.empty(len(index), dtype=np.int64)
+        own = np.empty(len(index), dtype=bool)
+        _uv_texels(index, tri, bary, *self.px, self.texels.width, self.texels.height,
+                   self.lut_flat, self.triangle, tex, own)
         # A texel sampled on the hit's own face is right by construction; others must be
         # near the hit point (a texel of another chart means overlapping UVs).
         other = np.flatnonzero(~own)
         tk = tex[other]
         ro = ray[other]
-        point = origin[ro] + direction[ro] * t[other].astype(np.float32)[:, None]
+        point = origin[ro] + direction[ro] * t[index[other]].astype(np.float32)[:, None]
         diff = point - self.position32[tk]
         far = (tk < 0) | (np.einsum("ij,ij->i", diff, diff) > self.reach2[tk])
         bad = other[far]
         if len(bad):
-            p64 = self.tracer.surface_point(tri[bad], bary[bad])
-            tex[bad] = self._nearest(p64, self.tracer.face_normals[tri[bad]])
+            hit = index[bad]
+            p64 = self.tracer.surface_point(tri[hit], bary[hit])
+            tex[bad] = self._nearest(p64, self.tracer.face_normals[tri[hit]])
             self.remapped += len(bad)
         return tex
 
@@ -440,7 +448,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         use = np.flatnonzero(front & ray_ok.reshape(-1))
         pos = use if traced_all else np.searchsorted(sel, use)  # among the traced rays
         cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
-        cols[use] = mapper(hits.triangle[pos], hits.barycentric[pos], use, o, d, hits.t[pos])
+        cols[use] = mapper(hits.triangle, hits.barycentric, use, o, d, hits.t, index=pos)
         # kept per batch: the row lengths, columns and weights (8 bytes per non-zero,
         # not the 20 of rows, columns and counts)
         r, c, cnt = _row_counts(cols.reshape(nt, m), b0, t)
