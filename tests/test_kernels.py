@@ -78,3 +78,30 @@ def test_chebyshev_step_is_the_numpy_step(channels):
                        rtol=1e-6)
     assert np.allclose(np.sqrt(nx.sum(axis=0)), np.linalg.norm(x_np.reshape(t, -1), axis=0),
                        rtol=1e-6)
+
+
+@pytest.mark.parametrize("steps", [1, 2, 3])
+def test_closing_steps_are_the_numpy_steps(monkeypatch, steps):
+    """solve._closing_steps (the fused kernels.closing_step) equals the numpy formulation
+    it replaced, bit for bit: E = xc[cell]; FINE_STEPS × (E = G (ρ ∘ E) + b); E *= ρ/π."""
+    import math
+
+    from prtcore.core.sparse import SparseProduct
+    from prtcore.transport import solve
+
+    monkeypatch.setattr(solve, "FINE_STEPS", steps)
+    rng = np.random.default_rng(2)
+    t, k, cells = 2000, 5, 300
+    g = _operator(rng, t)
+    rho = rng.uniform(0.1, 0.9, (t, 3)).astype(np.float32)
+    cell = rng.integers(0, cells, t)
+    xc = rng.random((cells, k, 3)).astype(np.float32)
+    b = rng.random((t, k, 3)).astype(np.float32)
+    scale = rho / np.float32(math.pi)
+    x = xc[cell]
+    for _ in range(steps):
+        x = (g @ (x * rho[:, None, :]).reshape(t, -1)).reshape(t, k, 3)
+        x += b
+    x *= scale[:, None, :]
+    got = solve._closing_steps(SparseProduct(g, 2), rho, xc, cell, b.copy(), scale)
+    assert got.dtype == np.float32 and np.array_equal(got, x)
