@@ -80,6 +80,20 @@ def chebyshev_step(indptr, indices, data, e_indptr, e_indices, e_data, rho, src,
                 nx[col] += np.float64(xv) * np.float64(xv)
 
 
+@numba.njit(inline="always", cache=True)
+def _times_channels(x, r, out):  # pragma: no cover - compiled
+    """out[3·k + c] = x[3·k + c] · r[c] (float32, one rounding each) for a row of (k, 3)
+    values, channel fastest."""
+    r0 = r[0]
+    r1 = r[1]
+    r2 = r[2]
+    for kk in range(len(out) // 3):
+        c = 3 * kk
+        out[c] = x[c] * r0
+        out[c + 1] = x[c + 1] * r1
+        out[c + 2] = x[c + 2] * r2
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def albedo_times(xin, cell, rho, out, chunks):  # pragma: no cover - compiled
     """out[j] = ρ_j ∘ xin[cell[j]] for every texel j (float32, one rounding per value, as
@@ -87,19 +101,9 @@ def albedo_times(xin, cell, rho, out, chunks):  # pragma: no cover - compiled
     grid's cells, or the identity), without the full-resolution E gathered first.
     xin (n, 3k), out (T, 3k) float32 C-contiguous (out may be xin when cell is the
     identity), column ``3·k + channel``; cell (T,) int64; rho (T, 3) float32."""
-    k = out.shape[1] // 3
     for ci in numba.prange(len(chunks) - 1):
         for j in range(chunks[ci], chunks[ci + 1]):
-            xj = xin[cell[j]]
-            oj = out[j]
-            r0 = rho[j, 0]
-            r1 = rho[j, 1]
-            r2 = rho[j, 2]
-            for kk in range(k):
-                c = 3 * kk
-                oj[c] = xj[c] * r0
-                oj[c + 1] = xj[c + 1] * r1
-                oj[c + 2] = xj[c + 2] * r2
+            _times_channels(xin[cell[j]], rho[j], out[j])
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
@@ -111,7 +115,6 @@ def product_plus(indptr, indices, data, src, b, scale, out,
     src (n, 3k), b and out (T, 3k) float32 C-contiguous (out may be b, not src); scale
     (T, 3) float32 or (0, 3): none; chunks : :func:`row_chunks`."""
     ncol = out.shape[1]
-    k = ncol // 3
     scaled = scale.shape[0] > 0
     for ci in numba.prange(len(chunks) - 1):
         acc = np.empty(ncol, dtype=np.float32)
@@ -122,14 +125,7 @@ def product_plus(indptr, indices, data, src, b, scale, out,
             for col in range(ncol):
                 acc[col] = acc[col] + bi[col]
             if scaled:
-                s0 = scale[i, 0]
-                s1 = scale[i, 1]
-                s2 = scale[i, 2]
-                for kk in range(k):
-                    c = 3 * kk
-                    oi[c] = acc[c] * s0
-                    oi[c + 1] = acc[c + 1] * s1
-                    oi[c + 2] = acc[c + 2] * s2
+                _times_channels(acc, scale[i], oi)
             else:
                 for col in range(ncol):
                     oi[col] = acc[col]
