@@ -35,6 +35,15 @@ whole 512² bake 30.7 → 27.5 s wall (42.0 → 40.6 CPU s; gather operator 5.1 
 noise 8.0 → 6.7 s), 1024² bake 121.2 → 112.1 s (×3.95 → ×4.07 the 512² bake), 1024² peak RSS
 3.66 → 3.48 GiB, held-out rRMSE unchanged; direct texels ×1.21 raw embreex CPU per ray.
 
+Then 222b269 against cb4b1d0 (also the fused closing steps, the parallel hit lookup, report
+images without pyplot), 512² alternated twice on the same machine, which was noisier by then:
+whole bake 40.9 / 34.0 s before against 31.0 / 28.6 s after; gather operator 5.4 / 4.6 →
+3.7 / 3.4 s, indirect solve 10.6 / 7.8 → 5.6 / 4.8 s, transport noise 8.7 / 7.8 → 8.0 / 7.1 s.
+At 1024² the light stages alone (light_configurations, K = 144 in 4 solve blocks): solve
+44.2 s (c351fd1, numba compiling in its first block) against 36.7 s; whole 1024² bake
+156.0 s at cb4b1d0 in a run whose 512² bake took 32.5 s (×4.79; ×4.07 in the quieter run
+above), peak RSS 3.48 GiB.
+
 The machine's load average is recorded at start and end: on a shared machine compare
 ratios measured in one run, not absolute seconds across runs.
 
