@@ -1,5 +1,5 @@
-"""transport/kernels.py: the compiled solve kernels round exactly as the numpy/scipy
-formulation they replace (bit for bit), so a bake's numbers do not move."""
+"""core/sparse.py and transport/kernels.py: the compiled solve kernels round exactly as the
+numpy/scipy formulation they replace (bit for bit), so a bake's numbers do not move."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from prtcore.core.sparse import csr_dense, row_chunks
 from prtcore.transport import kernels
 
 
@@ -26,8 +27,8 @@ def test_csr_dense_is_scipys_product(threads):
     g = _operator(rng, 3001)
     x = rng.random((3001, 30)).astype(np.float32)
     out = np.full((3001, 30), np.nan, dtype=np.float32)
-    kernels.csr_dense(g.indptr.astype(np.int64), g.indices.astype(np.int64), g.data, x, out,
-                      kernels.row_chunks(3001, threads))
+    csr_dense(g.indptr.astype(np.int64), g.indices.astype(np.int64), g.data, x, out,
+              row_chunks(3001, threads))
     assert np.array_equal(out, g @ x)
 
 
@@ -57,7 +58,7 @@ def test_chebyshev_step_is_the_numpy_step(channels):
     d_np = d * c_d + r_np * c_r
     x_np = x + d_np
     # fused
-    chunks = kernels.row_chunks(t, 2)
+    chunks = row_chunks(t, 2)
     flat = [a.reshape(t, -1).copy() for a in (d, r, x)]
     src_new, d_new = np.empty_like(src), np.empty_like(src)
     nd, nx = np.empty((len(chunks) - 1, 3 * k)), np.empty((len(chunks) - 1, 3 * k))

@@ -398,7 +398,11 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     per_batch = max(1, GATHER_BATCH // m)
     valid_rays = np.zeros(t, dtype=np.int32)
     inside_origin = np.zeros((t, s), dtype=bool)
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per batch
+    # per batch: the row lengths, columns and weights (8 bytes per non-zero, not the 20 of
+    # rows, columns and counts), one list each so that each is joined and dropped in turn
+    row_lens: list[np.ndarray] = []
+    col_parts: list[np.ndarray] = []
+    weight_parts: list[np.ndarray] = []
     n_traced = n_back = n_miss = n_below = 0
     starts = range(0, t, per_batch)
     if timer is not None:
@@ -449,11 +453,10 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         pos = use if traced_all else np.searchsorted(sel, use)  # among the traced rays
         cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
         cols[use] = mapper(hits.triangle, hits.barycentric, use, o, d, hits.t, index=pos)
-        # kept per batch: the row lengths, columns and weights (8 bytes per non-zero,
-        # not the 20 of rows, columns and counts)
         r, c, cnt = _row_counts(cols.reshape(nt, m), b0, t)
-        parts.append((np.bincount(r - b0, minlength=nt), c,
-                      (cnt / valid_rays[r]).astype(np.float32)))
+        row_lens.append(np.bincount(r - b0, minlength=nt))
+        col_parts.append(c)
+        weight_parts.append((cnt / valid_rays[r]).astype(np.float32))
         del r, c, cnt
         if near_field > 0:
             r_use = use // m  # receiving texel - b0
@@ -466,16 +469,13 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     del frame, up, dir_shift  # the rays' inputs: freed before the matrix is joined
 
     indptr = np.zeros(t + 1, dtype=np.int64)
-    if parts:
-        np.cumsum(np.concatenate([p[0] for p in parts]), out=indptr[1:])
+    if row_lens:
+        np.cumsum(np.concatenate(row_lens), out=indptr[1:])
     # each kind joined and its parts dropped before the next (one copy in flight, not two)
-    lens, cols_b, weights_b = (list(x) for x in zip(*parts, strict=True)) if parts else \
-        ([], [], [])
-    del parts, lens
-    col = np.concatenate(cols_b) if cols_b else np.zeros(0, np.int32)
-    cols_b.clear()
-    weight = np.concatenate(weights_b) if weights_b else np.zeros(0, np.float32)
-    weights_b.clear()
+    col = np.concatenate(col_parts) if col_parts else np.zeros(0, np.int32)
+    col_parts.clear()
+    weight = np.concatenate(weight_parts) if weight_parts else np.zeros(0, np.float32)
+    weight_parts.clear()
     matrix = sp.csr_matrix((weight, col, indptr), shape=(t, t))
     matrix.has_sorted_indices = True
     matrix.has_canonical_format = True

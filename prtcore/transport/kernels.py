@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of the indirect solve: one Chebyshev step fused into a single
-pass over the texels (:mod:`prtcore.transport.solve`); the CSR × dense product it builds on
-is :mod:`prtcore.core.sparse`'s (re-exported here).
+pass over the texels, and the coarse solve's closing steps (:mod:`prtcore.transport.solve`);
+the CSR × dense row product they build on is :mod:`prtcore.core.sparse`'s.
 
 Why: the solve is memory-bound. With numpy, a Chebyshev step reads and writes the
 (T, 3K) float32 arrays about ten times (ρ∘d, the product, four updates, two column
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from prtcore.core.sparse import _row_product, csr_dense, row_chunks  # noqa: F401 (re-exported)
+from prtcore.core.sparse import _row_product
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)

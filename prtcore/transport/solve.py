@@ -322,14 +322,10 @@ def _closing_steps(product: SparseProduct, rho32: np.ndarray, xc: np.ndarray,
     return b
 
 
-def _apply(product: SparseProduct, rho32: np.ndarray, x: np.ndarray,
-           src: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
-    """A·x = G (ρ ∘ x) for x (T, k, 3) float32; ``src`` and ``out`` (same shape) are
-    optional work arrays (the product lands in ``out``)."""
+def _apply(product: SparseProduct, rho32: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """A·x = G (ρ ∘ x) for x (T, k, 3) float32."""
     t = len(x)
-    src = np.multiply(x, rho32[:, None, :], out=src)
-    res = product(src.reshape(t, -1), None if out is None else out.reshape(t, -1))
-    return res.reshape(x.shape)
+    return product((x * rho32[:, None, :]).reshape(t, -1)).reshape(x.shape)
 
 
 def _neumann(product, rho32, b, max_bounces, tolerance):
