@@ -65,9 +65,13 @@ def operators_for(scene: Scene) -> tuple[str, ...]:
 #: (:mod:`prtcore.transport.surface`: per texel and gather ray, and per ray in flight), plus
 #: the process itself (MEM_PROCESS: the interpreter, numpy/scipy/Embree and numba's compiled
 #: kernels; measured 367 MiB peak RSS on a 64² Cornell bake with 796 texels, 277 MiB of it
-#: after the imports).
+#: after the imports). MEM_PER_TEXEL was 1536 until the lightmap filters were built in place
+#: (f80ecec: 1.4 → 0.8 GiB for the three filters of a 1024² atlas); re-measured then
+#: (peak RSS, Cornell, this model / peak): 512² M = 8 K = 30: 783 MiB, 1.45×; 512² M = 16
+#: K = 96: 1223 MiB, 1.63×; 1024² M = 8 K = 30: 2129 MiB, 1.43×; 256² M = 16 K = 96:
+#: 484 MiB, 1.71× (with 1536 it was 1.56–1.74×, the 512² check at the 1.6× edge).
 MEM_PROCESS = 384 << 20
-MEM_PER_TEXEL = 1536
+MEM_PER_TEXEL = 1024
 MEM_PER_TEXEL_CONFIG = 36
 
 
