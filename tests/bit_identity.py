@@ -62,14 +62,47 @@ def bake_checksums(name: str, out: Path) -> dict[str, str]:
     return dict(sorted(read_manifest(bundle)["checksums"].items()))
 
 
+#: numpy's SIMD dispatch tiers (``__cpu_features__`` flag → label), widest first
+SIMD_TIERS = (("avx512_spr", "AVX512_SPR"), ("avx512_icl", "AVX512_ICL"),
+              ("avx512_skx", "AVX512_SKX"), ("avx2", "AVX2"), ("sse4", "SSE42"))
+
+
+def blas_cores() -> str:
+    """The kernel family the bundled OpenBLAS libraries (numpy's and scipy's) chose for this
+    CPU at load time, e.g. "haswell" or "skylakex"; "blas_unknown" where none reports it."""
+    import ctypes
+    import glob
+
+    import numpy as np
+    import scipy
+
+    names = set()
+    for pkg in (np, scipy):
+        libs = Path(pkg.__file__).resolve().parent.parent / f"{pkg.__name__}.libs"
+        for lib in sorted(glob.glob(str(libs / "*openblas*"))):
+            handle = ctypes.CDLL(lib)
+            for sym in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename",
+                        "openblas_get_corename64_", "openblas_get_corename"):
+                fn = getattr(handle, sym, None)
+                if fn is not None:
+                    fn.restype = ctypes.c_char_p
+                    names.add(fn().decode().lower())
+                    break
+    return "+".join(sorted(names)) or "blas_unknown"
+
+
 def platform_key() -> str:
-    """The floating point paths this machine takes: the architecture and the widest SIMD
-    extension numpy dispatches to (and OpenBLAS with it)."""
+    """The floating point paths this machine takes: the architecture, the widest SIMD tier
+    numpy dispatches to, and OpenBLAS's kernel family (an AMD Zen 4 has numpy's AVX-512
+    kernels with OpenBLAS's Haswell ones, an Intel Skylake-X both AVX-512: other bytes).
+
+    The first two sets of the record were filed under coarser keys, ``x86_64-avx2`` (an
+    AMD EPYC without AVX-512) and ``x86_64-avx512`` (a machine with AVX-512 whose OpenBLAS
+    kernels were not recorded); the keys only name the sets, a bake matches any of them."""
     from numpy._core._multiarray_umath import __cpu_features__ as cpu
 
-    simd = next((name for name, flag in (("avx512", "AVX512_SKX"), ("avx2", "AVX2"),
-                                         ("sse4", "SSE42")) if cpu.get(flag)), "baseline")
-    return f"{platform.machine()}-{simd}"
+    simd = next((name for name, flag in SIMD_TIERS if cpu.get(flag)), "baseline")
+    return f"{platform.machine()}-{simd}-{blas_cores()}"
 
 
 def recorded() -> dict[str, dict]:
