@@ -30,11 +30,11 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numba
 import numpy as np
 
 from prtcore.core.errors import SpecError
 from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits, transported_frames
-from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.hair import Hair
 
 DEFAULT_TEXELS_PER_STRAND = 10
@@ -142,15 +142,36 @@ class StrandSpace:
         frac = rng.random((t, j))
         arc = self.arc[:, :1] + frac * (self.arc[:, 1:] - self.arc[:, :1])
         axis, tangent, u = axis_frame(self.hair, np.repeat(self.strand, j), arc.ravel())
-        v = np.cross(tangent, u)
         phase = rng.random((t, 1))
         phi = (2 * np.pi * (np.arange(j)[None, :] + phase) / j).ravel()
-        normal = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
         off = interp_points(self.hair, outside_offset(self.hair)[:, None],
-                             np.repeat(self.strand, j), arc.ravel())[:, 0]
-        origin = axis + off[:, None] * normal
+                            np.repeat(self.strand, j), arc.ravel())[:, 0]
+        normal, origin = tangent, u  # overwritten row by row (no (t·J, 3) temporaries)
+        _radial_points(axis, tangent, u, np.cos(phi), np.sin(phi), off, normal, origin)
         return (origin.reshape(t, j, 3), normal.reshape(t, j, 3), axis.reshape(t, j, 3),
                 phi.reshape(t, j))
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _radial_points(axis, tan, u, c, s, off, normal, origin):  # pragma: no cover
+    """Rows i: ``normal = c·u + s·(tan × u)`` (the unit radial direction at azimuth φ,
+    c = cos φ, s = sin φ, in the frame (u, tan × u)) and ``origin = axis + off·normal``,
+    each (n, 3); numpy's rounding (products, then sums; no fused multiply-add). ``normal``
+    and ``origin`` may be ``tan`` and ``u`` themselves: a row is read before it is
+    written."""
+    for i in numba.prange(len(c)):
+        t0, t1, t2 = tan[i, 0], tan[i, 1], tan[i, 2]
+        u0, u1, u2 = u[i, 0], u[i, 1], u[i, 2]
+        v0 = t1 * u2 - t2 * u1
+        v1 = t2 * u0 - t0 * u2
+        v2 = t0 * u1 - t1 * u0
+        n0 = c[i] * u0 + s[i] * v0
+        n1 = c[i] * u1 + s[i] * v1
+        n2 = c[i] * u2 + s[i] * v2
+        normal[i, 0], normal[i, 1], normal[i, 2] = n0, n1, n2
+        origin[i, 0] = axis[i, 0] + off[i] * n0
+        origin[i, 1] = axis[i, 1] + off[i] * n1
+        origin[i, 2] = axis[i, 2] + off[i] * n2
 
 
 def _global_arc(hair: Hair) -> np.ndarray:
@@ -172,27 +193,78 @@ def interp_points(hair: Hair, values: np.ndarray, strand: np.ndarray, arc: np.nd
 def axis_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray,
                u: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Axis point, unit tangent (the direction of the segment holding the point) and unit
-    transported u ⟂ it (each (n, 3)) at (strand, arc). ``u``: the hair's transported u
-    per point, (p, 3) float64 (``transported_frames(hair)[1]``), computed here when None —
+    transported u ⟂ it (each (n, 3) float64) at (strand, arc) (``strand`` (n,) int, ``arc``
+    (n,) metres from the root, clamped to the strand). ``u``: the hair's transported u per
+    point, (p, 3) float64 (``transported_frames(hair)[1]``), computed here when None —
     callers that query many batches compute it once (it is a loop over the points of the
-    longest strand)."""
+    longest strand). Compiled (:func:`_axis_frame_rows`): the gather asks for millions."""
     if u is None:
         _, u, _ = transported_frames(hair)
-    g = _global_arc(hair)
-    q = g[hair.offsets[:-1]][strand] + arc
-    first, last = hair.offsets[:-1][strand], hair.offsets[1:][strand] - 2
-    k = np.clip(np.searchsorted(g, q, side="right") - 1, first, last)  # segment start
-    seg = hair.points[k + 1] - hair.points[k]
-    ln = np.linalg.norm(seg, axis=1)
-    f = np.clip(np.divide(q - g[k], ln, out=np.zeros_like(q), where=ln > 0), 0.0, 1.0)
-    pos = hair.points[k] + f[:, None] * seg
-    tan = np.divide(seg, ln[:, None], out=np.tile([0.0, 1.0, 0.0], (len(k), 1)),
-                    where=ln[:, None] > 0)
-    uu = (1 - f)[:, None] * u[k] + f[:, None] * u[k + 1]
-    uu -= np.einsum("ij,ij->i", uu, tan)[:, None] * tan
-    n = np.linalg.norm(uu, axis=1, keepdims=True)
-    uu = np.where(n > 1e-9, uu / np.maximum(n, 1e-300), orthonormal_frame(tan)[0])
+    strand = np.ascontiguousarray(strand, dtype=np.int64).reshape(-1)
+    arc = np.ascontiguousarray(arc, dtype=np.float64).reshape(-1)
+    n = len(strand)
+    pos, tan, uu = (np.empty((n, 3)) for _ in range(3))
+    _axis_frame_rows(np.ascontiguousarray(hair.points, dtype=np.float64),
+                     np.ascontiguousarray(u, dtype=np.float64), _global_arc(hair),
+                     np.ascontiguousarray(hair.offsets, dtype=np.int64), strand, arc,
+                     pos, tan, uu)
     return pos, tan, uu
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _axis_frame_rows(points, u, g, offsets, strand, arc, pos, tan, uu):  # pragma: no cover
+    """:func:`axis_frame`'s rows, written into pos, tan, uu (n, 3). The rule: the segment
+    [k, k + 1] of the strand's points whose global arc (:func:`_global_arc`) interval holds
+    the query (the last one starting at or before it; the first or last segment for a
+    query off the strand's ends), f its fraction along the segment clamped to [0, 1]; the
+    axis point interpolated at f, the tangent the segment's direction ((0, 1, 0) for a
+    zero-length one), u interpolated at f from the points' transported u, made ⟂ the
+    tangent and unit (where that fails, the first vector of
+    :func:`~prtcore.core.geometry.orthonormal_frame` of the tangent)."""
+    for i in numba.prange(len(strand)):
+        s = strand[i]
+        lo = offsets[s]
+        hi = offsets[s + 1] - 2
+        q = g[lo] + arc[i]
+        k = lo  # the last k in [lo, hi] with g[k] <= q, else lo
+        a, b = lo, hi
+        while a <= b:
+            m = (a + b) // 2
+            if g[m] <= q:
+                k = m
+                a = m + 1
+            else:
+                b = m - 1
+        s0 = points[k + 1, 0] - points[k, 0]
+        s1 = points[k + 1, 1] - points[k, 1]
+        s2 = points[k + 1, 2] - points[k, 2]
+        ln = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        f = (q - g[k]) / ln if ln > 0 else 0.0
+        f = min(max(f, 0.0), 1.0)
+        pos[i, 0] = points[k, 0] + f * s0
+        pos[i, 1] = points[k, 1] + f * s1
+        pos[i, 2] = points[k, 2] + f * s2
+        if ln > 0:
+            t0, t1, t2 = s0 / ln, s1 / ln, s2 / ln
+        else:
+            t0, t1, t2 = 0.0, 1.0, 0.0
+        tan[i, 0], tan[i, 1], tan[i, 2] = t0, t1, t2
+        w0 = (1 - f) * u[k, 0] + f * u[k + 1, 0]
+        w1 = (1 - f) * u[k, 1] + f * u[k + 1, 1]
+        w2 = (1 - f) * u[k, 2] + f * u[k + 1, 2]
+        d = w0 * t0 + w1 * t1 + w2 * t2
+        w0 -= d * t0
+        w1 -= d * t1
+        w2 -= d * t2
+        nw = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        if nw > 1e-9:
+            uu[i, 0], uu[i, 1], uu[i, 2] = w0 / nw, w1 / nw, w2 / nw
+        else:  # orthonormal_frame's first tangent (Duff et al. 2017)
+            sign = 1.0 if t2 >= 0.0 else -1.0
+            c = -1.0 / (sign + t2)
+            uu[i, 0] = 1.0 + sign * t0 * t0 * c
+            uu[i, 1] = sign * t0 * t1 * c
+            uu[i, 2] = -sign * t0
 
 
 def azimuth_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray, points: np.ndarray,

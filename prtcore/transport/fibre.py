@@ -65,10 +65,12 @@ from prtcore.core.fibres import (
 )
 from prtcore.core.geometry import directions_around
 from prtcore.core.progress import StageTimer, bar
-from prtcore.core.raytrace import RayTracer
+from prtcore.core.raytrace import RayTracer, default_threads
 from prtcore.core.scene import Light, Scene
+from prtcore.core.sparse import SparseProduct
 from prtcore.core.spec import TransportSpec
 from prtcore.receivers.strands import StrandSpace, azimuth_frame
+from prtcore.receivers.texels import morton_order
 from prtcore.transport.base import TransportOperator, register
 from prtcore.transport.direct import direct_radiance
 
@@ -131,18 +133,24 @@ def fibre_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
     t, j, k = space.count, samples, len(lights)
     mean = np.empty((t, k, 3), dtype=np.float32)
     harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
+    # texels in blocks along the 3-D Morton curve of their axis points, not strand by
+    # strand: the shadow rays of one light from neighbouring texels then share Embree's
+    # nodes in cache (10k hairball: 0.56 → 0.84–0.96 M shadow rays/s on one thread). Every
+    # texel's value is computed as before, only in another order.
+    order = morton_order(space.position, np.stack([space.position.min(axis=0),
+                                                   space.position.max(axis=0)]))
     blocks = range(0, t, block)
     for a in bar(blocks, "direct fibres", total=len(blocks)):
-        b = min(a + block, t)
-        rad = direct_radiance(None, tracer, lights, origin[a:b].reshape(-1, 3),
-                              normal[a:b].reshape(-1, 3),
-                              np.repeat(space.albedo[a:b], j, axis=0)
-                              ).reshape(b - a, j, k, 3)
-        mean[a:b] = rad.mean(axis=1)
+        idx = order[a:a + block]
+        rad = direct_radiance(None, tracer, lights, origin[idx].reshape(-1, 3),
+                              normal[idx].reshape(-1, 3),
+                              np.repeat(space.albedo[idx], j, axis=0)
+                              ).reshape(len(idx), j, k, 3)
+        mean[idx] = rad.mean(axis=1)
         for h in range(harmonics):
             for i, f in enumerate((np.cos, np.sin)):
-                harm[2 * h + i, a:b] = 2 * np.einsum("tjkc,tj->tkc", rad,
-                                                     f((h + 1) * phi[a:b])) / j
+                harm[2 * h + i, idx] = 2 * np.einsum("tjkc,tj->tkc", rad,
+                                                     f((h + 1) * phi[idx])) / j
     return FibreDirect(mean, harm)
 
 
@@ -257,9 +265,12 @@ def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect, first: int = 1
     first harmonic through every bounce, the second rides the first bounce only."""
     t, k = direct.mean.shape[:2]
     val = np.zeros((t, k * 3), dtype=np.float32)
+    part = np.empty_like(val)
     skip = 2 * (first - 1)
     for g, l_h in zip(term.harmonics[skip:], direct.harmonics[skip:], strict=False):
-        val += g @ l_h.reshape(t, -1)
+        # scipy's rounding on every core (csr_matvecs is single-threaded: 3 s of the 10k
+        # hairball's K = 144 dataset)
+        val += SparseProduct(g, default_threads())(l_h.reshape(t, -1), out=part)
     return np.arange(t, dtype=np.int64), val.reshape(t, k, 3)
 
 
