@@ -6,7 +6,9 @@ the same rays as closest-hit queries, through (a) the bake's 3-sided fibre tubes
 (b) the same polylines with every segment split into ``--split`` collinear pieces (more,
 shorter triangles: tighter bounding boxes), each on one thread, timed in CPU seconds of
 this process (the 2-core machine is shared: CPU time is steadier than wall time); and, for
-scale, the same queries against a single triangle (embreex's per-ray overhead). Then
+scale, the same queries against a single triangle (embreex's per-ray overhead). The same
+rays through the tubes in three orders: as drawn (random texels), strand by strand, and
+along the 3-D Morton curve of their origins (how ``fibre_direct`` orders its texels). Then
 ``fibre_direct`` for ``--lights`` point lights with its CPU time split into Embree's
 occlusion queries and the rest, and ``fibre_gather`` with ``--gather-rays`` rays per
 texel likewise (closest-hit queries, with :mod:`prtcore.core.raytrace`'s hit records, and
@@ -37,6 +39,7 @@ from prtcore.core.hair import Hair  # noqa: E402
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.scene import Light  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
+from prtcore.receivers.texels import morton_order  # noqa: E402
 from prtcore.scenes.hair import hairball  # noqa: E402
 from prtcore.transport.fibre import fibre_direct, fibre_gather, hair_tracer  # noqa: E402
 
@@ -96,8 +99,8 @@ def main() -> None:
     one = RayTracer(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]]),
                     scale=1.0, threads=1)
     far = o + np.array([0.0, 0.0, 10.0 * r])
-    for name, tracer in (("one triangle", one),
-                         ("tubes", RayTracer(*_tubes(hair), scale=r, threads=1)),
+    tubes = RayTracer(*_tubes(hair), scale=r, threads=1)
+    for name, tracer in (("one triangle", one), ("tubes", tubes),
                          (f"tubes, segments split {args.split}×",
                           RayTracer(*_tubes(split_segments(hair, args.split)), scale=r,
                                     threads=1))):
@@ -108,6 +111,17 @@ def main() -> None:
         print(f"{name:28s} {len(tracer.faces) / 1e6:6.2f} M triangles: occlusion "
               f"{occ / 1e6:.3f} M rays/CPU-s, closest hit {hit / 1e6:.3f} M rays/CPU-s "
               f"({100 * blocked:.1f} % blocked)")
+    # the same rays through the tubes in three orders: as drawn (random texels), strand by
+    # strand (how fibre_direct took them before dbdb2c4), along the Morton curve (since)
+    row["order"] = {}
+    for name, idx in (("random texels", np.arange(n)),
+                      ("strand order", np.argsort(i, kind="stable")),
+                      ("Morton order", morton_order(o, np.stack([o.min(axis=0),
+                                                                 o.max(axis=0)])))):
+        occ, hit, _ = rays_per_cpu_second(tubes, o[idx], d[idx], dist[idx])
+        row["order"][name] = {"occluded_per_cpu_s": occ, "intersect_per_cpu_s": hit}
+        print(f"tubes, rays in {name:14s}: occlusion {occ / 1e6:.3f} M rays/CPU-s, closest "
+              f"hit {hit / 1e6:.3f} M rays/CPU-s")
     tracer, _ = hair_tracer(space, threads=1)
     tracer.occluded(o[:1], d[:1])
     spent = [0.0, 0]

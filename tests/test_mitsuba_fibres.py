@@ -37,12 +37,17 @@ def test_mitsuba_agrees_with_the_fibre_path_tracer_and_the_fast_path():
     term = fibre_gather(space, tracer, mesh, 0, rays=128, seed=2)
     fast, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4,
                               first_bounce=harmonic_first_bounce(term, direct))
-    sel = np.random.default_rng(0).choice(space.count, 100, replace=False)
-    mit = mitsuba_fibre_indirect(space, lights, sel, 256, seed=5)
-    ours = fibre_reference(space, tracer, mesh, 0, lights, sel, 512, seed=7)
+    sel = np.random.default_rng(0).choice(space.count, 300, replace=False)
+    mit = mitsuba_fibre_indirect(space, lights, sel, 1024, seed=5)
+    ours = fibre_reference(space, tracer, mesh, 0, lights, sel, 1024, seed=7)
     pt = noise_corrected_error(ours, *mit)
     fa = noise_corrected_error(fast[sel].astype(float), *mit)
-    # benchmarks/hair_accuracy.py (150 texels × 256 Mitsuba rays): path tracer +3.1 %,
-    # fast path −1.2 % of Mitsuba; here within 5 % plus three standard errors
-    assert abs(pt["bias"]) < 0.05 + 3 * pt["bias_se"], pt
+    # benchmarks/hair_mitsuba.py (600 texels × 2048 Mitsuba rays, 2048 paths): the path
+    # tracer through 3-sided tubes is +1.7 ± 0.3 % of Mitsuba's round fibres, rRMSE 3.9 %
+    # (the tubes' doing: +0.5 % with 6 sides); the issue's bound is 2 % and 8 %. Here with
+    # a quarter of the samples: within 2 % plus three standard errors, and 8 %
+    assert abs(pt["bias"]) < 0.02 + 3 * pt["bias_se"], pt
+    assert pt["rrmse"] < 0.08, pt
+    # the fast path as bakes run it (first-bounce harmonic), M = 128, J = 8: −0.8 % at
+    # M = 256 in the benchmark; its rRMSE is the gather's noise (≈ 11 %), not bounded here
     assert abs(fa["bias"]) < 0.05 + 3 * fa["bias_se"], fa

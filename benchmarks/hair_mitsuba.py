@@ -1,0 +1,115 @@
+"""Benchmark: prtcore's light in hair against Mitsuba 3's round fibres, per tube proxy.
+
+The tangle (prtcore.scenes.hair.tangle, 1000 strands, one colour (0.8, 0.6, 0.4)) under
+its sun and point light (tangle_lights). Mitsuba 3 (prtcore.reference.mitsuba_fibres:
+round ``linearcurve`` fibres, ``diffuse`` BSDF, its ``path`` integrator) estimates the
+indirect light of ``--texels`` random strand texels with ``--mitsuba-rays`` rays each, in
+two independent halves. Against it, noise of both sides removed
+(prtcore.reference.fibres.noise_corrected_error), for every tube proxy of ``--sides``
+(prtcore.core.fibres.fibre_tubes: an N-sided prism whose mean projected width is the
+fibre's diameter, rays leaving from its circumradius):
+
+* ``pathtracer``: prtcore's fibre path tracer through those tubes (``--paths`` per texel);
+* ``harmonic``: the fast path a bake uses by default (direct light's first azimuthal
+  harmonic in the first bounce; ``--samples`` direct samples J, ``--rays`` gather rays M);
+* ``all_bounces``: the fast path with ``hair.harmonics = "all_bounces"``.
+
+The path tracer's row isolates what the tubes cost: both sides trace the same diffuse-fibre
+model, so the difference is the geometry (prism vs round, and where rays leave a fibre).
+Prints a table and writes benchmarks/results/hair_mitsuba_<texels per strand>.json.
+
+Usage: python benchmarks/hair_mitsuba.py [--texels 600] [--mitsuba-rays 2048]
+       [--texels-per-strand 12] [--sides 3,6] [--paths 2048] [--rays 256] [--samples 16]
+       [--fast]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from prtcore.receivers.strands import build_strand_space  # noqa: E402
+from prtcore.reference.fibres import fibre_reference, noise_corrected_error  # noqa: E402
+from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect  # noqa: E402
+from prtcore.scenes.hair import tangle, tangle_lights  # noqa: E402
+from prtcore.transport.fibre import (  # noqa: E402
+    fibre_direct,
+    fibre_gather,
+    hair_tracer,
+    harmonic_first_bounce,
+)
+from prtcore.transport.solve import solve_indirect  # noqa: E402
+
+
+def fast_path(space, tracer, mesh, lights, rays: int, samples: int) -> dict:
+    """name → (T, K, 3) the fast path's indirect lightmaps, both harmonic variants."""
+    direct = fibre_direct(space, tracer, lights, samples, seed=1)
+    term = fibre_gather(space, tracer, mesh, 0, rays, seed=2, all_bounces=True)
+    harm, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4,
+                              first_bounce=harmonic_first_bounce(term, direct))
+    every, *_ = solve_indirect(
+        term.block, np.tile(space.albedo, (3, 1)),
+        np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
+        method="neumann")
+    return {"harmonic": harm, "all_bounces": np.maximum(every[:space.count], 0)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--texels", type=int, default=600)
+    ap.add_argument("--mitsuba-rays", type=int, default=2048)
+    ap.add_argument("--texels-per-strand", type=int, default=12)
+    ap.add_argument("--sides", type=lambda s: [int(x) for x in s.split(",")],
+                    default=[3, 6])
+    ap.add_argument("--paths", type=int, default=2048)
+    ap.add_argument("--rays", type=int, default=256)
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--fast", action="store_true", help="also the fast path's rows")
+    args = ap.parse_args()
+    hair = tangle(1000)
+    hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
+    space = build_strand_space(hair, args.texels_per_strand)
+    lights = tangle_lights()
+    sel = np.random.default_rng(0).choice(space.count, args.texels, replace=False)
+    t0 = time.perf_counter()
+    mit = mitsuba_fibre_indirect(space, lights, sel, args.mitsuba_rays, seed=9)
+    print(f"Mitsuba: {args.texels} texels × {args.mitsuba_rays} rays in "
+          f"{time.perf_counter() - t0:.1f} s ({space.count} strand texels, "
+          f"{args.texels_per_strand} per strand)")
+    rows = []
+    for sides in args.sides:
+        tracer, mesh = hair_tracer(space, sides=sides)
+        t0 = time.perf_counter()
+        found = {"pathtracer": fibre_reference(space, tracer, mesh, 0, lights, sel,
+                                               args.paths, seed=7)}
+        if args.fast:
+            found.update({k: v[sel].astype(np.float64) for k, v in
+                          fast_path(space, tracer, mesh, lights, args.rays,
+                                    args.samples).items()})
+        seconds = time.perf_counter() - t0
+        for name, est in found.items():
+            e = noise_corrected_error(est, *mit)
+            rows.append({"sides": sides, "estimate": name, **e})
+            print(f"sides {sides:2}  {name:12} against Mitsuba: rRMSE {100 * e['rrmse']:5.2f} %"
+                  f"  bias {100 * e['bias']:+5.2f} ± {100 * e['bias_se']:.2f} %")
+        print(f"  ({seconds:.1f} s)")
+    out = ROOT / "benchmarks" / "results" / f"hair_mitsuba_{args.texels_per_strand}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"args": vars(args), "rows": rows,
+                               "load": os.getloadavg()[0]}, indent=1))
+    print(f"wrote {out} (load {os.getloadavg()[0]:.1f})")
+
+
+if __name__ == "__main__":
+    main()
