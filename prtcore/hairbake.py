@@ -42,7 +42,7 @@ from prtcore.io.hair import load_hair, write_hair
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
-from prtcore.transport.fibre import MEM_PER_FIBRE_SEGMENT, hair_tracer
+from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, hair_tracer
 from prtcore.transport.hair import bake_hair_dataset
 
 METHOD = "data_driven"
@@ -113,17 +113,20 @@ def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
 def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                       limit_bytes: int) -> int:
     """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
-    with the fibre operator, plus the first bounce's harmonics: two more (T, K, 3)
-    float32, plus the fibre tubes) against ``limit_bytes``; returns the estimate. With
+    with the fibre operator, plus the first bounce's harmonics: two more (T, k, 3)
+    float32 for the k = :data:`~prtcore.transport.fibre.FIRST_BOUNCE_LIGHTS` lights held at
+    once, plus the fibre tubes) against ``limit_bytes``; returns the estimate. With
     ``hair.harmonics = "all_bounces"``: the (3T, 3T) operator's nine blocks (20 bytes per
     gather ray and block before they are summed) and a solve over 3T rows (the stacked
     direct light and five working arrays of (3T, K, 3) float32)."""
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     segments = space.hair.point_count - space.hair.strand_count
+    everything = spec.hair.harmonics == "all_bounces"
+    held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \
-        + 2 * t * k * 12 + segments * MEM_PER_FIBRE_SEGMENT
-    if spec.hair.harmonics == "all_bounces":
+        + 2 * t * held * 12 + segments * MEM_PER_FIBRE_SEGMENT
+    if everything:
         est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "

@@ -184,3 +184,33 @@ def test_all_bounce_harmonics_bake_and_agree_with_the_first_bounce_variant(tmp_p
     assert np.isfinite(every.indirect).all() and (every.indirect >= 0).all()
     # clamping is for the odd noisy texel, not a regime
     assert every.stats["solve"]["negative_clamped"] < 0.01 * every.indirect.size
+
+
+@pytest.mark.slow
+def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
+    """check_hair_memory against the peak RSS of a whole hair bake in a fresh process (the
+    hairball at 4000 strands, K = 64 + 16: several light blocks of the first bounce)."""
+    import subprocess
+    import sys
+
+    from prtcore.core.limits import IntakeLimits
+    from prtcore.core.progress import StageTimer
+    from prtcore.hairbake import check_hair_memory, hair_spec, run_hair_intake
+    from prtcore.scenes.hair import hairball
+
+    asset = write_hair(tmp_path / "ball.hair", hairball(4000))
+    spec = {"lights": {"count": 64, "holdout": 16, "seed": 2}}
+    code = (f"import json, pathlib, resource\n"
+            f"from prtcore.core.spec import parse_spec\n"
+            f"from prtcore.pipeline import bake\n"
+            f"bake(pathlib.Path({str(asset)!r}), parse_spec({spec!r}), "
+            f"pathlib.Path({str(tmp_path / 'b')!r}), quiet=True)\n"
+            f"print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    peak = int(res.stdout.strip().splitlines()[-1])
+    s = hair_spec(parse_spec(spec))
+    space = run_hair_intake(asset, s, StageTimer(quiet=True), IntakeLimits()).texels
+    est = check_hair_memory(asset, space, s, 1 << 62)
+    print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
+    assert peak <= est <= 1.6 * peak, (peak, est)

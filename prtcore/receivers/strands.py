@@ -129,27 +129,48 @@ class StrandSpace:
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Stratified points on every texel's fibre surface, for direct light and gather
         origins: ``per_texel`` (J) samples, stratified in azimuth (J strata, a random
-        phase per texel) and jittered uniformly in arc length within the interval.
+        phase per texel) and jittered uniformly in arc length within the interval
+        (:meth:`surface_sample_params`, then :meth:`surface_points`).
 
         Returns ``origin`` (t, J, 3) on the tube's circumscribed cylinder
         (:func:`prtcore.core.fibres.outside_offset`: rays leaving it along a direction
         with a positive radial part miss their own fibre), ``normal`` (t, J, 3) the unit
-        radial directions (the diffuse fibre's surface normals) and ``axis`` (t, J, 3)
-        the points on the fibre's axis.
+        radial directions (the diffuse fibre's surface normals), ``axis`` (t, J, 3)
+        the points on the fibre's axis, all float64, and ``phi`` (t, J) the azimuths.
         """
+        t, j = self.count, per_texel
+        arc, phi = self.surface_sample_params(per_texel, seed)
+        origin, normal, axis = self.surface_points(np.repeat(np.arange(t), j), arc.ravel(),
+                                                   phi.ravel())
+        return (origin.reshape(t, j, 3), normal.reshape(t, j, 3), axis.reshape(t, j, 3),
+                phi)
+
+    def surface_sample_params(self, per_texel: int, seed: int
+                              ) -> tuple[np.ndarray, np.ndarray]:
+        """Where :meth:`surface_samples` puts its points: ``arc`` (t, J) float64 metres
+        from the root (uniform in each texel's interval) and ``phi`` (t, J) float64
+        azimuths (J strata, one random phase per texel), drawn from ``seed``. 16 bytes a
+        sample: the fibre gather keeps these and makes the points batch by batch."""
         rng = np.random.default_rng(seed)
         t, j = self.count, per_texel
         frac = rng.random((t, j))
         arc = self.arc[:, :1] + frac * (self.arc[:, 1:] - self.arc[:, :1])
-        axis, tangent, u = axis_frame(self.hair, np.repeat(self.strand, j), arc.ravel())
         phase = rng.random((t, 1))
-        phi = (2 * np.pi * (np.arange(j)[None, :] + phase) / j).ravel()
-        off = interp_points(self.hair, outside_offset(self.hair)[:, None],
-                            np.repeat(self.strand, j), arc.ravel())[:, 0]
-        normal, origin = tangent, u  # overwritten row by row (no (t·J, 3) temporaries)
-        _radial_points(axis, tangent, u, np.cos(phi), np.sin(phi), off, normal, origin)
-        return (origin.reshape(t, j, 3), normal.reshape(t, j, 3), axis.reshape(t, j, 3),
-                phi.reshape(t, j))
+        phi = 2 * np.pi * (np.arange(j)[None, :] + phase) / j
+        return arc, phi
+
+    def surface_points(self, texel: np.ndarray, arc: np.ndarray, phi: np.ndarray,
+                       u: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``origin``, ``normal``, ``axis`` (n, 3) float64 of :meth:`surface_samples` at
+        the samples (texel (n,) int, arc (n,) metres, phi (n,) radians); ``u`` as for
+        :func:`axis_frame`."""
+        strand = self.strand[texel]
+        axis, tangent, uu = axis_frame(self.hair, strand, arc, u)
+        off = interp_points(self.hair, outside_offset(self.hair)[:, None], strand, arc)[:, 0]
+        normal, origin = tangent, uu  # overwritten row by row (no (n, 3) temporaries)
+        _radial_points(axis, tangent, uu, np.cos(phi), np.sin(phi), off, normal, origin)
+        return origin, normal, axis
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)

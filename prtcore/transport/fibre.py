@@ -76,13 +76,13 @@ from prtcore.transport.direct import direct_radiance
 
 #: rays per intersect call of the fibre gather
 FIBRE_BATCH = 1 << 18
-#: Memory of the fibre gather (bytes): per texel and gather ray (the ray origins, normals,
-#: axis points and azimuths of :meth:`StrandSpace.surface_samples`, 80; the (row, column,
+#: Memory of the fibre gather (bytes): per texel and gather ray (where its sample lies,
+#: arc and azimuth, 16, from :meth:`StrandSpace.surface_sample_params`; the (row, column,
 #: azimuth) triples before they are summed into CSR, and the CSR matrices, 24), and per
-#: ray in flight. With it the 10k-strand hairball bake at K = 144 is estimated at
-#: 2.6 GiB; benchmarks/hair_bake.py measured a 2.22 GiB peak.
-MEM_PER_TEXEL_RAY = 104
-MEM_PER_RAY_IN_FLIGHT = 200
+#: ray in flight (the batch's origins, normals and axis points, directions, hit records).
+#: The samples' points were made for all rays at once until 2026-12-04 (80 bytes a ray).
+MEM_PER_TEXEL_RAY = 40
+MEM_PER_RAY_IN_FLIGHT = 300
 #: Memory of the fibre tubes per polyline segment (bytes): prtcore's float64 vertices,
 #: faces and face normals plus Embree's copies and BVH, measured at 10k strands × 16
 #: segments by benchmarks/hair_geometry.py (89 + 112 MiB) and rounded up.
@@ -179,8 +179,10 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     harmonics of every texel (:func:`harmonic_block`)."""
     t = space.count
     hair = space.hair
-    origin, normal, _, phi = space.surface_samples(rays, seed)
-    origin, normal, phi = origin.reshape(-1, 3), normal.reshape(-1, 3), phi.reshape(-1)
+    # the samples' places drawn once (16 bytes a ray), their points made per batch: the
+    # (t·M, 3) float64 origins, normals and axis points at once were 72 bytes a ray
+    # (6.4 GiB for 140k strands at M = 64)
+    sample_arc, phi = (x.reshape(-1) for x in space.surface_sample_params(rays, seed))
     rng = np.random.default_rng([seed, 1])
     frame_u = transported_frames(hair)[1]  # once, not per batch
     rows_all, cols_all, cs_all, po_all = [], [], [], []
@@ -190,8 +192,12 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     for a in bar(starts, "fibre gather", total=len(starts)):
         b = min(a + FIBRE_BATCH, total)
         u = rng.random(b - a)
-        d = directions_around(normal[a:b], np.sqrt(u), 2 * np.pi * rng.random(b - a))
-        hits = tracer.intersect(origin[a:b], d)
+        origin, normal, _ = space.surface_points(np.arange(a, b) // rays, sample_arc[a:b],
+                                                 phi[a:b], frame_u)
+        d = directions_around(normal, np.sqrt(u), 2 * np.pi * rng.random(b - a))
+        del normal
+        hits = tracer.intersect(origin, d)
+        del origin
         fib = hits.triangle >= mesh_faces
         n_fibre += int(fib.sum())
         n_mesh += int((hits.hit & ~fib).sum())
@@ -272,6 +278,31 @@ def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect, first: int = 1
         # hairball's K = 144 dataset)
         val += SparseProduct(g, default_threads())(l_h.reshape(t, -1), out=part)
     return np.arange(t, dtype=np.int64), val.reshape(t, k, 3)
+
+
+#: lights whose direct harmonics are held at once by :func:`direct_and_first_bounce`
+FIRST_BOUNCE_LIGHTS = 16
+
+
+def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
+                            samples: int, seed: int, term: FibreTerm,
+                            block: int = FIRST_BOUNCE_LIGHTS
+                            ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """:func:`fibre_direct`'s mean and :func:`harmonic_first_bounce` of ``term`` with it,
+    ``block`` lights at a time, so that the direct light's harmonics ((2, T, K, 3)
+    float32: 4.8 GB for 140k strands and 144 lights) are never all held. Every light's
+    values are those of one call with all lights (the same surface samples, each light
+    and each product column computed on its own). Returns (mean (T, K, 3) float32,
+    (rows (T,) int64, first-bounce correction (T, K, 3) float32))."""
+    t, k = space.count, len(lights)
+    mean = np.empty((t, k, 3), dtype=np.float32)
+    val = np.empty((t, k, 3), dtype=np.float32)
+    for k0 in range(0, k, block):
+        part = fibre_direct(space, tracer, lights[k0:k0 + block], samples, seed)
+        mean[:, k0:k0 + block] = part.mean
+        val[:, k0:k0 + block] = harmonic_first_bounce(term, part)[1]
+        del part
+    return mean, (np.arange(t, dtype=np.int64), val)
 
 
 @register

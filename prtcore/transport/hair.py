@@ -20,7 +20,7 @@ from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.dataset import Dataset, direct_at_points
-from prtcore.transport.fibre import fibre_direct, fibre_gather, harmonic_first_bounce
+from prtcore.transport.fibre import direct_and_first_bounce, fibre_direct, fibre_gather
 from prtcore.transport.solve import solve_indirect
 
 #: the timed stages of :func:`bake_hair_dataset`, in the order they run
@@ -56,8 +56,13 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
     with timer.stage("direct fibres"):
-        direct = fibre_direct(space, tracer, lights, max(4, spec.direct_samples),
-                              spec.seed + 1)
+        if everything:
+            direct = fibre_direct(space, tracer, lights, max(4, spec.direct_samples),
+                                  spec.seed + 1)
+            direct_mean = direct.mean
+        else:  # the first bounce made light block by light block, harmonics not kept
+            direct_mean, first = direct_and_first_bounce(
+                space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1, term)
     rays3 = tracer.rays_traced
     t = space.count
     if everything:
@@ -72,10 +77,10 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
         solve_stats["negative_clamped"] = negative
     else:
         indirect, bounces, resid, solve_stats = solve_indirect(
-            term.matrix, space.albedo, direct.mean, spec.max_bounces, spec.tolerance, timer,
-            threads=tracer.threads, first_bounce=harmonic_first_bounce(term, direct))
+            term.matrix, space.albedo, direct_mean, spec.max_bounces, spec.tolerance, timer,
+            threads=tracer.threads, first_bounce=first)
     stats = {"train": len(lights_train), "fibre": term.stats, "harmonics": harmonics,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}
-    return Dataset(lights=lights, direct_points=direct_points, direct_texels=direct.mean,
+    return Dataset(lights=lights, direct_points=direct_points, direct_texels=direct_mean,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
