@@ -200,12 +200,16 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
 
     asset = write_hair(tmp_path / "ball.hair", hairball(4000))
     spec = {"lights": {"count": 64, "holdout": 16, "seed": 2}}
-    code = (f"import json, pathlib, resource\n"
+    # the child's own peak is VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss
+    # over execve, so a child started from this (large) pytest process would report the
+    # parent's size (2.4 GiB in a full suite run against 0.8 GiB of its own)
+    code = (f"import pathlib, re\n"
             f"from prtcore.core.spec import parse_spec\n"
             f"from prtcore.pipeline import bake\n"
             f"bake(pathlib.Path({str(asset)!r}), parse_spec({spec!r}), "
             f"pathlib.Path({str(tmp_path / 'b')!r}), quiet=True)\n"
-            f"print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)\n")
+            f"hwm = re.search(r'VmHWM:\\s+(\\d+) kB', open('/proc/self/status').read())\n"
+            f"print(int(hwm.group(1)) * 1024)\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     peak = int(res.stdout.strip().splitlines()[-1])

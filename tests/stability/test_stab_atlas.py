@@ -59,9 +59,11 @@ def test_bake_memory_limit_is_checked_before_transport(tmp_path):
 
 
 def _bake_in_child(tmp_path, spec: dict) -> dict:
-    """Bake in a fresh process; returns {"peak": bytes, "error": str|None, "estimate": …}."""
+    """Bake in a fresh process; returns {"peak": bytes, "error": str|None}. The peak is the
+    child's VmHWM: getrusage's ru_maxrss would carry this pytest process's size over the
+    child's execve (Linux), measuring the parent when it is the larger."""
     code = f"""
-import json, resource, sys
+import json, re, sys
 sys.path[:0] = [{str(HERE)!r}, {str(HERE.parent)!r}]  # stab_helpers, and the tests/ it imports
 from stab_helpers import CORNELL, bake
 from prtcore.core.errors import PrtError
@@ -70,7 +72,8 @@ try:
     bake(CORNELL, {spec!r}, __import__("pathlib").Path({str(tmp_path / "b")!r}))
 except PrtError as e:
     out["error"] = type(e).__name__ + ": " + str(e)
-out["peak"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+hwm = re.search(r"VmHWM:\\s+(\\d+) kB", open("/proc/self/status").read())
+out["peak"] = int(hwm.group(1)) * 1024
 print(json.dumps(out))
 """
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
