@@ -129,18 +129,33 @@ def fibre_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
     azimuths stratified), each shadowed by everything in ``tracer`` (other fibres, the
     mesh): the mean and ``harmonics`` (H) harmonics ``(2/J) Σ L_j (cos hφ_j, sin hφ_j)``
     (J > 2H keeps them unaliased by the stratified azimuths)."""
+    return _direct_of(space, tracer, lights, _direct_samples(space, samples, seed),
+                      harmonics, block, progress=True)
+
+
+def _direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
+    """What :func:`fibre_direct` draws once for any lights: the surface samples' origin,
+    normal (t, J, 3) and azimuth phi (t, J), and the texels' order (t,) int64 along the
+    3-D Morton curve of their axis points. Blocks of texels in that order, not strand by
+    strand, let one light's shadow rays from neighbouring texels share Embree's nodes in
+    cache (10k hairball: 0.56 → 0.84–0.96 M shadow rays/s on one thread); each texel's
+    value is the same whichever block computes it."""
     origin, normal, _, phi = space.surface_samples(samples, seed)
-    t, j, k = space.count, samples, len(lights)
-    mean = np.empty((t, k, 3), dtype=np.float32)
-    harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
-    # texels in blocks along the 3-D Morton curve of their axis points, not strand by
-    # strand: the shadow rays of one light from neighbouring texels then share Embree's
-    # nodes in cache (10k hairball: 0.56 → 0.84–0.96 M shadow rays/s on one thread). Every
-    # texel's value is computed as before, only in another order.
     order = morton_order(space.position, np.stack([space.position.min(axis=0),
                                                    space.position.max(axis=0)]))
+    return origin, normal, phi, order
+
+
+def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
+               drawn: tuple, harmonics: int, block: int, progress: bool) -> FibreDirect:
+    """:func:`fibre_direct` for ``lights`` from :func:`_direct_samples`' ``drawn``,
+    ``block`` texels at a time (a progress bar over them with ``progress``)."""
+    origin, normal, phi, order = drawn
+    t, j, k = space.count, phi.shape[1], len(lights)
+    mean = np.empty((t, k, 3), dtype=np.float32)
+    harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
     blocks = range(0, t, block)
-    for a in bar(blocks, "direct fibres", total=len(blocks)):
+    for a in bar(blocks, "direct fibres", total=len(blocks)) if progress else blocks:
         idx = order[a:a + block]
         rad = direct_radiance(None, tracer, lights, origin[idx].reshape(-1, 3),
                               normal[idx].reshape(-1, 3),
@@ -297,8 +312,11 @@ def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Seque
     t, k = space.count, len(lights)
     mean = np.empty((t, k, 3), dtype=np.float32)
     val = np.empty((t, k, 3), dtype=np.float32)
-    for k0 in range(0, k, block):
-        part = fibre_direct(space, tracer, lights[k0:k0 + block], samples, seed)
+    drawn = _direct_samples(space, samples, seed)  # once for every block of lights
+    starts = range(0, k, block)
+    for k0 in bar(starts, "direct fibres", total=len(starts)):
+        part = _direct_of(space, tracer, lights[k0:k0 + block], drawn, HARMONICS, 1 << 14,
+                          progress=False)
         mean[:, k0:k0 + block] = part.mean
         val[:, k0:k0 + block] = harmonic_first_bounce(term, part)[1]
         del part
