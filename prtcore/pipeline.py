@@ -118,6 +118,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     from prtcore.io.gltf.export import write_glb
     from prtcore.io.hair import is_hair_file
     from prtcore.methods.base import BakeInputs, method
+    from prtcore.report import preload_plotting
     from prtcore.sizing import size_bake
     from prtcore.transport.dataset import (
         check_bake_memory,
@@ -158,6 +159,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
             scene.radius, scene.lights)
         train = pool[:sizing.lights_start]
     m = method(spec.method.name)
+    preload_plotting()  # the report's figures: imported while the transport runs
     kfs, data = None, None
     record = indirect = models = noise = None
     fit_spec = with_denoise(spec, DENOISE_FALLBACK)  # unless measured below

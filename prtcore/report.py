@@ -9,6 +9,7 @@ basis blend at atlas size (ms), and storage.
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -307,6 +308,19 @@ def _gpu_lines(table: dict) -> list[str]:
                  for k, _ in GPU_FIELDS]
         lines.append(f"{r['n']:>4d} " + " ".join(f"{c:>19s}" for c in cells))
     return lines
+
+
+def preload_plotting() -> threading.Thread:
+    """Import matplotlib's ``Figure`` and Agg canvas on a daemon thread, so that a bake pays
+    the import (about half a second) while its transport runs rather than in its report
+    and export stages. Returns the thread (joining it is optional)."""
+    def load() -> None:
+        import matplotlib.backends.backend_agg
+        import matplotlib.figure  # noqa: F401
+
+    thread = threading.Thread(target=load, name="preload-matplotlib", daemon=True)
+    thread.start()
+    return thread
 
 
 def _figure(size: tuple[float, float], columns: int = 1):

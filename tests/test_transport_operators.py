@@ -28,7 +28,7 @@ from prtcore.transport.dataset import (
     operator_matrix,
     trace_operators,
 )
-from prtcore.transport.gather import GATHER_BATCH, Gather
+from prtcore.transport.gather import GATHER_BATCH, GATHER_WORKERS, Gather
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
 from prtcore.transport.surface import (
     MEM_PER_GATHER_RAY_IN_FLIGHT,
@@ -80,7 +80,8 @@ def test_registry():
 
 def test_memory_estimate_is_the_stage_plus_each_operator():
     t, k, rays = 12345, 37, 16
-    surface = MEM_PER_TEXEL_RAY * t * rays + GATHER_BATCH * MEM_PER_GATHER_RAY_IN_FLIGHT
+    surface = MEM_PER_TEXEL_RAY * t * rays \
+        + GATHER_WORKERS * GATHER_BATCH * MEM_PER_GATHER_RAY_IN_FLIGHT
     own = MEM_PROCESS + t * MEM_PER_TEXEL + t * k * MEM_PER_TEXEL_CONFIG + min(
         SOLVE_WORK_ARRAYS * t * k * 12, SOLVE_BLOCK_BYTES)
     assert operator_for("surface").estimate_bytes(t, k, TransportSpec(gather_rays=rays)) \

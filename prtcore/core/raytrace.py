@@ -7,6 +7,7 @@ pool (embreex releases the GIL inside ``scene.run``), so both cores trace at onc
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -102,8 +103,13 @@ class RayTracer:
         mesh_construction.TriangleMesh(self._scene, self.positions.astype(np.float32),
                                        self.faces.astype(np.int32))
         self.rays_traced = 0
+        self._count_lock = threading.Lock()  # queries may come from several threads
 
     # -- internals -------------------------------------------------------------------
+    def _count(self, n: int) -> None:
+        with self._count_lock:
+            self.rays_traced += n
+
     def _chunks(self, n: int) -> list[slice]:
         return [slice(i, min(i + CHUNK, n)) for i in range(0, n, CHUNK)]
 
@@ -139,7 +145,7 @@ class RayTracer:
                          self.face_normals, tri[s], t[s], bary[s], front[s])
 
         self._map(run, n)
-        self.rays_traced += n
+        self._count(n)
         return Hits(triangle=tri, t=t, barycentric=bary, front=front)
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray,
@@ -153,7 +159,7 @@ class RayTracer:
             return self._scene.run(o[s], d[s], dists=tm[s].copy(), query="OCCLUDED")
 
         parts = self._map(run, n)
-        self.rays_traced += n
+        self._count(n)
         if not parts:
             return np.zeros(0, dtype=bool)
         return np.concatenate(parts) != -1

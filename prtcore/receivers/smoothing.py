@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from itertools import chain
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
@@ -162,19 +163,37 @@ def _prepared(texels: TexelSpace, W: sp.csr_matrix, dt: type, albedo: bool) -> t
     return Wd, inv, back
 
 
-def _filtered(v: np.ndarray, prepared: tuple) -> np.ndarray:
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _scale(x, s, out):  # pragma: no cover - compiled
+    """out[i, k, c] = x[i, k, c] · s[i, c] for (T, K, 3) x and out (out may be x, either
+    may be strided) and (T, 3) s of the same dtype: numpy's products, rows on all cores."""
+    for i in numba.prange(x.shape[0]):
+        for k in range(x.shape[1]):
+            for c in range(x.shape[2]):
+                out[i, k, c] = x[i, k, c] * s[i, c]
+
+
+def _filtered(v: np.ndarray, prepared: tuple, out: np.ndarray | None = None) -> np.ndarray:
     """Values (T, 3) or (T, K, 3) through a :func:`_prepared` filter, in their own precision
-    (float32 lightmaps: float32 sums of a few dozen weights): three passes over the values,
-    scale, product, scale back."""
+    (float32 lightmaps: float32 sums of a few dozen weights): scale, product, scale back
+    (the scalings compiled, on all cores). ``out`` : optional array of v's shape (it may
+    be a strided view) that receives the result, which is then returned."""
     Wd, inv, back = prepared
     x = v.reshape(len(v), -1, 3)
     if inv is None:
         y = Wd(x.reshape(len(v), -1)).reshape(x.shape)
     else:
-        e = x * inv[:, None, :]  # irradiance; 0 where the albedo is
+        e = np.empty(x.shape, dtype=inv.dtype)
+        _scale(x, inv, e)  # irradiance; 0 where the albedo is
         y = Wd(e.reshape(len(v), -1)).reshape(x.shape)
         del e
-        y *= back[:, None, :]
+        if out is not None:
+            _scale(y, back, out.reshape(x.shape))
+            return out
+        _scale(y, back, y)
+    if out is not None:
+        out[...] = y.reshape(v.shape)
+        return out
     return y.reshape(v.shape)
 
 
@@ -189,6 +208,6 @@ def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float | None = 
     prepared = _prepared(texels, W, np.float32, True)  # once, not per block
     out = np.empty(I.shape, dtype=np.float32) if out is None else out
     for k0 in range(0, I.shape[1], block):
-        out[:, k0:k0 + block] = _filtered(
-            np.asarray(I[:, k0:k0 + block], dtype=np.float32), prepared)
+        _filtered(np.asarray(I[:, k0:k0 + block], dtype=np.float32), prepared,
+                  out=out[:, k0:k0 + block])
     return out

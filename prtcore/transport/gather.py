@@ -29,6 +29,8 @@ tracer, :mod:`prtcore.reference.pathtracer`, where they are about the physics):
 from __future__ import annotations
 
 import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 
@@ -54,6 +56,9 @@ RAYS_PER_ORIGIN = 4
 FALLBACK_NUDGE = 0.05
 #: Gather rays traced per batch (bounds memory: ~150 bytes per ray in flight).
 GATHER_BATCH = 1 << 20
+#: Gather batches traced at once (each one's numpy work is single-threaded; Embree's
+#: queries within a batch use the tracer's threads).
+GATHER_WORKERS = 2
 #: A hit mapped through the UV lookup must lie within this many texel footprints of the
 #: texel it lands on; otherwise (overlapping UVs, a texel of another chart) it is re-mapped
 #: to the nearest texel in 3-D facing the same way.
@@ -62,7 +67,7 @@ MAP_SLACK_FOOTPRINTS = 3.0
 #: chart border; see :class:`Gather`).
 PARTIAL_COVERAGE_EPS = 1e-3
 #: Texels per chunk of :func:`jittered_origins`' temporaries.
-ORIGIN_CHUNK = 1 << 16
+ORIGIN_CHUNK = 1 << 14
 #: Golden-ratio conjugate: the rank-1 (Fibonacci) lattice generator.
 PHI = 0.6180339887498949
 
@@ -182,13 +187,15 @@ def jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
     # the lattice points' barycentrics, texels in chunks (bounds the temporaries: the
     # lattice, its pixel positions and the frames per point cost ~6× the result)
     bary = np.empty((t * per_texel, 3))
-    for a in range(0, t, ORIGIN_CHUNK):
+
+    def lattice_bary(a: int) -> None:
         b = min(t, a + ORIGIN_CHUNK)
         corner, inv = _uv_frames(scene.uv1[scene.faces[texels.triangle[a:b]]] * size)
         q = fibonacci_lattice(per_texel, shift[a:b]) - 0.5 + centre[a:b, None, :]
         bary[a * per_texel:b * per_texel] = _uv_barycentric(
             corner[:, None], inv[:, None], q).reshape(-1, 3)
-        del q, corner, inv
+
+    _over_chunks(lattice_bary, t)
     owner = np.repeat(np.arange(t), per_texel)
     inside = (bary >= -BARY_EPS).all(axis=1)
     part = np.unique(owner[~inside])  # texels with a lattice point off their triangle
@@ -217,11 +224,26 @@ def jittered_origins(scene: Scene, texels: TexelSpace, per_texel: int,
     np.clip(bary, 0.0, None, out=bary)
     bary /= bary.sum(axis=1, keepdims=True)
     pos = bary.reshape(t, per_texel, 3)  # the positions overwrite the barycentrics
-    for a in range(0, t, ORIGIN_CHUNK):
+
+    def to_world(a: int) -> None:
         b = min(t, a + ORIGIN_CHUNK)
         verts = scene.positions[scene.faces[texels.triangle[a:b]]]  # (n, 3, 3)
         pos[a:b] = np.einsum("tsk,tkj->tsj", pos[a:b], verts)
+
+    _over_chunks(to_world, t)
     return pos, inside.reshape(t, per_texel)
+
+
+def _over_chunks(fn, t: int) -> None:
+    """fn(a) for a = 0, ORIGIN_CHUNK, … < t, on GATHER_WORKERS threads (each chunk writes
+    its own rows, so the result does not depend on the order; numpy releases the GIL)."""
+    starts = range(0, t, ORIGIN_CHUNK)
+    if len(starts) == 1:
+        fn(0)
+        return
+    with ThreadPoolExecutor(GATHER_WORKERS) as ex:
+        for _ in ex.map(fn, starts):
+            pass
 
 
 # ---------------------------------------------------------------------------------------
@@ -281,6 +303,7 @@ class HitMapper:
         self.reach2 = ((MAP_SLACK_FOOTPRINTS * fp + 2.0 * tracer.offset) ** 2).astype(
             np.float32)
         self._tree: cKDTree | None = None
+        self._lock = threading.Lock()  # the gather maps two batches at once
         self.remapped = 0
 
     def __call__(self, tri: np.ndarray, bary: np.ndarray, ray: np.ndarray,
@@ -310,14 +333,16 @@ class HitMapper:
             hit = index[bad]
             p64 = self.tracer.surface_point(tri[hit], bary[hit])
             tex[bad] = self._nearest(p64, self.tracer.face_normals[tri[hit]])
-            self.remapped += len(bad)
+            with self._lock:
+                self.remapped += len(bad)
         return tex
 
     def _nearest(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Nearest texel in 3-D whose geometric normal faces the same way (of the 8
         nearest), else the nearest."""
-        if self._tree is None:
-            self._tree = cKDTree(self.texels.position)
+        with self._lock:
+            if self._tree is None:
+                self._tree = cKDTree(self.texels.position)
         k = min(8, self.texels.count)
         _, idx = self._tree.query(points, k=k)
         idx = idx.reshape(len(points), k)
@@ -403,11 +428,9 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     row_lens: list[np.ndarray] = []
     col_parts: list[np.ndarray] = []
     weight_parts: list[np.ndarray] = []
-    n_traced = n_back = n_miss = n_below = 0
-    starts = range(0, t, per_batch)
-    if timer is not None:
-        starts = timer.bar(starts, "gather", total=len(starts))
-    for b0 in starts:
+    def one(b0: int) -> tuple:
+        """Trace texels b0 … b0 + per_batch − 1; returns their CSR parts, near-field hits
+        and counts (batches are independent: two run at once, joined in order)."""
         b1 = min(t, b0 + per_batch)
         nt = b1 - b0
         # shifted lattice in float32 (the directions go to Embree as float32 anyway)
@@ -437,10 +460,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         hit[sel] = hits.hit
         front[sel] = hits.front
         back = hit & ~front
-        n_traced += len(sel)
-        n_back += int(back.sum())
-        n_miss += len(sel) - int(hit.sum())
-        n_below += nt * m - len(sel)
+        counts = (len(sel), int(back.sum()), len(sel) - int(hit.sum()), nt * m - len(sel))
         # An origin is inside geometry when most of its traced rays hit back faces.
         key_o = (np.arange(nt)[:, None] * s + ray_o[None, :]).reshape(-1)
         traced_o = np.bincount(key_o, weights=above.reshape(-1), minlength=nt * s)
@@ -454,19 +474,33 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
         cols[use] = mapper(hits.triangle, hits.barycentric, use, o, d, hits.t, index=pos)
         r, c, cnt = _row_counts(cols.reshape(nt, m), b0, t)
-        row_lens.append(np.bincount(r - b0, minlength=nt))
-        col_parts.append(c)
-        weight_parts.append((cnt / valid_rays[r]).astype(np.float32))
-        del r, c, cnt
+        parts = (np.bincount(r - b0, minlength=nt), c,
+                 (cnt / valid_rays[r]).astype(np.float32))
+        near_part = None
         if near_field > 0:
             r_use = use // m  # receiving texel - b0
             close = hits.t[pos] < reach[b0 + r_use]
             nu, npos, nr = use[close], pos[close], r_use[close]
-            near_parts.append((b0 + nr, cols[nu], hits.triangle[npos],
-                               hits.barycentric[npos],
-                               (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32)))
-        del hits, d, o, cols
-    del frame, up, dir_shift  # the rays' inputs: freed before the matrix is joined
+            near_part = (b0 + nr, cols[nu], hits.triangle[npos], hits.barycentric[npos],
+                         (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32))
+        return parts, near_part, counts
+
+    n_traced = n_back = n_miss = n_below = 0
+    starts = range(0, t, per_batch)
+    with ThreadPoolExecutor(GATHER_WORKERS if len(starts) > 1 else 1) as ex:
+        done = ex.map(one, starts)
+        if timer is not None:
+            done = timer.bar(done, "gather", total=len(starts))
+        for (lens, c, w), near_part, counts in done:
+            row_lens.append(lens)
+            col_parts.append(c)
+            weight_parts.append(w)
+            if near_part is not None:
+                near_parts.append(near_part)
+            n_traced, n_back, n_miss, n_below = (
+                a + b for a, b in zip((n_traced, n_back, n_miss, n_below), counts,
+                                      strict=True))
+    frame = up = dir_shift = None  # the rays' inputs: freed before the matrix is joined
 
     indptr = np.zeros(t + 1, dtype=np.int64)
     if row_lens:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -179,9 +180,11 @@ def measure_noise(transport: Transport, lights: Sequence[Light], f: np.ndarray,
     t0 = time.perf_counter()
     lights = tuple(lights)[:NOISE_LIGHTS]
     f = f[:, :len(lights)]
-    with timer.stage("transport noise"):
+    with timer.stage("transport noise"), ThreadPoolExecutor(1) as ex:
+        # the filters need only the texels: built while the second transport traces
+        pending = ex.submit(filters, transport.texels, radii)
         g = independent_lightmaps(transport, lights, timer)
-        ops = filters(transport.texels, radii)
+        ops = pending.result()
         radius, errors = choose_radius(transport.texels, f, g, radii, ops)
     return TransportNoise(radius=radius, radii=tuple(float(r) for r in radii),
                           expected_error=errors, lights=len(lights),

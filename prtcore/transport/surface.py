@@ -16,11 +16,11 @@ from prtcore.core.spec import TransportSpec
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, register
 from prtcore.transport.direct import near_field_correction
-from prtcore.transport.gather import GATHER_BATCH, Gather, spec_gather
+from prtcore.transport.gather import GATHER_BATCH, GATHER_WORKERS, Gather, spec_gather
 
 #: Memory of the gather (bytes; part of the bake's model,
 #: :func:`prtcore.transport.dataset.estimate_bake_bytes`): per texel and gather ray, and
-#: per gather ray in flight (GATHER_BATCH rays per batch).
+#: per gather ray in flight (GATHER_BATCH rays per batch, GATHER_WORKERS batches at once).
 MEM_PER_TEXEL_RAY = 64
 MEM_PER_GATHER_RAY_IN_FLIGHT = 150
 
@@ -40,7 +40,7 @@ class SurfaceGather(TransportOperator):
 
     def estimate_bytes(self, receivers, configurations, spec):
         return int(receivers) * MEM_PER_TEXEL_RAY * int(spec.gather_rays) \
-            + GATHER_BATCH * MEM_PER_GATHER_RAY_IN_FLIGHT
+            + GATHER_WORKERS * GATHER_BATCH * MEM_PER_GATHER_RAY_IN_FLIGHT
 
     def direct_position(self, term: Gather):
         return term.direct_position
