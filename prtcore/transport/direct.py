@@ -22,6 +22,7 @@ import numpy as np
 
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
+from prtcore.core.memory import release_free_memory
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
@@ -108,6 +109,7 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
                 it = timer.bar(it, desc, total=len(lights))
             for _ in it:
                 pass
+        release_free_memory()  # the workers' arenas (prtcore/core/memory.py)
     else:
         for k in timer.bar(ks, desc, total=len(lights)) if timer is not None else ks:
             one(k)

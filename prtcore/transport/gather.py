@@ -40,6 +40,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from prtcore.core.geometry import orthonormal_frame
+from prtcore.core.memory import release_free_memory
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Scene
@@ -55,7 +56,7 @@ RAYS_PER_ORIGIN = 4
 #: moved from its sample into the triangle.
 FALLBACK_NUDGE = 0.05
 #: Gather rays traced per batch (bounds memory: ~150 bytes per ray in flight).
-GATHER_BATCH = 1 << 20
+GATHER_BATCH = 1 << 19
 #: Gather batches traced at once (each one's numpy work is single-threaded; Embree's
 #: queries within a batch use the tracer's threads).
 GATHER_WORKERS = 2
@@ -501,6 +502,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
                 a + b for a, b in zip((n_traced, n_back, n_miss, n_below), counts,
                                       strict=True))
     frame = up = dir_shift = None  # the rays' inputs: freed before the matrix is joined
+    release_free_memory()  # the batches' arenas (prtcore/core/memory.py)
 
     indptr = np.zeros(t + 1, dtype=np.int64)
     if row_lens:
