@@ -44,6 +44,20 @@ At 1024² the light stages alone (light_configurations, K = 144 in 4 solve block
 156.0 s at cb4b1d0 in a run whose 512² bake took 32.5 s (×4.79; ×4.07 in the quieter run
 above), peak RSS 3.48 GiB.
 
+2026-12-04 (AMD EPYC, AVX-512, 2 cores, shared; load 1.2-1.8), every issue 20 target in one
+run (``python benchmarks/bake_speed.py``, at 0777680): whole 512² bake **18.97 s** (32.6 CPU
+s; peak RSS 1.67 GiB); 1024² 78.9 s = **×4.16**, peak RSS **3.40 GiB**; direct texels ×1.28
+wall / ×1.30 CPU raw embreex per ray (×1.28-1.60 wall over six runs that day: the raw
+replay is noisy too); indirect solve 4.04 s; report 0.44 s; transport vs the path tracer at
+64² 8.1 / 7.6 / 8.1 % rRMSE, bias −0.2 / +0.2 / −0.2 % (noise-corrected), held-out rRMSE
+3.13 % at n = 16. Against the code the issue was filed on (f589c26, in a worktree:
+``--code /tmp/old --record-calls 0 --skip-reference --big-resolution 0``, its JSON given
+as ``--before`` to the next run): whole bake 44.03 → 18.86 s (70.6 → 32.6 CPU s); gather
+4.20 → 2.15 s, direct texels 10.21 → 3.72 s, near field 1.48 → 0.86 s, indirect solve
+17.13 → 4.37 s (×3.9 wall, ×3.5 CPU), denoise 3.03 → 0.42 s, report 4.28 → 0.53 s, export
+1.28 → 0.96 s; fit 1.62 → 1.76 s; and a stage the old code lacked, transport noise (issue
+13's second transport), 3.35 s. Held-out rRMSE at n = 16 3.20 → 3.13 %.
+
 The machine's load average is recorded at start and end: on a shared machine compare
 ratios measured in one run, not absolute seconds across runs.
 
@@ -67,8 +81,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+#: the prtcore the bakes run: this checkout's, or with --code another's (an older commit)
+CODE = Path(os.environ.get("PRT_BENCH_CODE", ROOT)).resolve()
+if str(CODE) not in sys.path:
+    sys.path.insert(0, str(CODE))
 
 from prtcore.core.raytrace import RayTracer  # noqa: E402
 from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
@@ -85,7 +101,8 @@ def make_spec(resolution: int, lights: int, holdout: int, points: int,
               padding: int | None = None, gather_rays: int | None = None,
               coarse_grid: int | str = "auto"):
     d = copy.deepcopy(EXAMPLE_SPEC)
-    d["transport"]["coarse_grid"] = coarse_grid
+    if coarse_grid != "auto":  # the default; older code (--code) does not know the key
+        d["transport"]["coarse_grid"] = coarse_grid
     d["atlas"]["resolution"] = resolution
     if gather_rays is not None:
         d["transport"]["gather_rays"] = gather_rays
@@ -296,7 +313,7 @@ def run_child(args, resolution: int, record: int) -> dict:
            "--lights", str(args.lights), "--holdout", str(args.holdout), "--points",
            str(args.points), "--gather-rays", str(args.gather_rays), "--record-calls",
            str(record), "--coarse-grid", str(args.coarse_grid)]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(args.code), "PRT_BENCH_CODE": str(args.code)}
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
     if done.returncode:
         raise SystemExit(f"child bake at {resolution}² failed:\n{done.stderr[-4000:]}")
@@ -321,6 +338,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--coarse-grid", type=lambda v: v if v == "auto" else int(v),
                     default="auto", help="transport.coarse_grid of the bakes (1: the solve "
                     "at full resolution, as before issue 20's coarse grid)")
+    ap.add_argument("--code", type=Path, default=ROOT,
+                    help="the checkout whose prtcore bakes (e.g. `git worktree add "
+                         "/tmp/old REV`): a run whose JSON another run takes as --before "
+                         "(use with --record-calls 0 --skip-reference)")
     ap.add_argument("--child-bake", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" /
                     "bake_speed.json")
