@@ -108,7 +108,7 @@ def main() -> None:
         tracer.occluded(space.position[:1], space.normal[:1])  # Embree's lazy BVH build
         t1 = time.perf_counter()
         data = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                 spec.transport, timer)
+                                 spec.transport, timer, keep_direct_texels=False)  # the bake's
         t2 = time.perf_counter()
         row.update(tracer_seconds=t1 - t0, dataset_seconds=t2 - t1,
                    stage_seconds=dict(timer.seconds), rays=tracer.rays_traced,

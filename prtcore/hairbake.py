@@ -118,7 +118,10 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     once, plus the fibre tubes) against ``limit_bytes``; returns the estimate. With
     ``hair.harmonics = "all_bounces"``: the (3T, 3T) operator's nine blocks (20 bytes per
     gather ray and block before they are summed) and a solve over 3T rows (the stacked
-    direct light and five working arrays of (3T, K, 3) float32)."""
+    direct light and five working arrays of (3T, K, 3) float32). Without it the solve
+    writes the indirect light over the texels' direct light (``bake_hair_dataset``'s
+    ``keep_direct_texels=False``), so one (T, K, 3) float32 of the surface model's three
+    (direct, indirect, first-bounce correction) is not held."""
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     segments = space.hair.point_count - space.hair.strand_count
@@ -128,6 +131,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         + 2 * t * held * 12 + segments * MEM_PER_FIBRE_SEGMENT
     if everything:
         est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
+    else:  # the indirect light overwrites the direct
+        est -= t * k * 12
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",
@@ -157,7 +162,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         train, hold = sample_configurations(spec.lights, center, radius, ())
     tracer, _ = hair_tracer(space)
     data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                      spec.transport, timer, harmonics=spec.hair.harmonics)
+                                      spec.transport, timer, harmonics=spec.hair.harmonics,
+                                      keep_direct_texels=False)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=None,
                         data=data)
     m = method(METHOD)

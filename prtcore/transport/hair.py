@@ -30,8 +30,8 @@ STAGES = ("fibre gather", "direct points", "direct fibres", "indirect solve")
 def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTracer,
                       lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                       spec: TransportSpec | None = None, timer: StageTimer | None = None,
-                      scene: Scene | None = None, harmonics: str = "first_bounce"
-                      ) -> Dataset:
+                      scene: Scene | None = None, harmonics: str = "first_bounce",
+                      keep_direct_texels: bool = True) -> Dataset:
     """The lighting database of a hair bake (``Dataset``: direct at the points, direct and
     indirect at the strand texels, training lights first). ``tracer`` is
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene`` (the mesh of a
@@ -42,7 +42,11 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     harmonic rides the first bounce, later bounces are radially constant; "all_bounces" —
     every texel carries (mean, cos, sin) through every bounce
     (:func:`prtcore.transport.fibre.harmonic_block`: 9× the operator, solved by the
-    Neumann series; docs/hair.md has the measured gain and cost)."""
+    Neumann series; docs/hair.md has the measured gain and cost).
+
+    keep_direct_texels : False — the solve writes the indirect light over the texels' direct
+    light (``Dataset.direct_texels`` is then None; the fit never reads it), which saves one
+    (T, K, 3) float32 array at the peak: 2.4 GB at 140k strands, K = 144."""
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
@@ -78,9 +82,11 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     else:
         indirect, bounces, resid, solve_stats = solve_indirect(
             term.matrix, space.albedo, direct_mean, spec.max_bounces, spec.tolerance, timer,
-            threads=tracer.threads, first_bounce=first)
+            threads=tracer.threads, first_bounce=first,
+            out=None if keep_direct_texels else direct_mean)
     stats = {"train": len(lights_train), "fibre": term.stats, "harmonics": harmonics,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}
-    return Dataset(lights=lights, direct_points=direct_points, direct_texels=direct_mean,
+    return Dataset(lights=lights, direct_points=direct_points,
+                   direct_texels=direct_mean if keep_direct_texels else None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
