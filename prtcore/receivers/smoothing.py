@@ -165,19 +165,18 @@ def _prepared(texels: TexelSpace, W: sp.csr_matrix, dt: type, albedo: bool) -> t
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _scale(x, s, out):  # pragma: no cover - compiled
-    """out[i, k, c] = x[i, k, c] · s[i, c] for (T, K, 3) x and out (out may be x, either
-    may be strided) and (T, 3) s of the same dtype: numpy's products, rows on all cores."""
+    """out[i, k, c] = x[i, k, c] · s[i, c] for (T, K, 3) x and out (out may be x; x may be
+    strided) and (T, 3) s of the same dtype: numpy's products, rows on all cores."""
     for i in numba.prange(x.shape[0]):
         for k in range(x.shape[1]):
             for c in range(x.shape[2]):
                 out[i, k, c] = x[i, k, c] * s[i, c]
 
 
-def _filtered(v: np.ndarray, prepared: tuple, out: np.ndarray | None = None) -> np.ndarray:
+def _filtered(v: np.ndarray, prepared: tuple) -> np.ndarray:
     """Values (T, 3) or (T, K, 3) through a :func:`_prepared` filter, in their own precision
     (float32 lightmaps: float32 sums of a few dozen weights): scale, product, scale back
-    (the scalings compiled, on all cores). ``out`` : optional array of v's shape (it may
-    be a strided view) that receives the result, which is then returned."""
+    (the scalings compiled, on all cores)."""
     Wd, inv, back = prepared
     x = v.reshape(len(v), -1, 3)
     if inv is None:
@@ -187,13 +186,7 @@ def _filtered(v: np.ndarray, prepared: tuple, out: np.ndarray | None = None) -> 
         _scale(x, inv, e)  # irradiance; 0 where the albedo is
         y = Wd(e.reshape(len(v), -1)).reshape(x.shape)
         del e
-        if out is not None:
-            _scale(y, back, out.reshape(x.shape))
-            return out
         _scale(y, back, y)
-    if out is not None:
-        out[...] = y.reshape(v.shape)
-        return out
     return y.reshape(v.shape)
 
 
@@ -208,6 +201,6 @@ def denoise_lightmaps(texels: TexelSpace, I: np.ndarray, radius: float | None = 
     prepared = _prepared(texels, W, np.float32, True)  # once, not per block
     out = np.empty(I.shape, dtype=np.float32) if out is None else out
     for k0 in range(0, I.shape[1], block):
-        _filtered(np.asarray(I[:, k0:k0 + block], dtype=np.float32), prepared,
-                  out=out[:, k0:k0 + block])
+        out[:, k0:k0 + block] = _filtered(
+            np.asarray(I[:, k0:k0 + block], dtype=np.float32), prepared)
     return out

@@ -429,6 +429,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     row_lens: list[np.ndarray] = []
     col_parts: list[np.ndarray] = []
     weight_parts: list[np.ndarray] = []
+
     def one(b0: int) -> tuple:
         """Trace texels b0 … b0 + per_batch − 1; returns their CSR parts, near-field hits
         and counts (batches are independent: two run at once, joined in order)."""
@@ -486,7 +487,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
                          (1.0 / ray_ok.sum(axis=1)[nr]).astype(np.float32))
         return parts, near_part, counts
 
-    n_traced = n_back = n_miss = n_below = 0
+    totals = np.zeros(4, dtype=np.int64)  # traced, back-face hits, misses, below surface
     starts = range(0, t, per_batch)
     with ThreadPoolExecutor(GATHER_WORKERS if len(starts) > 1 else 1) as ex:
         done = ex.map(one, starts)
@@ -498,9 +499,8 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
             weight_parts.append(w)
             if near_part is not None:
                 near_parts.append(near_part)
-            n_traced, n_back, n_miss, n_below = (
-                a + b for a, b in zip((n_traced, n_back, n_miss, n_below), counts,
-                                      strict=True))
+            totals += counts
+    n_traced, n_back, n_miss, n_below = (int(n) for n in totals)
     frame = up = dir_shift = None  # the rays' inputs: freed before the matrix is joined
     release_free_memory()  # the batches' arenas (prtcore/core/memory.py)
 
