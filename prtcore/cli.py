@@ -44,7 +44,8 @@ def _cmd_bake(args: argparse.Namespace) -> int:
     from prtcore.verdict import EXIT_POOR
 
     spec = load_spec(args.spec)
-    out = bake(args.asset, spec, Path(args.out), quiet=args.quiet, force=args.force)
+    out = bake(args.asset, spec, Path(args.out), quiet=args.quiet, force=args.force,
+               mesh=args.mesh)
     print(f"bundle: {out}")
     print(f"report: {out / 'report.json'}")
     verdict = read_manifest(out).get("verdict") or {}
@@ -116,6 +117,11 @@ def _posed_runtime(command: str, bundle: Path, time: float | None):
     asset = bundle / manifest["asset"]["file"]
     if is_hair_file(asset):  # a hair bundle: the fibres shadow the measurement points
         scene = hair_scene(load_hair(asset))
+    elif manifest["asset"].get("hair"):  # hair + mesh: both shadow them
+        from prtcore.intake.hair import with_hair
+
+        scene = with_hair(load_asset(asset),
+                          load_hair(bundle / manifest["asset"]["hair"]["file"]))
     else:
         scene = load_asset(asset)
     key = None
@@ -176,7 +182,7 @@ def _relight_distant(args: argparse.Namespace, bundle: Path, method: str) -> int
 def _cmd_relight(args: argparse.Namespace) -> int:
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
-    from prtcore.io.bundle import read_manifest
+    from prtcore.io.bundle import is_hair_mesh, read_manifest, strand_runtime
     from prtcore.io.imageio import write_exr
     from prtcore.runtime.cpu import relight
 
@@ -197,6 +203,13 @@ def _cmd_relight(args: argparse.Namespace) -> int:
           f"{args.basis or data.n_basis} basis elements"
           + ("" if key is None else f", keyframe {key} at "
              f"{manifest['keyframes']['times'][key]:g} s") + ")")
+    if is_hair_mesh(manifest):  # the strand texture too, from the same plane weights
+        out = Path(args.out)
+        strands_out = out.with_name(f"{out.stem}.strands{out.suffix or '.exr'}")
+        image = relight(strand_runtime(bundle, manifest, data), lights, tracer, n=args.basis)
+        write_exr(strands_out, image, dtype="float")
+        print(f"relit: {strands_out} ({image.shape[1]}×{image.shape[0]}, the strand "
+              f"texture)")
     return 0
 
 
@@ -235,9 +248,14 @@ def _cmd_render(args: argparse.Namespace) -> int:
     mode = "indirect" if args.indirect_only else "direct" if args.no_indirect else "full"
     from prtcore.core.raytrace import RayTracer
     from prtcore.emitters.lightfile import load_light_file
-    from prtcore.io.bundle import read_manifest
+    from prtcore.io.bundle import is_hair_mesh
 
-    if "strands" in read_manifest(Path(args.bundle)):  # hair: the fibre tubes
+    manifest = read_manifest(Path(args.bundle))
+    if is_hair_mesh(manifest):
+        raise PrtError(f"render: {args.bundle} is a hair + mesh bundle, which the renderers "
+                       "do not draw yet; `prtcore relight` writes its lightmap and its "
+                       "strand texture")
+    if "strands" in manifest:  # hair: the fibre tubes
         from prtcore.reference.camera import load_camera
         from prtcore.runtime.gl import write_render
 
@@ -274,8 +292,13 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
+    from prtcore.io.bundle import is_hair_mesh, read_manifest
     from prtcore.viewer.server import ViewerServer
 
+    if is_hair_mesh(read_manifest(Path(args.bundle))):
+        raise PrtError(f"view: {args.bundle} is a hair + mesh bundle, which the viewer does "
+                       "not draw yet; `prtcore relight` writes its lightmap and its strand "
+                       "texture")
     server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet,
                           reference=args.reference, reference_light=args.light)
     print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)
@@ -408,6 +431,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("asset")
     sp.add_argument("--spec", default=None)
     sp.add_argument("--out", required=True, help="bundle directory to write")
+    sp.add_argument("--mesh", default=None,
+                    help="hair assets: a glTF mesh (a head, a body) baked with the hair, "
+                         "in its own lightmap (docs/hair.md)")
     sp.add_argument("--force", action="store_true", help="replace an existing bundle")
     sp.add_argument("--allow-poor", action="store_true",
                     help="exit 0 even when the verdict fails (the bundle is written either "

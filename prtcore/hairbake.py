@@ -9,7 +9,16 @@ manifest's ``strands`` section, its image size to ``atlas``), the transport
 (:func:`prtcore.transport.hair.bake_hair_dataset`) and the asset (``asset.hair``, the hair
 as baked, written by :func:`prtcore.io.hair.write_hair`).
 
-Not yet: a mesh baked together with the hair, keyframes, the path-traced validation
+With ``mesh`` (a glTF asset: a head, a body), the mesh is baked with the hair: it goes
+through the surface intake (its lightmap atlas, TEXCOORD_1), the receiver is a
+:class:`~prtcore.receivers.combined.CombinedSpace` (atlas texels, then strand texels), the
+measurement points lie on the convex hull of both, the transport is
+:func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (light both ways between hair
+and mesh) and the bundle holds both textures: the atlas's basis (``basis_XX.exr``, as a
+surface bundle) and the strand texture's (``strand_basis_XX.exr``), driven by one transfer
+matrix.
+
+Not yet: keyframes, the path-traced validation
 inside the bake (``validate.reference_spp``; ``prtcore report BUNDLE --reference-spp N``
 validates a hair bundle against :mod:`prtcore.reference.fibres`),
 ``measurement_points.placement`` other than the hull, and
@@ -34,16 +43,27 @@ from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
 from prtcore.core.spec import BakeSpec, spec_hash, spec_to_dict
 from prtcore.emitters.families import sample_configurations
-from prtcore.intake.hair import hair_scene
+from prtcore.intake.hair import hair_scene, with_hair
 from prtcore.intake.plan import fixed_counts
 from prtcore.intake.points import MeasurementPoints, place_measurement_points
-from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
+from prtcore.io.bundle import (
+    atlas_section,
+    basis_planes,
+    check_output,
+    manifest_base,
+    sha256_file,
+    write_basis_files,
+    write_bundle,
+)
 from prtcore.io.hair import load_hair, write_hair
+from prtcore.io.imageio import write_exr
 from prtcore.methods.base import BakeInputs, Method, method
+from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
 from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, hair_tracer
 from prtcore.transport.hair import bake_hair_dataset
+from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
 
 METHOD = "data_driven"
 #: writes a run's report files: (directory, method, result, report, seconds, t_start)
@@ -67,16 +87,21 @@ class HairIntake:
     source: str
     spec: BakeSpec
     hair: Hair
-    texels: StrandSpace
+    texels: StrandSpace | CombinedSpace
     points: MeasurementPoints
     prepare: HairPrepare
+    #: the mesh baked with the hair (its prepared scene), or None
     scene: object = None
     seconds: dict = field(default_factory=dict)
+    #: the strand texels (``texels`` itself for hair alone)
+    strands: StrandSpace | None = None
 
 
-def hair_spec(spec: BakeSpec) -> BakeSpec:
-    """The spec as a hair bake runs it: points on the hull, no surface denoising; keys a
-    hair bake cannot honour yet are refused by name."""
+def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
+    """The spec as a hair bake runs it: points on the hull, no surface denoising,
+    ``hair.harmonics = "auto"`` resolved (all_bounces with a mesh: the light that goes
+    head → hair → head needs the side of the fibre that faced the head, docs/hair.md);
+    keys a hair bake cannot honour yet are refused by name."""
     if spec.keyframes.animation is not None:
         raise SpecError("keyframes.animation", "hair bakes are static (no keyframes yet)")
     if spec.validate.reference_spp > 0:
@@ -87,15 +112,23 @@ def hair_spec(spec: BakeSpec) -> BakeSpec:
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
     spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
+    harmonics = spec.hair.harmonics
+    if harmonics == "auto":
+        harmonics = "all_bounces" if with_mesh else "first_bounce"
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
-        fit=dataclasses.replace(spec.fit, denoise=0.0))
+        fit=dataclasses.replace(spec.fit, denoise=0.0),
+        hair=dataclasses.replace(spec.hair, harmonics=harmonics))
 
 
 def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
-                    limits: IntakeLimits) -> HairIntake:
-    """load → colour from the spec → strand texels → hull measurement points."""
+                    limits: IntakeLimits, mesh: str | Path | None = None,
+                    mesh_intake: Callable | None = None) -> HairIntake:
+    """load → colour from the spec → strand texels → hull measurement points; with
+    ``mesh``, the mesh's surface intake too (``mesh_intake``: the pipeline's
+    :func:`prtcore.pipeline.run_intake`, its lightmap atlas) and the points on the hull of
+    both."""
     with timer.stage("load"):
         hair = load_hair(asset, limits)
         if spec.hair.albedo is not None:
@@ -103,15 +136,27 @@ def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
                                                            (hair.point_count, 1)))
     with timer.stage("texels"):
         space = build_strand_space(hair, spec.hair.texels_per_strand)
-    points = place_measurement_points(hair_scene(hair), spec.measurement_points, timer)
-    return HairIntake(source=str(asset), spec=spec, hair=hair, texels=space, points=points,
-                      prepare=HairPrepare(utilisation=space.count / (space.width *
-                                                                     space.height)),
-                      seconds=dict(timer.seconds))
+    if mesh is None:
+        points = place_measurement_points(hair_scene(hair), spec.measurement_points, timer)
+        return HairIntake(source=str(asset), spec=spec, hair=hair, texels=space,
+                          points=points, prepare=HairPrepare(
+                              utilisation=space.count / (space.width * space.height)),
+                          seconds=dict(timer.seconds), strands=space)
+    if mesh_intake is None:
+        raise ValueError("run_hair_intake: a mesh needs mesh_intake (prtcore.pipeline's "
+                         "run_intake)")
+    surface = mesh_intake(mesh, spec, limits=limits, timer=timer)
+    points = place_measurement_points(with_hair(surface.scene, hair),
+                                      spec.measurement_points, timer)
+    return HairIntake(source=str(asset), spec=spec, hair=hair,
+                      texels=CombinedSpace(surface.texels, space), points=points,
+                      prepare=HairPrepare(utilisation=surface.prepare.utilisation,
+                                          warnings=tuple(surface.prepare.warnings)),
+                      scene=surface.scene, seconds=dict(timer.seconds), strands=space)
 
 
 def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
-                      limit_bytes: int) -> int:
+                      limit_bytes: int, mesh_texels: int = 0) -> int:
     """The bake's estimated peak (:func:`~prtcore.transport.dataset.estimate_bake_bytes`
     with the fibre operator, plus the first bounce's harmonics: two more (T, k, 3)
     float32 for the k = :data:`~prtcore.transport.fibre.FIRST_BOUNCE_LIGHTS` lights held at
@@ -121,7 +166,9 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     direct light and five working arrays of (3T, K, 3) float32). Without it the solve
     writes the indirect light over the texels' direct light (``bake_hair_dataset``'s
     ``keep_direct_texels=False``), so one (T, K, 3) float32 of the surface model's three
-    (direct, indirect, first-bounce correction) is not held."""
+    (direct, indirect, first-bounce correction) is not held. ``mesh_texels`` T_m > 0 (a
+    hair + mesh bake): plus the surface bake's estimate of T_m texels and the stacked
+    direct light's and the solve's (T_m + nT, K, 3) float32 rows."""
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     segments = space.hair.point_count - space.hair.strand_count
@@ -133,8 +180,13 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
     else:  # the indirect light overwrites the direct
         est -= t * k * 12
+    if mesh_texels:
+        est += estimate_bake_bytes(mesh_texels, k, spec.transport, ("surface",)) \
+            + (mesh_texels + (3 if everything else 1) * t) * k * 12
     if est > limit_bytes:
-        raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels and "
+        raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels"
+                            + (f", {mesh_texels} atlas texels" if mesh_texels else "")
+                            + " and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",
                             limit=f"max_bake_bytes={limit_bytes}")
     return est
@@ -143,27 +195,40 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
 def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFiles,
               exclude: tuple[str, ...] = (), quiet: bool = False, force: bool = False,
               limits: IntakeLimits | None = None, callback: ProgressCallback | None = None,
-              source_name: str | None = None) -> tuple[Path, Method, Any, dict]:
-    """hair asset + spec → bundle ``out``. ``run_files(directory, method, result, report,
-    seconds, t_start)`` writes the run's report files (the pipeline's), ``exclude`` names
-    them (left out of the checksums). Returns (out, the method, its result, the stage
-    seconds) for the caller's summary."""
-    check_output(out, force, inputs=(asset,))
+              source_name: str | None = None, mesh: str | Path | None = None,
+              mesh_intake: Callable | None = None) -> tuple[Path, Method, Any, dict]:
+    """hair asset (+ a glTF ``mesh`` baked with it) + spec → bundle ``out``.
+    ``run_files(directory, method, result, report, seconds, t_start)`` writes the run's
+    report files (the pipeline's), ``exclude`` names them (left out of the checksums).
+    ``mesh_intake``: the surface intake the mesh goes through (the pipeline's
+    ``run_intake``). Returns (out, the method, its result, the stage seconds) for the
+    caller's summary."""
+    inputs_files = (asset,) if mesh is None else (asset, mesh)
+    check_output(out, force, inputs=inputs_files)
     t_start = time.perf_counter()
-    spec = hair_spec(spec)
+    spec = hair_spec(spec, with_mesh=mesh is not None)
     timer = StageTimer(quiet=quiet, callback=callback)
     limits = limits or IntakeLimits.from_env()
-    intake = run_hair_intake(asset, spec, timer, limits)
-    space, hair = intake.texels, intake.hair
-    check_hair_memory(asset, space, spec, limits.max_bake_bytes)
+    intake = run_hair_intake(asset, spec, timer, limits, mesh, mesh_intake)
+    space, hair, scene = intake.strands, intake.hair, intake.scene
+    check_hair_memory(asset, space, spec, limits.max_bake_bytes,
+                      mesh_texels=intake.texels.mesh.count if scene is not None else 0)
     with timer.stage("lights"):
         b = hair.bounds()
+        if scene is not None:
+            b = np.stack([np.minimum(b[0], scene.bounds[0]), np.maximum(b[1], scene.bounds[1])])
         center, radius = b.mean(axis=0), float(np.linalg.norm(b[1] - b[0]) / 2)
         train, hold = sample_configurations(spec.lights, center, radius, ())
-    tracer, _ = hair_tracer(space)
-    data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                      spec.transport, timer, harmonics=spec.hair.harmonics,
-                                      keep_direct_texels=False)
+    tracer, fibres = hair_tracer(space, scene)
+    if scene is None:
+        data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
+                                          spec.transport, timer,
+                                          harmonics=spec.hair.harmonics,
+                                          keep_direct_texels=False)
+    else:
+        data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
+                                      tracer, train, hold, spec.transport, timer,
+                                      harmonics=spec.hair.harmonics)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=None,
                         data=data)
     m = method(METHOD)
@@ -172,20 +237,27 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     def write(tmp: Path) -> dict:
         write_hair(tmp / "asset.hair", hair)
         sections, report = m.write(tmp, inputs, result)
-        common = {
-            "asset": {"source": source_name or Path(str(asset)).name,
-                      "sha256": sha256_file(Path(asset)), "file": "asset.hair",
-                      "strands": hair.strand_count, "points": hair.point_count},
-            "units": {"length": "m", "up": "+Y", "handedness": "right",
-                      "radiance": "linear RGB outgoing radiance (albedo/pi * E), averaged "
-                                  "over the fibre's azimuth and the texel's arc interval"},
-            "atlas": {"width": space.width, "height": space.height, "padding": 0,
-                      "uv": "strands", "coverage": "coverage.exr",
-                      "covered_texels": space.count},
-            "strands": space.layout(),
-            "fibre": {"model": spec.hair.fibre, "geometry": "triangulated tubes, 3 sides, "
-                      "mean projected width = diameter"},
-        }
+        fibre = {"model": spec.hair.fibre, "harmonics": spec.hair.harmonics,
+                 "geometry": "triangulated tubes, 3 sides, mean projected width = diameter"}
+        if scene is None:
+            common = {
+                "asset": {"source": source_name or Path(str(asset)).name,
+                          "sha256": sha256_file(Path(asset)), "file": "asset.hair",
+                          "strands": hair.strand_count, "points": hair.point_count},
+                "units": {"length": "m", "up": "+Y", "handedness": "right",
+                          "radiance": "linear RGB outgoing radiance (albedo/pi * E), "
+                                      "averaged over the fibre's azimuth and the texel's "
+                                      "arc interval"},
+                "atlas": {"width": space.width, "height": space.height, "padding": 0,
+                          "uv": "strands", "coverage": "coverage.exr",
+                          "covered_texels": space.count},
+                "strands": space.layout(),
+                "fibre": {"model": spec.hair.fibre, "geometry": fibre["geometry"]},
+            }
+        else:
+            common = _mesh_sections(tmp, scene, intake.texels, result, spec, asset, mesh,
+                                    source_name, hair)
+            common["fibre"] = fibre
         run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         run = {"spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
                "timings": dict(timer.seconds)}
@@ -193,5 +265,42 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                              run_files=list(exclude))
 
     with timer.stage("export"):
-        out = write_bundle(out, write, force=force, exclude=exclude, inputs=(asset,))
+        out = write_bundle(out, write, force=force, exclude=exclude, inputs=inputs_files)
     return out, m, result, dict(timer.seconds)
+
+
+def _mesh_sections(tmp: Path, scene, texels: CombinedSpace, result, spec: BakeSpec,
+                   asset: str | Path, mesh: str | Path, source_name: str | None,
+                   hair: Hair) -> dict:
+    """A hair + mesh bundle's own files and manifest sections: ``asset.glb`` (the mesh as
+    baked, with its TEXCOORD_1), the strand texture's basis (``strand_basis_XX.exr``, the
+    same planes as the atlas's ``basis_XX.exr``: one transfer drives both) and
+    ``strand_coverage.exr``; ``asset`` names both files, ``atlas`` is the mesh's lightmap,
+    ``strands`` the strand texture's layout, sampling rule and files."""
+    from prtcore.io.gltf.export import write_glb
+    write_glb(scene, tmp / "asset.glb")
+    model = result.model
+    planes = basis_planes(model.mean, model.basis, model.channels)
+    img = texels.strand_image(planes)
+    files = write_basis_files(tmp, img[:, :, :planes.shape[1]], spec.output.dtype,
+                              prefix="strand_basis")
+    write_exr(tmp / "strand_coverage.exr", img[:, :, -1:], dtype="half",
+              channel_names=("Y",))
+    return {
+        "asset": {"source": source_name or Path(str(mesh)).name,
+                  "sha256": sha256_file(Path(mesh)), "file": "asset.glb",
+                  "triangles": scene.triangle_count,
+                  "hair": {"source": Path(str(asset)).name,
+                           "sha256": sha256_file(Path(asset)), "file": "asset.hair",
+                           "strands": hair.strand_count, "points": hair.point_count}},
+        "units": {"length": "m", "up": "+Y", "handedness": "right",
+                  "radiance": "linear RGB outgoing radiance (albedo/pi * E); on strands "
+                              "averaged over the fibre's azimuth and the texel's arc "
+                              "interval"},
+        "atlas": atlas_section(texels.mesh, spec.atlas.padding),
+        "strands": {**texels.strands.layout(), "basis_files": files,
+                    "coverage": "strand_coverage.exr",
+                    "covered_texels": texels.strands.count,
+                    "planes": "the atlas basis's planes (basis.plane_element, "
+                              "basis.plane_channel), stored in the strand texture"},
+    }

@@ -17,7 +17,6 @@ from prtcore.core.spec import BakeSpec, PointsSpec
 from prtcore.intake.plan import Plan, Sizing
 from prtcore.intake.points import MeasurementPoints
 from prtcore.intake.prepare import PrepareReport
-from prtcore.io.imageio import EXR_ROW_ORDER
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.dataset import STAGES as TRANSPORT_STAGES
 
@@ -101,8 +100,11 @@ RUN_FILES = ("report.json", "report.png", "report.txt", "report_worst.png", "rep
 
 def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
          force: bool = False, limits: IntakeLimits | None = None,
-         callback: ProgressCallback | None = None, source_name: str | None = None) -> Path:
+         callback: ProgressCallback | None = None, source_name: str | None = None,
+         mesh: str | Path | None = None) -> Path:
     """asset + spec → bundle directory ``out`` (docs/bundle.md). Returns ``out``.
+    mesh : a hair asset only: a glTF mesh (a head) baked together with the hair, light
+    going both ways (docs/hair.md).
 
     Stages: intake → lights → keyframes → transport → the method's fit and report →
     export. The method (:mod:`prtcore.methods`) writes its own files and manifest
@@ -114,7 +116,13 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
     from prtcore.core.spec import spec_hash, spec_to_dict
     from prtcore.emitters.families import sample_configurations
-    from prtcore.io.bundle import check_output, manifest_base, sha256_file, write_bundle
+    from prtcore.io.bundle import (
+        atlas_section,
+        check_output,
+        manifest_base,
+        sha256_file,
+        write_bundle,
+    )
     from prtcore.io.gltf.export import write_glb
     from prtcore.io.hair import is_hair_file
     from prtcore.methods.base import BakeInputs, method
@@ -138,11 +146,17 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
 
         out, m, result, seconds = bake_hair(
             asset, spec, out, run_files=_write_run_files, exclude=RUN_FILES, quiet=quiet,
-            force=force, limits=limits, callback=callback, source_name=source_name)
+            force=force, limits=limits, callback=callback, source_name=source_name,
+            mesh=mesh, mesh_intake=run_intake)
         _finish_run_files(out, m, result, seconds)
         if not quiet:
             print(m.summary(result, seconds, with_verdict=False))
         return out
+    if mesh is not None:
+        from prtcore.core.errors import PrtError
+
+        raise PrtError(f"bake --mesh: {Path(str(asset)).name} is not a hair asset; a mesh "
+                       "is baked together with hair (.hair, .usd, .usda, .usdc) only")
     check_output(out, force, inputs=(asset,))  # before any work: nothing lost, nothing wasted
     t_start = time.perf_counter()
     timer = StageTimer(quiet=quiet, callback=callback)
@@ -213,13 +227,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
                       "radiance": "linear RGB outgoing radiance (albedo/pi * E)",
                       "light_intensity": "KHR_lights_punctual: cd (point/spot), lux "
                                          "(directional), no 683 lm/W conversion"},
-            "atlas": {"width": texels.width, "height": texels.height,
-                      "padding": spec.atlas.padding, "uv": "TEXCOORD_1",
-                      "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
-                      "covered_texels": texels.count, "coverage": "coverage.exr",
-                      # readers that store scanlines bottom-up (three.js EXRLoader) sample
-                      # at (u, 1 - v); docs/bundle.md
-                      "exr_row_order": EXR_ROW_ORDER},
+            "atlas": atlas_section(texels, spec.atlas.padding),
         }
         run = {
             "spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),

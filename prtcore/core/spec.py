@@ -263,8 +263,9 @@ class HairSpec:
     albedo: tuple[float, float, float] | None = None
     #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
     fibre: str = "diffuse"
-    #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" (docs/hair.md)
-    harmonics: str = "first_bounce"
+    #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "auto" (docs/hair.md;
+    #: "auto": first_bounce for hair alone, all_bounces for hair baked with a mesh)
+    harmonics: str = "auto"
 
 
 #: fibre models a hair bake can use
@@ -716,8 +717,8 @@ def _parse(data: Any) -> BakeSpec:
                                lo=1, hi=4096),
         albedo=albedo,
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
-        harmonics=_choice(hs.get("harmonics", "first_bounce"), "hair.harmonics",
-                          ("first_bounce", "all_bounces")),
+        harmonics=_choice(hs.get("harmonics", "auto"), "hair.harmonics",
+                          ("auto", "first_bounce", "all_bounces")),
     )
 
     mats = root.get("materials", {})

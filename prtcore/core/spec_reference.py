@@ -68,9 +68,10 @@ DOCS: dict[str, str] = {
     "hair.albedo": "null (the hair file's colours), or [r, g, b] in [0, 1]: one fibre "
                    "colour for every strand",
     "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged)",
-    "hair.harmonics": "`first_bounce` (the direct light's first azimuthal harmonic in the "
-                      "first bounce) · `all_bounces` (every texel's mean, cos and sin "
-                      "through every bounce: 9× the operator, a slower solve)",
+    "hair.harmonics": "`auto` (`first_bounce` for hair alone, `all_bounces` for hair baked "
+                      "with a mesh) · `first_bounce` (the direct light's first azimuthal "
+                      "harmonic in the first bounce) · `all_bounces` (every texel's mean, "
+                      "cos and sin through every bounce: 9× the operator, a slower solve)",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",

@@ -7,6 +7,7 @@ replaced, with ``force``, once the new one is complete).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -213,15 +214,16 @@ def write_bundle(out: Path, writer: Callable[[Path], dict[str, Any]], force: boo
     return out
 
 
-def write_basis_files(directory: Path, planes_image: np.ndarray, dtype: str) -> list[str]:
-    """Pack (h, w, q) planes into basis_XX.exr files, 4 planes per RGBA file."""
+def write_basis_files(directory: Path, planes_image: np.ndarray, dtype: str,
+                      prefix: str = "basis") -> list[str]:
+    """Pack (h, w, q) planes into {prefix}_XX.exr files, 4 planes per RGBA file."""
     h, w, q = planes_image.shape
     names = []
     for f in range(0, q, PLANES_PER_FILE):
         chunk = np.zeros((h, w, PLANES_PER_FILE), np.float32)
         part = planes_image[:, :, f:f + PLANES_PER_FILE]
         chunk[:, :, :part.shape[2]] = part
-        name = f"basis_{f // PLANES_PER_FILE:02d}.exr"
+        name = f"{prefix}_{f // PLANES_PER_FILE:02d}.exr"
         write_exr(directory / name, chunk, dtype=dtype)
         names.append(name)
     return names
@@ -329,6 +331,37 @@ def load_runtime(path: Path, manifest: dict | None = None) -> RuntimeData:
         learnt=read_learnt(path, m["transfer"]["learnt"]) if m["transfer"].get("learnt")
         else None,
     )
+
+
+def atlas_section(texels, padding: int) -> dict:
+    """The manifest's ``atlas`` of a lightmap (a
+    :class:`~prtcore.receivers.texels.TexelSpace` sampled through TEXCOORD_1)."""
+    from prtcore.io.imageio import EXR_ROW_ORDER
+
+    return {"width": texels.width, "height": texels.height, "padding": padding,
+            "uv": "TEXCOORD_1",
+            "texel_center": "((x+0.5)/W, (y+0.5)/H), y from the top row",
+            "covered_texels": texels.count, "coverage": "coverage.exr",
+            # readers that store scanlines bottom-up (three.js EXRLoader) sample at
+            # (u, 1 - v); docs/bundle.md
+            "exr_row_order": EXR_ROW_ORDER}
+
+
+def is_hair_mesh(manifest: dict) -> bool:
+    """A hair + mesh bundle (docs/hair.md): the atlas is the mesh's lightmap and the
+    manifest's ``strands`` names a second set of basis files, the strand texture's."""
+    return bool((manifest.get("strands") or {}).get("basis_files"))
+
+
+def strand_runtime(path: Path, manifest: dict, data: RuntimeData) -> RuntimeData:
+    """A hair + mesh bundle's runtime data for its strand texture: ``data``
+    (:func:`load_runtime`) with the planes and coverage of ``strands.basis_files`` and
+    ``strands.coverage`` (the same planes, stored in the strand texture)."""
+    st = manifest["strands"]
+    imgs = [read_image(Path(path) / f) for f in st["basis_files"]]
+    planes = np.concatenate(imgs, axis=2)[:, :, :data.planes.shape[2]]
+    cov = read_image(Path(path) / st["coverage"])[:, :, 0] > 0.5
+    return dataclasses.replace(data, planes=planes, coverage=cov)
 
 
 def load_keyframe(path: Path, manifest: dict, k: int) -> dict[str, np.ndarray]:

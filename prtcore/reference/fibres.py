@@ -51,6 +51,81 @@ def _direct(lights: Sequence[Light], tracer: RayTracer, points: np.ndarray,
     return np.stack([irradiance(li, points, normals, tracer) for li in lights], axis=1)
 
 
+def cosine_about(normal: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) cosine-distributed unit directions about unit ``normal`` (n, 3)."""
+    n = len(normal)
+    return directions_around(normal, np.sqrt(rng.random(n)), 2 * np.pi * rng.random(n))
+
+
+def two_halves(count: int, k: int, paths: int, seed: int, trace) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
+    """Two independent estimates, each of ``paths // 2`` paths per receiver: ``trace(owner,
+    rng, acc)`` adds the contributions of paths from receivers ``owner`` (n,) int64 to
+    ``acc`` (count, k, 3) float64, PATH_BATCH paths a call, drawing from ``rng`` (one
+    generator per half, from ``seed``). Returns the two means (a, b)."""
+    half = paths // 2
+    halves = []
+    for h in range(2):
+        rng = np.random.default_rng([seed, h])
+        acc = np.zeros((count, k, 3))
+        owner_all = np.repeat(np.arange(count), half)
+        for a in range(0, len(owner_all), PATH_BATCH):
+            trace(owner_all[a:a + PATH_BATCH], rng, acc)
+        halves.append(acc / half)
+    return halves[0], halves[1]
+
+
+def fibre_vertices(hair, mesh: FibreMesh, off: np.ndarray, rho_pt: np.ndarray,
+                   triangle: np.ndarray, barycentric: np.ndarray, direction: np.ndarray,
+                   rng: np.random.Generator, radially_averaged: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Path vertices at fibre hits (the tubes' own triangle indices (m,), barycentrics
+    (m, 3), ray directions (m, 3)): the point on the circumscribed cylinder along the
+    normal a round fibre presents to the ray (a uniformly random impact parameter), that
+    normal, and the fibre's clamped albedo ``rho_pt`` interpolated along the segment;
+    (m, 3) float64 each. ``radially_averaged``: the normal at a uniformly random azimuth
+    instead (see :func:`fibre_reference`)."""
+    seg, t = segment_hits(mesh, triangle, barycentric)
+    p0 = hair.segment_start[seg]
+    a0, b0 = hair.points[p0], hair.points[p0 + 1]
+    ax = b0 - a0
+    ax /= np.linalg.norm(ax, axis=1, keepdims=True)
+    n_hit = cylinder_normal(ax, direction, 2 * rng.random(len(direction)) - 1)
+    if radially_averaged:
+        w = n_hit
+        v = np.cross(ax, w)
+        psi = 2 * np.pi * rng.random(len(w))
+        n_hit = np.cos(psi)[:, None] * w + np.sin(psi)[:, None] * v
+    rho = (1 - t)[:, None] * rho_pt[p0] + t[:, None] * rho_pt[p0 + 1]
+    r_out = (1 - t) * off[p0] + t * off[p0 + 1]
+    return a0 + t[:, None] * (b0 - a0) + r_out[:, None] * n_hit, n_hit, rho
+
+
+def roulette(beta: np.ndarray, alive: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Russian roulette: path ``alive`` survives with probability q = min(1, max_c β_c)
+    and is divided by q (``beta`` (n, 3) updated in place); returns the survivors."""
+    q = np.minimum(1.0, beta[alive].max(axis=1))
+    keep = rng.random(len(alive)) < q
+    beta[alive[keep]] /= q[keep, None]
+    return alive[keep]
+
+
+def strand_starts(space: StrandSpace, off: np.ndarray, tex: np.ndarray,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Path starts uniform over strand texels ``tex`` (n,) int64's fibre surface (arc
+    uniform in the interval, azimuth uniform), on the circumscribed cylinder of radius
+    ``off`` (p,) (:func:`prtcore.core.fibres.outside_offset`): origin and radial unit
+    normal, (n, 3) float64 each."""
+    n = len(tex)
+    strand = space.strand[tex]
+    arc = space.arc[tex, 0] + rng.random(n) * (space.arc[tex, 1] - space.arc[tex, 0])
+    axis, tangent, u = axis_frame(space.hair, strand, arc)
+    phi = 2 * np.pi * rng.random(n)
+    normal = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * np.cross(tangent, u)
+    radius = interp_points(space.hair, off[:, None], strand, arc)[:, 0]
+    return axis + radius[:, None] * normal, normal
+
+
 def fibre_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
                     mesh_faces: int, lights: Sequence[Light], texels: np.ndarray,
                     paths: int, seed: int, max_depth: int = 64, rr_depth: int = 3,
@@ -67,66 +142,36 @@ def fibre_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
     rho_tex, _ = clamp_albedo(space.albedo)
     rho_pt, _ = clamp_albedo(hair.color)
     off = outside_offset(hair, mesh.sides)
-    half = paths // 2
     k = len(lights)
-    halves = []
-    for h in range(2):
-        rng = np.random.default_rng([seed, h])
-        acc = np.zeros((len(texels), k, 3))
-        owner_all = np.repeat(np.arange(len(texels)), half)
-        for a in range(0, len(owner_all), PATH_BATCH):
-            owner = owner_all[a:a + PATH_BATCH]
-            tex = texels[owner]
-            n = len(owner)
-            # start: a point uniform over the texel's fibre surface
-            strand = space.strand[tex]
-            arc = space.arc[tex, 0] + rng.random(n) * (space.arc[tex, 1] - space.arc[tex, 0])
-            axis, tangent, u = axis_frame(hair, strand, arc)
-            phi = 2 * np.pi * rng.random(n)
-            normal = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * np.cross(tangent, u)
-            radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
-            origin = axis + radius[:, None] * normal
-            beta = rho_tex[tex].copy()
-            alive = np.arange(n)
-            for depth in range(1, max_depth + 1):
-                if not len(alive):
-                    break
-                d = directions_around(normal[alive], np.sqrt(rng.random(len(alive))),
-                                      2 * np.pi * rng.random(len(alive)))
-                hits = tracer.intersect(origin[alive], d)
-                fib = hits.triangle >= mesh_faces
-                alive, d = alive[fib], d[fib]
-                if not len(alive):
-                    break
-                seg, t = segment_hits(mesh, hits.triangle[fib] - mesh_faces,
-                                      hits.barycentric[fib])
-                p0 = hair.segment_start[seg]
-                a0, b0 = hair.points[p0], hair.points[p0 + 1]
-                hit_axis = a0 + t[:, None] * (b0 - a0)
-                ax = b0 - a0
-                ax /= np.linalg.norm(ax, axis=1, keepdims=True)
-                n_hit = cylinder_normal(ax, d, 2 * rng.random(len(d)) - 1)
-                if radially_averaged:
-                    w = n_hit
-                    v = np.cross(ax, w)
-                    psi = 2 * np.pi * rng.random(len(w))
-                    n_hit = np.cos(psi)[:, None] * w + np.sin(psi)[:, None] * v
-                rho = (1 - t)[:, None] * rho_pt[p0] + t[:, None] * rho_pt[p0 + 1]
-                r_out = (1 - t) * off[p0] + t * off[p0 + 1]
-                o_hit = hit_axis + r_out[:, None] * n_hit
-                e = _direct(lights, tracer, o_hit, n_hit)  # (m, K, 3)
-                contrib = (beta[alive] * rho / np.pi)[:, None, :] * e
-                np.add.at(acc, owner[alive], contrib)
-                beta[alive] *= rho
-                origin[alive] = o_hit
-                normal[alive] = n_hit
-                if depth >= rr_depth:
-                    q = np.minimum(1.0, beta[alive].max(axis=1))
-                    keep = rng.random(len(alive)) < q
-                    beta[alive[keep]] /= q[keep, None]
-                    alive = alive[keep]
-        halves.append(acc / half)
-    return halves[0], halves[1]
+
+    def trace(owner: np.ndarray, rng: np.random.Generator, acc: np.ndarray) -> None:
+        tex = texels[owner]
+        n = len(owner)
+        origin, normal = strand_starts(space, off, tex, rng)
+        beta = rho_tex[tex].copy()
+        alive = np.arange(n)
+        for depth in range(1, max_depth + 1):
+            if not len(alive):
+                break
+            d = cosine_about(normal[alive], rng)
+            hits = tracer.intersect(origin[alive], d)
+            fib = hits.triangle >= mesh_faces
+            alive, d = alive[fib], d[fib]
+            if not len(alive):
+                break
+            o_hit, n_hit, rho = fibre_vertices(
+                hair, mesh, off, rho_pt, hits.triangle[fib] - mesh_faces,
+                hits.barycentric[fib], d, rng, radially_averaged)
+            e = _direct(lights, tracer, o_hit, n_hit)  # (m, K, 3)
+            contrib = (beta[alive] * rho / np.pi)[:, None, :] * e
+            np.add.at(acc, owner[alive], contrib)
+            beta[alive] *= rho
+            origin[alive] = o_hit
+            normal[alive] = n_hit
+            if depth >= rr_depth:
+                alive = roulette(beta, alive, rng)
+
+    return two_halves(len(texels), k, paths, seed, trace)
 
 
 def noise_corrected_error(fast: np.ndarray | tuple[np.ndarray, np.ndarray], a: np.ndarray,

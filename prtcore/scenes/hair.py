@@ -132,3 +132,14 @@ def tangle_lights() -> list[Light]:
                   direction=np.array([0.0, -1.0, 0.0])),
             Light(type="point", color=np.ones(3), intensity=0.05,
                   position=np.array([0.08, 0.05, 0.0]))]
+
+
+def head_lights() -> list[Light]:
+    """A sun from above, behind and to the side, and a point light to the front right of
+    :func:`head_mesh` with :func:`head_hair` (the hair + mesh accuracy checks,
+    tests/test_hair_mesh.py, benchmarks/hair_mesh_accuracy.py)."""
+    sun = np.array([-0.3, -1.0, -0.4])
+    return [Light(type="directional", color=np.ones(3), intensity=3.0,
+                  direction=sun / np.linalg.norm(sun)),
+            Light(type="point", color=np.ones(3), intensity=0.3,
+                  position=np.array([0.25, 0.05, 0.15]))]

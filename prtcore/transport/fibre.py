@@ -48,7 +48,7 @@ and shadows the hair, but light bounced off the mesh does not reach the hair yet
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 
@@ -170,6 +170,21 @@ def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
 
 
 @dataclass(frozen=True)
+class MeshHits:
+    """The fibre gather's rays whose first hit is the front of the mesh (a hair + mesh
+    bake), in the order traced: ``row`` (n,) int64 strand texel, ``col`` (n,) int64 atlas
+    texel, ``triangle`` (n,) int64 and ``barycentric`` (n, 3) float64 the hit, ``t`` (n,)
+    float64 its distance, ``phi`` (n,) float32 the azimuth the ray left its fibre at."""
+
+    row: np.ndarray
+    col: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    t: np.ndarray
+    phi: np.ndarray
+
+
+@dataclass(frozen=True)
 class FibreTerm:
     """The fibre gather. ``matrix`` (T, T) float32 CSR, rows receive: 1/M per ray from
     texel i that hits texel j; ``harmonics``: 2H more such matrices, the same rays
@@ -183,15 +198,28 @@ class FibreTerm:
     harmonics: tuple[sp.csr_matrix, ...]
     block: sp.csr_matrix | None = None
     stats: dict = field(default_factory=dict)
+    #: with a mesh that receives (a hair + mesh bake): (T, T_m) float32 CSR, 1/M per ray
+    #: from strand texel i whose first hit is the front of the mesh at atlas texel j
+    mesh: sp.csr_matrix | None = None
+    #: the same with ``all_bounces``: (nT, T_m), row block a ∈ (mean, cos, sin, …) of the
+    #: receiving texel weighted by (1, 2 cos φ_o, 2 sin φ_o, …) (:func:`harmonic_block`'s w)
+    mesh_block: sp.csr_matrix | None = None
+    #: with a mesh that receives: every ray's hit on it (:class:`MeshHits`)
+    mesh_hits: MeshHits | None = None
 
 
 def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
                  rays: int, seed: int, harmonics: int = HARMONICS,
-                 all_bounces: bool = False) -> FibreTerm:
+                 all_bounces: bool = False, mesh_texels: Callable | None = None,
+                 mesh_columns: int = 0, orders: int = 1) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
+    mesh_texels : the mesh receives too (a hair + mesh bake): a
+    :class:`prtcore.transport.gather.HitMapper` of its ``mesh_columns`` atlas texels;
+    rays whose first hit is the front of a mesh face go to :attr:`FibreTerm.mesh` (None:
+    mesh hits bring nothing).
     all_bounces : also build :attr:`FibreTerm.block`, the gather on the (mean, cos, sin)
-    harmonics of every texel (:func:`harmonic_block`)."""
+    harmonics of every texel (:func:`harmonic_block`), up to order ``orders``."""
     t = space.count
     hair = space.hair
     # the samples' places drawn once (16 bytes a ray), their points made per batch: the
@@ -201,6 +229,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     rng = np.random.default_rng([seed, 1])
     frame_u = transported_frames(hair)[1]  # once, not per batch
     rows_all, cols_all, cs_all, po_all = [], [], [], []
+    mesh_rows, mesh_cols, mesh_po, mesh_tri, mesh_bary, mesh_t = [], [], [], [], [], []
     n_fibre = n_mesh = 0
     total = t * rays
     starts = range(0, total, FIBRE_BATCH)
@@ -212,23 +241,23 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         d = directions_around(normal, np.sqrt(u), 2 * np.pi * rng.random(b - a))
         del normal
         hits = tracer.intersect(origin, d)
-        del origin
         fib = hits.triangle >= mesh_faces
         n_fibre += int(fib.sum())
         n_mesh += int((hits.hit & ~fib).sum())
-        seg, along = segment_hits(mesh, hits.triangle[fib] - mesh_faces,
-                                  hits.barycentric[fib])
-        p0 = hair.segment_start[seg]
-        arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
-        strand = hair.strand_of_segment[seg]
-        a0, b0 = hair.points[p0], hair.points[p0 + 1]
-        axis = b0 - a0
-        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-        normal_hit = cylinder_normal(axis, d[fib], 2 * rng.random(len(p0)) - 1)
-        centre = a0 + along[:, None] * (b0 - a0)
-        _, _, cs = azimuth_frame(hair, strand, arc, centre + normal_hit, frame_u)
+        if mesh_texels is not None:  # the front of the mesh: its atlas texel receives
+            on = np.flatnonzero(hits.hit & ~fib & hits.front)
+            mesh_rows.append(((a + on) // rays).astype(np.int32))
+            mesh_cols.append(mesh_texels(hits.triangle, hits.barycentric, on, origin, d,
+                                         hits.t, index=on).astype(np.int32))
+            mesh_po.append(phi[a:b][on].astype(np.float32))
+            mesh_tri.append(hits.triangle[on])
+            mesh_bary.append(hits.barycentric[on])
+            mesh_t.append(hits.t[on])
+        del origin
+        texel, cs = fibre_hits(space, mesh, hits.triangle[fib] - mesh_faces,
+                               hits.barycentric[fib], d[fib], rng, frame_u)
         rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
-        cols_all.append(space.texel_of(strand, arc).astype(np.int32))
+        cols_all.append(texel.astype(np.int32))
         cs_all.append(cs.astype(np.float32))
         if all_bounces:
             po_all.append(phi[a:b][fib].astype(np.float32))
@@ -248,29 +277,89 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     block = None
     if all_bounces:
         po = np.concatenate(po_all) if po_all else np.zeros(0, np.float32)
-        block = harmonic_block(t, rays, rows, cols, po, psi)
+        block = harmonic_block(t, rays, rows, cols, po, psi, orders)
+    mesh = mesh_block = None
+    if mesh_texels is not None:
+        mr = np.concatenate(mesh_rows) if mesh_rows else np.zeros(0, np.int32)
+        mc = np.concatenate(mesh_cols) if mesh_cols else np.zeros(0, np.int32)
+        mesh = sp.csr_matrix((np.full(len(mr), 1 / np.float32(rays), np.float32),
+                              (mr, mc)), shape=(t, mesh_columns))
+        mesh.sum_duplicates()
+        mesh.sort_indices()
+        if all_bounces:
+            mpo = np.concatenate(mesh_po) if mesh_po else np.zeros(0, np.float32)
+            w = fourier_rows(mpo, orders, 2)
+            mesh_block = sp.csr_matrix(
+                (np.concatenate([w[a] / np.float32(rays) for a in range(len(w))]),
+                 (np.concatenate([mr.astype(np.int64) + a * t for a in range(len(w))]),
+                  np.tile(mc, len(w)))), shape=(len(w) * t, mesh_columns))
+            mesh_block.sum_duplicates()
+            mesh_block.sort_indices()
+        mesh_hits = MeshHits(row=mr.astype(np.int64), col=mc.astype(np.int64),
+                             triangle=np.concatenate(mesh_tri) if mesh_tri else
+                             np.zeros(0, np.int64),
+                             barycentric=np.concatenate(mesh_bary) if mesh_bary else
+                             np.zeros((0, 3)),
+                             t=np.concatenate(mesh_t) if mesh_t else np.zeros(0),
+                             phi=np.concatenate(mesh_po) if mesh_po else
+                             np.zeros(0, np.float32))
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
-                     block=block,
+                     block=block, mesh=mesh, mesh_block=mesh_block,
+                     mesh_hits=mesh_hits if mesh_texels is not None else None,
                      stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
                             "misses": total - n_fibre - n_mesh})
 
 
+def fibre_hits(space: StrandSpace, mesh: FibreMesh, triangle: np.ndarray,
+               barycentric: np.ndarray, direction: np.ndarray, rng: np.random.Generator,
+               frame_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rays that hit fibres: the tubes' own triangle indices (n,), barycentrics (n, 3) and
+    the rays' directions (n, 3) → the strand texel hit (n,) int64 and (cos ψ, sin ψ) (n, 2)
+    of the azimuth ψ of the point hit in the fibre's frame, with the normal a round fibre
+    presents to the ray (:func:`prtcore.core.fibres.cylinder_normal`, impact parameters
+    drawn from ``rng``). ``frame_u``: :func:`prtcore.core.fibres.transported_frames`'
+    second array, computed once per hair."""
+    hair = space.hair
+    seg, along = segment_hits(mesh, triangle, barycentric)
+    p0 = hair.segment_start[seg]
+    arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
+    strand = hair.strand_of_segment[seg]
+    a0, b0 = hair.points[p0], hair.points[p0 + 1]
+    axis = b0 - a0
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    normal_hit = cylinder_normal(axis, direction, 2 * rng.random(len(p0)) - 1)
+    centre = a0 + along[:, None] * (b0 - a0)
+    _, _, cs = azimuth_frame(hair, strand, arc, centre + normal_hit, frame_u)
+    return space.texel_of(strand, arc), cs
+
+
+def fourier_rows(angle: np.ndarray, orders: int, scale: float = 1.0) -> np.ndarray:
+    """(2H + 1, n): 1, then ``scale`` · (cos hθ, sin hθ) for h = 1 … H (``orders``) of
+    ``angle`` (n,)."""
+    out = [np.ones_like(angle)]
+    for h in range(1, orders + 1):
+        x = angle if h == 1 else h * angle
+        out += [scale * np.cos(x), scale * np.sin(x)]
+    return np.stack(out)
+
+
 def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
-                   phi_o: np.ndarray, psi: np.ndarray) -> sp.csr_matrix:
-    """The gather on the first azimuthal harmonics of every texel, (3T, 3T) float32 CSR:
-    row block a ∈ (mean, cos, sin) of the receiving texel, column block b of the source.
-    A ray leaving texel i at azimuth φ_o and hitting texel j at azimuth ψ adds
-    ``w_a(φ_o) v_b(ψ) / M`` with ``w = (1, 2 cos φ_o, 2 sin φ_o)`` (the Fourier
-    coefficients of the irradiance around the receiving fibre, whose ray origins are
-    stratified in azimuth) and ``v = (1, cos ψ, sin ψ)`` (the source's outgoing radiance
-    at the point hit)."""
-    w = np.stack([np.ones_like(phi_o), 2 * np.cos(phi_o), 2 * np.sin(phi_o)])
-    v = np.stack([np.ones_like(psi), np.cos(psi), np.sin(psi)])
-    r = np.concatenate([rows.astype(np.int64) + a * t for a in range(3) for _ in range(3)])
-    c = np.concatenate([cols.astype(np.int64) + b * t for _ in range(3) for b in range(3)])
+                   phi_o: np.ndarray, psi: np.ndarray, orders: int = 1) -> sp.csr_matrix:
+    """The gather on the azimuthal harmonics of every texel up to order H (``orders``),
+    (nT, nT) float32 CSR with n = 2H + 1: row block a ∈ (mean, cos φ, sin φ, cos 2φ, …)
+    of the receiving texel, column block b of the source. A ray leaving texel i at
+    azimuth φ_o and hitting texel j at azimuth ψ adds ``w_a(φ_o) v_b(ψ) / M`` with
+    ``w = (1, 2 cos φ_o, 2 sin φ_o, …)`` (the Fourier coefficients of the irradiance
+    around the receiving fibre, whose ray origins are stratified in azimuth) and
+    ``v = (1, cos ψ, sin ψ, …)`` (the source's outgoing radiance at the point hit)."""
+    n = 2 * orders + 1
+    w = fourier_rows(phi_o, orders, 2)
+    v = fourier_rows(psi, orders)
+    r = np.concatenate([rows.astype(np.int64) + a * t for a in range(n) for _ in range(n)])
+    c = np.concatenate([cols.astype(np.int64) + b * t for _ in range(n) for b in range(n)])
     d = np.concatenate([(w[a] * v[b]).astype(np.float32) / np.float32(rays)
-                        for a in range(3) for b in range(3)])
-    m = sp.csr_matrix((d, (r, c)), shape=(3 * t, 3 * t))
+                        for a in range(n) for b in range(n)])
+    m = sp.csr_matrix((d, (r, c)), shape=(n * t, n * t))
     m.sum_duplicates()
     m.sort_indices()
     return m
@@ -285,14 +374,15 @@ def harmonic_first_bounce(term: FibreTerm, direct: FibreDirect, first: int = 1
     stay radially constant. ``first = 2`` with ``all_bounces``: the block carries the
     first harmonic through every bounce, the second rides the first bounce only."""
     t, k = direct.mean.shape[:2]
-    val = np.zeros((t, k * 3), dtype=np.float32)
+    rows = term.harmonics[0].shape[0] if term.harmonics else t  # (T_m + T) with a mesh
+    val = np.zeros((rows, k * 3), dtype=np.float32)
     part = np.empty_like(val)
     skip = 2 * (first - 1)
     for g, l_h in zip(term.harmonics[skip:], direct.harmonics[skip:], strict=False):
         # scipy's rounding on every core (csr_matvecs is single-threaded: 3 s of the 10k
         # hairball's K = 144 dataset)
         val += SparseProduct(g, default_threads())(l_h.reshape(t, -1), out=part)
-    return np.arange(t, dtype=np.int64), val.reshape(t, k, 3)
+    return np.arange(rows, dtype=np.int64), val.reshape(rows, k, 3)
 
 
 #: lights whose direct harmonics are held at once by :func:`direct_and_first_bounce`
@@ -310,8 +400,9 @@ def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Seque
     and each product column computed on its own). Returns (mean (T, K, 3) float32,
     (rows (T,) int64, first-bounce correction (T, K, 3) float32))."""
     t, k = space.count, len(lights)
+    rows = term.harmonics[0].shape[0] if term.harmonics else t  # (T_m + T) with a mesh
     mean = np.empty((t, k, 3), dtype=np.float32)
-    val = np.empty((t, k, 3), dtype=np.float32)
+    val = np.empty((rows, k, 3), dtype=np.float32)
     drawn = _direct_samples(space, samples, seed)  # once for every block of lights
     starts = range(0, k, block)
     for k0 in bar(starts, "direct fibres", total=len(starts)):
@@ -320,7 +411,7 @@ def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Seque
         mean[:, k0:k0 + block] = part.mean
         val[:, k0:k0 + block] = harmonic_first_bounce(term, part)[1]
         del part
-    return mean, (np.arange(t, dtype=np.int64), val)
+    return mean, (np.arange(rows, dtype=np.int64), val)
 
 
 @register

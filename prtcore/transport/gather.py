@@ -33,6 +33,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
+from typing import Protocol
 
 import numba
 import numpy as np
@@ -128,6 +129,24 @@ class Gather:
     def buried(self) -> np.ndarray:
         """(T,) bool texels with no visible origin (zero rows)."""
         return self.valid_rays == 0
+
+
+class ForeignHits(Protocol):
+    """Hits of the gather's rays on triangles that are not the scene's: the tracer holds
+    the scene's triangles [0, ``first``) and then other geometry (the fibre tubes of a hair
+    + mesh bake, :mod:`prtcore.transport.hair_mesh`), whose receivers are ``columns`` more
+    columns of the operator after the scene's T texels."""
+
+    first: int
+    columns: int
+
+    def __call__(self, batch: int, rows: np.ndarray, triangle: np.ndarray,
+                 barycentric: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """Front hits of batch ``batch`` (the batch's first row): receiving texel rows
+        (n,) int64, tracer triangles (n,) ≥ ``first``, barycentrics (n, 3), ray
+        directions (n, 3) float32 → (n,) int64 columns in [0, ``columns``), counted after
+        the scene's texels. Called from two threads at once (one per batch)."""
+        ...
 
 
 # ---------------------------------------------------------------------------------------
@@ -354,7 +373,7 @@ class HitMapper:
 
 def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
                     seed: int, timer: StageTimer | None = None, near_field: float = 0.0,
-                    direct_samples: int = 1) -> Gather:
+                    direct_samples: int = 1, foreign: ForeignHits | None = None) -> Gather:
     """Trace the texel → texel gather operator G (see the module docstring).
 
     rays : M gather rays per texel (≥ 1); seed : every random choice (same inputs + seed
@@ -375,6 +394,10 @@ def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: i
     direct_samples : J, the points per texel in ``Gather.direct_position`` (1: the
     sample; J > 1: J of the texel's S origins, evenly spaced along its lattice).
 
+    foreign : the tracer holds more than the scene's triangles (:class:`ForeignHits`):
+    hits on the others go to the columns it names after the T texels, and ``matrix`` is
+    (T, T + foreign.columns); they are never near-field hits.
+
     Returns a :class:`Gather`; ``matrix`` is (T, T) float32 CSR with duplicate entries
     summed, row sums ≤ 1.
     """
@@ -385,7 +408,7 @@ def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: i
     ctx = timer.stage("gather operator") if timer is not None else nullcontext()
     with ctx:
         return _gather(scene, texels, tracer, int(rays), int(seed), timer,
-                       float(near_field), int(direct_samples))
+                       float(near_field), int(direct_samples), foreign)
 
 
 def build_gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
@@ -397,9 +420,11 @@ def build_gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, r
 
 
 def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: int,
-            timer: StageTimer | None, near_field: float = 0.0, direct_samples: int = 1
-            ) -> Gather:
+            timer: StageTimer | None, near_field: float = 0.0, direct_samples: int = 1,
+            foreign: ForeignHits | None = None) -> Gather:
     t = texels.count
+    # columns: the texels, then the foreign receivers; the sentinel after them all
+    n_cols = t + (foreign.columns if foreign is not None else 0)
     s = max(1, m // RAYS_PER_ORIGIN)
     rng = np.random.default_rng(seed)
     origins, jittered = jittered_origins(scene, texels, s, rng)
@@ -473,9 +498,20 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         valid_rays[b0:b1] = ray_ok.sum(axis=1)
         use = np.flatnonzero(front & ray_ok.reshape(-1))
         pos = use if traced_all else np.searchsorted(sel, use)  # among the traced rays
-        cols = np.full(nt * m, t, dtype=np.int64)  # sentinel t: ray brings nothing
-        cols[use] = mapper(hits.triangle, hits.barycentric, use, o, d, hits.t, index=pos)
-        r, c, cnt = _row_counts(cols.reshape(nt, m), b0, t)
+        cols = np.full(nt * m, n_cols, dtype=np.int64)  # sentinel: ray brings nothing
+        if foreign is None:
+            cols[use] = mapper(hits.triangle, hits.barycentric, use, o, d, hits.t,
+                               index=pos)
+        else:
+            own = hits.triangle[pos] < foreign.first
+            cols[use[own]] = mapper(hits.triangle, hits.barycentric, use[own], o, d,
+                                    hits.t, index=pos[own])
+            fu, fp = use[~own], pos[~own]
+            cols[fu] = t + foreign(b0, b0 + fu // m, hits.triangle[fp],
+                                   hits.barycentric[fp], d[fu])
+            # foreign hits are not near-field hits (the correction shades scene faces)
+            use, pos = use[own], pos[own]
+        r, c, cnt = _row_counts(cols.reshape(nt, m), b0, n_cols)
         parts = (np.bincount(r - b0, minlength=nt), c,
                  (cnt / valid_rays[r]).astype(np.float32))
         near_part = None
@@ -512,7 +548,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     col_parts.clear()
     weight = np.concatenate(weight_parts) if weight_parts else np.zeros(0, np.float32)
     weight_parts.clear()
-    matrix = sp.csr_matrix((weight, col, indptr), shape=(t, t))
+    matrix = sp.csr_matrix((weight, col, indptr), shape=(t, n_cols))
     matrix.has_sorted_indices = True
     matrix.has_canonical_format = True
 

@@ -1,0 +1,153 @@
+"""Benchmark: the hair + mesh transport against the project's hair + mesh path tracer.
+
+A head (prtcore.scenes.hair.write_head: an icosphere of 10 cm, through the glTF intake and
+its lightmap unwrap) with curly hair (head_hair), under a sun and a point light. The fast
+path (prtcore.transport.hair_mesh: the surface gather whose rays reach the strand texels,
+the fibre gather whose rays reach the atlas texels, one solve) is compared on random
+subsets of the atlas texels and of the strand texels with
+prtcore.reference.hair_mesh (every fibre hit shaded with its own round-fibre normal, mesh
+hits with their own normal and albedo), the reference's noise removed with two independent
+halves; for both ``hair.harmonics`` variants (first_bounce: the hair's direct first
+harmonic in the first bounce only; all_bounces: every strand texel's mean, cos and sin in
+every bounce, what a hair + mesh bake uses by default), each with and without the near
+field of the hair's rays that hit the scalp close by (``--no-hair-near`` drops it). Also
+printed: how much of each receiver's indirect light the other brings (the
+hair-alone and head-alone bakes on the same receivers), which says the two-way interaction
+is there and how large it is.
+
+Printed and written to benchmarks/results/hair_mesh_accuracy.json.
+
+Usage: python benchmarks/hair_mesh_accuracy.py [--strands 2000] [--rays 256]
+       [--paths 1024] [--texels 300] [--resolution 64] [--texels-per-strand 8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
+from prtcore.intake.hair import hair_scene  # noqa: E402
+from prtcore.intake.points import place_measurement_points  # noqa: E402
+from prtcore.pipeline import run_intake  # noqa: E402
+from prtcore.receivers.strands import build_strand_space  # noqa: E402
+from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
+from prtcore.reference.hair_mesh import hair_mesh_reference  # noqa: E402
+from prtcore.scenes.hair import head_hair, head_lights, write_head  # noqa: E402
+from prtcore.transport.fibre import hair_tracer  # noqa: E402
+from prtcore.transport.hair_mesh import bake_hair_mesh_dataset  # noqa: E402
+
+LIGHTS = head_lights()
+
+
+def head_scene(tmp: Path, resolution: int):
+    """(scene, texels) of the test head through the glTF intake (unwrapped, TEXCOORD_1)."""
+    spec = parse_spec({"atlas": {"resolution": resolution},
+                       "measurement_points": {"count": 32}})
+    intake = run_intake(write_head(tmp / "head.glb"), spec, quiet=True)
+    return intake.scene, intake.texels
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--strands", type=int, default=2000)
+    ap.add_argument("--rays", type=int, default=256)
+    ap.add_argument("--paths", type=int, default=1024)
+    ap.add_argument("--texels", type=int, default=300, help="of each kind")
+    ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("--texels-per-strand", type=int, default=8)
+    ap.add_argument("--samples", type=int, default=8, help="direct samples J")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-bounces", type=int, default=64,
+                    help="the fast path's solve and the reference's paths stop after N")
+    ap.add_argument("--orders", type=int, default=1,
+                    help="azimuthal harmonics H carried by all_bounces")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/hair_mesh_accuracy.json"))
+    a = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        scene, texels = head_scene(Path(tmp), a.resolution)
+    hair = head_hair(a.strands, "curly", seed=a.seed)
+    space = build_strand_space(hair, a.texels_per_strand)
+    tracer, fibres = hair_tracer(space, scene)
+    points = place_measurement_points(hair_scene(hair), parse_spec(
+        {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
+    spec = TransportSpec(gather_rays=a.rays, direct_samples=a.samples, seed=a.seed,
+                         max_bounces=a.max_bounces)
+    t_m, t_h = texels.count, space.count
+    rng = np.random.default_rng(a.seed + 11)
+    mesh_rows = np.sort(rng.choice(t_m, min(a.texels, t_m), replace=False))
+    hair_rows = np.sort(t_m + rng.choice(t_h, min(a.texels, t_h), replace=False))
+    rows = np.concatenate([mesh_rows, hair_rows])
+    t1 = time.perf_counter()
+    ra, rb = hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, rows,
+                                 a.paths, a.seed + 101, max_depth=a.max_bounces)
+    ref_s = time.perf_counter() - t1
+    nm = len(mesh_rows)
+    result = {"strands": a.strands, "mesh_texels": t_m, "strand_texels": t_h,
+              "rays": a.rays, "direct_samples": a.samples, "paths": a.paths,
+              "reference_seconds": ref_s, "variants": {}}
+    for harmonics in ("first_bounce", "all_bounces"):
+        for near in (1.0, 0.0):
+            t0 = time.perf_counter()
+            data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
+                                          LIGHTS, spec=spec, harmonics=harmonics,
+                                          hair_near=near, orders=a.orders)
+            fast = data.indirect[rows].astype(np.float64)
+            result["variants"][f"{harmonics}{'' if near else ', no hair near field'}"] = {
+                "seconds": time.perf_counter() - t0,
+                "mesh": noise_corrected_error(fast[:nm], ra[:nm], rb[:nm]),
+                "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
+                "all": noise_corrected_error(fast, ra, rb)}
+            if harmonics == "all_bounces" and near:
+                kept = data
+    # what the other receiver brings: the same receivers without it
+    alone_h = _hair_alone(space, points, spec)
+    alone_m = _head_alone(scene, texels, points, spec)
+    both = kept.indirect.astype(np.float64)
+    result["hair_indirect_from_head"] = float(1 - alone_h.mean() / both[t_m:].mean())
+    # a convex head alone has no indirect light: all of it then comes off the hair
+    result["head_indirect_from_hair"] = float(1 - alone_m.mean() / both[:t_m].mean())
+    print(f"{a.strands} strands × {a.texels_per_strand} texels, {t_m} atlas texels, "
+          f"M = {a.rays}, J = {a.samples}; {len(mesh_rows)} + {len(hair_rows)} texels × "
+          f"{a.paths} reference paths ({ref_s:.1f} s)")
+    print(f"{'variant':38s} {'mesh rRMSE / bias':>24s} {'hair rRMSE / bias':>24s}")
+    for name, v in result["variants"].items():
+        cells = [f"{100 * v[k]['rrmse']:5.1f} % / {100 * v[k]['bias']:+5.1f} ± "
+                 f"{100 * v[k]['bias_se']:.1f} %" for k in ("mesh", "hair")]
+        print(f"{name:38s} {cells[0]:>24s} {cells[1]:>24s}  ({v['seconds']:.1f} s)")
+    print(f"hair indirect from the head: {100 * result['hair_indirect_from_head']:.1f} %, "
+          f"head indirect from the hair: {100 * result['head_indirect_from_hair']:.1f} %")
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(result, indent=1))
+    return result
+
+
+def _hair_alone(space, points, spec):
+    from prtcore.transport.hair import bake_hair_dataset
+
+    tracer, _ = hair_tracer(space)
+    return bake_hair_dataset(space, points, tracer, LIGHTS, (), spec).indirect.astype(
+        np.float64)
+
+
+def _head_alone(scene, texels, points, spec):
+    from prtcore.core.raytrace import RayTracer
+    from prtcore.transport.dataset import bake_dataset
+
+    tracer = RayTracer(scene.positions, scene.faces, scene.radius)
+    return bake_dataset(scene, texels, points, LIGHTS, (), spec, tracer=tracer,
+                        operators=("surface",)).indirect.astype(np.float64)
+
+
+if __name__ == "__main__":
+    main()

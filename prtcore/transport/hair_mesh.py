@@ -1,0 +1,254 @@
+"""The transport of a hair + mesh bake (docs/hair.md, "Hair + glTF mesh in one bake"): one
+lighting database over the mesh's atlas texels and the hair's strand texels, with light
+going both ways between them.
+
+Receivers are numbered mesh first: rows [0, T_m) are the atlas texels
+(:class:`~prtcore.receivers.texels.TexelSpace`), rows [T_m, T_m + T_h) the strand texels
+(:class:`~prtcore.receivers.strands.StrandSpace`); :class:`prtcore.receivers.combined.
+CombinedSpace` holds both. The tracer is :func:`prtcore.transport.fibre.hair_tracer` of
+the hair and the mesh: the mesh's triangles [0, F), then the fibre tubes.
+
+The operator is four blocks::
+
+    G = | G_mm  G_mh |   mesh rows: the surface gather's rays (gather_operator), a hit on a
+        | G_hm  G_hh |   tube goes to the strand texel hit (:class:`StrandHits`);
+                         hair rows: the fibre gather's rays (fibre_gather), a hit on the
+                         front of the mesh goes to its atlas texel (the surface gather's
+                         HitMapper: the same TEXCOORD_1 lookup)
+
+solved once by :func:`prtcore.transport.solve.solve_indirect` with the albedos stacked.
+The first bounce carries the hair's direct light's first azimuthal harmonic into every row
+that sees a fibre — the mesh's rows too (a scalp under hair sees the hair's unlit
+underside, not its mean) — and the mesh rows' near field. Later bounces are radially
+constant, as for hair alone. The hair shadows the head and the head shadows the hair:
+every shadow ray is traced against both.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from prtcore.core.fibres import FibreMesh, transported_frames
+from prtcore.core.progress import StageTimer
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light, Scene
+from prtcore.core.spec import TransportSpec
+from prtcore.intake.points import MeasurementPoints
+from prtcore.receivers.strands import StrandSpace
+from prtcore.receivers.texels import TexelSpace
+from prtcore.transport.dataset import Dataset, _add_first_bounce, direct_at_points
+from prtcore.transport.direct import direct_radiance, near_field_correction
+from prtcore.transport.fibre import (
+    FibreTerm,
+    MeshHits,
+    direct_and_first_bounce,
+    fibre_direct,
+    fibre_gather,
+    fibre_hits,
+    fourier_rows,
+)
+from prtcore.transport.gather import HitMapper, NearField, gather_operator
+from prtcore.transport.solve import solve_indirect
+
+#: the timed stages of :func:`bake_hair_mesh_dataset`, in the order they run
+STAGES = ("gather operator", "fibre gather", "direct points", "direct texels", "near field",
+          "direct fibres", "indirect solve")
+
+
+class StrandHits:
+    """The surface gather's hits on fibre tubes → strand texels
+    (:class:`prtcore.transport.gather.ForeignHits`), with the azimuth of each hit on its
+    fibre kept for the first bounce of the hair's direct harmonics. Impact parameters
+    are drawn per batch from ``seed`` and the batch's first row, so the operator does not
+    depend on which thread traced which batch."""
+
+    def __init__(self, space: StrandSpace, fibres: FibreMesh, first: int, seed: int):
+        self.space, self.fibres, self.first, self.seed = space, fibres, int(first), seed
+        self.columns = space.count
+        self.frame_u = transported_frames(space.hair)[1]
+        self._parts: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, batch: int, rows: np.ndarray, triangle: np.ndarray,
+                 barycentric: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        rng = np.random.default_rng([self.seed, 5, batch])
+        texel, cs = fibre_hits(self.space, self.fibres, triangle - self.first, barycentric,
+                               direction.astype(np.float64), rng, self.frame_u)
+        with self._lock:
+            self._parts[batch] = (rows, texel, cs.astype(np.float32))
+        return texel
+
+    def harmonics(self, valid_rays: np.ndarray, orders: int = 1) -> tuple[sp.csr_matrix, ...]:
+        """(cos ψ, sin ψ, cos 2ψ, …)-weighted G_mh up to order H (``orders``), 2H matrices
+        (T_m, T_h) float32 CSR, with the gather's weights 1/M_valid of the receiving texel
+        (``valid_rays`` (T_m,), :attr:`prtcore.transport.gather.Gather.valid_rays`)."""
+        parts = [self._parts[k] for k in sorted(self._parts)]
+        rows = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+        cols = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int64)
+        cs = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 2), np.float32)
+        w = (1.0 / np.maximum(valid_rays[rows], 1)).astype(np.float32)
+        v = fourier_rows(np.arctan2(cs[:, 1], cs[:, 0]), orders)[1:]
+        shape = (len(valid_rays), self.columns)
+        out = []
+        for vb in v:
+            m = sp.csr_matrix((vb.astype(np.float32) * w, (rows, cols)), shape=shape)
+            m.sum_duplicates()
+            m.sort_indices()
+            out.append(m)
+        return tuple(out)
+
+
+def combined_operator(mesh_rows: sp.csr_matrix, term: FibreTerm) -> sp.csr_matrix:
+    """The (T_m + T_h)² operator from the mesh rows (T_m, T_m + T_h) and the fibre
+    gather's hair rows (``term.mesh`` (T_h, T_m) and ``term.matrix`` (T_h, T_h))."""
+    m = sp.vstack([mesh_rows, sp.hstack([term.mesh, term.matrix], format="csr")],
+                  format="csr", dtype=np.float32)
+    m.sort_indices()
+    return m
+
+
+def harmonic_operator(mesh_rows: sp.csr_matrix, harmonics: tuple[sp.csr_matrix, ...],
+                      term: FibreTerm) -> sp.csr_matrix:
+    """The (T_m + nT_h)² operator of ``all_bounces`` over the state (mesh texels, strand
+    texels' mean, cos φ, sin φ, cos 2φ, …; n = 2H + 1): mesh rows read a fibre hit's
+    (mean, cos ψ, sin ψ, …) (``mesh_rows``' strand columns and
+    :meth:`StrandHits.harmonics`); strand rows are
+    :func:`prtcore.transport.fibre.harmonic_block` and ``term.mesh_block``."""
+    top = sp.hstack([mesh_rows, *harmonics], format="csr", dtype=np.float32)
+    bottom = sp.hstack([term.mesh_block, term.block], format="csr", dtype=np.float32)
+    m = sp.vstack([top, bottom], format="csr", dtype=np.float32)
+    m.sort_indices()
+    return m
+
+
+def hair_near_field(hits: MeshHits, texels: TexelSpace, t_m: int, reach: float,
+                    rays: int) -> NearField:
+    """The fibre gather's mesh hits within ``reach`` footprints of the atlas texel hit
+    (|dP/dx| + |dP/dy|)/2 as a :class:`~prtcore.transport.gather.NearField` over the
+    strand texels' mean rows (combined row T_m + i, weight 1/M): a fibre just above the
+    scalp sees the scalp in its own shadow, which the texel's mean does not hold (the
+    surface gather's near field, for the hair's rows).
+
+    Not for the harmonic rows of ``all_bounces``: correcting them as well (weights
+    (2 cos φ_o, 2 sin φ_o)/M) took the scalp's indirect light from −1.7 % to −9.3 %
+    against the path tracer at two bounces (``benchmarks/hair_mesh_accuracy.py
+    --strands 500 --resolution 32 --max-bounces 2``), while the mean rows alone leave it
+    at −1.8 % and bring the hair's from +1.7 % to +1.4 %; why the harmonic rows' correction
+    overshoots is not understood yet."""
+    fp = 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
+    close = np.flatnonzero(hits.t < reach * fp[hits.col])
+    return NearField(row=t_m + hits.row[close], col=hits.col[close],
+                     triangle=hits.triangle[close], barycentric=hits.barycentric[close],
+                     weight=np.full(len(close), 1 / rays, np.float32))
+
+
+def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
+                           fibres: FibreMesh, points: MeasurementPoints, tracer: RayTracer,
+                           lights_train: Sequence[Light],
+                           lights_holdout: Sequence[Light] = (),
+                           spec: TransportSpec | None = None,
+                           timer: StageTimer | None = None,
+                           harmonics: str = "first_bounce", orders: int = 1,
+                           hair_near: float | None = None) -> Dataset:
+    """The lighting database of a hair + mesh bake (``Dataset``: direct at the points,
+    indirect at the T_m + T_h texels, mesh first; training lights first; the texels'
+    direct light is not kept — the solve writes over it). ``tracer`` and ``fibres``:
+    :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene``. Both gathers
+    take ``spec.gather_rays`` rays per texel; the mesh's direct light is averaged over
+    ``spec.direct_samples`` points per texel, the hair's over ``max(4, ·)`` (the first
+    harmonic needs 4).
+
+    harmonics (``hair.harmonics``): "first_bounce" — the hair's direct first harmonic rides
+    the first bounce of every row; "all_bounces" — the strand texels carry (mean, cos,
+    sin) through every bounce and the mesh rows read them at the azimuth they hit
+    (:func:`harmonic_operator`, solved by the Neumann series): the light that goes head →
+    hair → head keeps the side of the fibre that faced the head; ``orders`` (H) harmonics
+    (the state is T_m + (2H + 1) T_h rows; the hair's direct light then takes
+    max(4H, J) samples per texel)."""
+    spec = spec or TransportSpec()
+    timer = timer or StageTimer(quiet=True)
+    lights = (*tuple(lights_train), *tuple(lights_holdout))
+    f, t_m, t_h = scene.triangle_count, texels.count, space.count
+    r0 = tracer.rays_traced
+    strands = StrandHits(space, fibres, f, spec.seed)
+    gather = gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
+                             near_field=spec.near_field,
+                             direct_samples=spec.direct_samples, foreign=strands)
+    r1 = tracer.rays_traced
+    everything = harmonics == "all_bounces"
+    with timer.stage("fibre gather"):
+        term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
+                            all_bounces=everything, orders=orders,
+                            mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
+    r2 = tracer.rays_traced
+    mh = strands.harmonics(gather.valid_rays, orders if everything else 1)
+    if everything:
+        matrix = harmonic_operator(gather.matrix, mh, term)
+    else:
+        matrix = combined_operator(gather.matrix, term)
+        both = FibreTerm(matrix=term.matrix, harmonics=tuple(
+            sp.vstack([a, b], format="csr", dtype=np.float32)
+            for a, b in zip(mh, term.harmonics, strict=True)), stats=term.stats)
+    fibre_stats = term.stats
+    mesh_hits = term.mesh_hits
+    del term, mh
+    direct_points = direct_at_points(scene, tracer, lights, points, timer)
+    r3 = tracer.rays_traced
+    n = 2 * orders + 1 if everything else 1  # state rows per strand texel
+    rows = t_m + n * t_h
+    direct = np.empty((rows, len(lights), 3), dtype=np.float32)
+    with timer.stage("direct texels"):
+        direct[:t_m] = direct_radiance(scene, tracer, lights, gather.direct_position,
+                                       texels.normal, texels.albedo, timer, "direct texels")
+    r4 = tracer.rays_traced
+    near = None
+    if gather.near is not None and gather.near.count:
+        with timer.stage("near field"):
+            near = near_field_correction(scene, tracer, gather.near, lights, direct[:t_m],
+                                         timer)
+    reach = spec.near_field if hair_near is None else hair_near
+    if reach > 0 and mesh_hits.row.size:
+        with timer.stage("near field"):
+            nf = hair_near_field(mesh_hits, texels, t_m, reach, spec.gather_rays)
+            if nf.count:
+                near = _add_first_bounce(near, near_field_correction(
+                    scene, tracer, nf, lights, direct[:t_m], timer))
+    r5 = tracer.rays_traced
+    with timer.stage("direct fibres"):
+        if everything:
+            d = fibre_direct(space, tracer, lights, max(4 * orders, spec.direct_samples),
+                             spec.seed + 1, harmonics=orders)
+            direct[t_m:t_m + t_h] = d.mean
+            for b in range(2 * orders):
+                direct[t_m + (b + 1) * t_h:t_m + (b + 2) * t_h] = d.harmonics[b]
+            del d
+            first = near
+        else:
+            direct[t_m:], first = direct_and_first_bounce(
+                space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1, both)
+            first = _add_first_bounce(first, near)
+    r6 = tracer.rays_traced
+    rho_h = np.asarray(space.albedo, np.float64)
+    albedo = np.concatenate([np.asarray(texels.albedo, np.float64),
+                             *([rho_h] * n)])
+    indirect, bounces, resid, solve_stats = solve_indirect(
+        matrix, albedo, direct, spec.max_bounces, spec.tolerance, timer,
+        method="neumann" if everything else "chebyshev", threads=tracer.threads,
+        first_bounce=first, out=direct)
+    if everything:  # a truncated azimuthal series can dip below zero: clamped, counted
+        indirect = indirect[:t_m + t_h]
+        solve_stats["negative_clamped"] = int((indirect < 0).sum())
+        np.maximum(indirect, np.float32(0), out=indirect)
+    stats = {"train": len(lights_train), "holdout": len(lights_holdout),
+             "texels": {"mesh": t_m, "strands": t_h}, "points": points.count,
+             "gather": gather.stats, "fibre": fibre_stats, "harmonics": harmonics,
+             "rays": {"gather": r1 - r0, "fibre_gather": r2 - r1, "direct_points": r3 - r2,
+                      "direct_texels": r4 - r3, "near_field": r5 - r4,
+                      "direct_fibres": r6 - r5, "total": r6 - r0},
+             "solve": solve_stats}
+    return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
+                   indirect=indirect, iterations=bounces, residual=resid, stats=stats)
