@@ -251,10 +251,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from prtcore.io.bundle import is_hair_mesh
 
     manifest = read_manifest(Path(args.bundle))
-    if is_hair_mesh(manifest):
-        raise PrtError(f"render: {args.bundle} is a hair + mesh bundle, which the renderers "
-                       "do not draw yet; `prtcore relight` writes its lightmap and its "
-                       "strand texture")
+    if is_hair_mesh(manifest) and not args.cpu:
+        raise PrtError(f"render: {args.bundle} is a hair + mesh bundle, which the GL "
+                       "renderer does not draw yet; --cpu ray traces it")
     if "strands" in manifest:  # hair: the fibre tubes
         from prtcore.reference.camera import load_camera
         from prtcore.runtime.gl import write_render
@@ -264,7 +263,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
             from prtcore.runtime.strands import render_strands
 
             image = render_strands(args.bundle, lights, camera, n=args.basis, mode=mode)
-            label = "the CPU (hair: fibre tubes ray traced, strand texture sampled)"
+            label = "the CPU (hair: fibre tubes ray traced, strand texture sampled" + (
+                "; the mesh's lightmap sampled)" if is_hair_mesh(manifest) else ")")
         else:
             from prtcore.runtime.strands_gl import render_strands_gl
 
@@ -485,7 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--shadow-resolution", type=int, default=1024,
                     help="side of each shadow-map view")
     sp.add_argument("--cpu", action="store_true",
-                    help="hair bundles: ray trace the fibre tubes on the CPU instead")
+                    help="hair bundles (and hair + mesh bundles): ray trace the fibre "
+                         "tubes (and the mesh) on the CPU instead")
     sp.set_defaults(func=_cmd_render)
 
     sp = sub.add_parser("view", help="the web viewer of a bundle on 127.0.0.1 (WebGL2)")

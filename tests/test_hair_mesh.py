@@ -189,11 +189,40 @@ def test_what_a_hair_mesh_bundle_cannot_do_yet_is_refused_by_name(bundle, tmp_pa
     light = tmp_path / "light.json"
     light.write_text(json.dumps({"type": "point", "position": [0.25, 0.2, 0.2],
                                  "intensity": 1.0}))
-    for cmd in (["render", str(bundle), "--light", str(light), "--camera", "c.json",
-                 "--out", str(tmp_path / "r.png")], ["view", str(bundle), "--no-browser"]):
+    for cmd, what in (
+            (["render", str(bundle), "--light", str(light), "--camera", "c.json",
+              "--out", str(tmp_path / "r.png")], "GL renderer does not draw"),
+            (["view", str(bundle), "--no-browser"], "viewer does not draw")):
         args = build_parser().parse_args(cmd)
-        with pytest.raises(PrtError, match="hair \\+ mesh bundle"):
+        with pytest.raises(PrtError, match=what):
             args.func(args)
+
+
+def test_cpu_render_draws_head_and_hair(bundle, tmp_path):
+    """``render --cpu``: the head's pixels take the relit lightmap and the hair's the strand
+    texture; full = direct + indirect; the head gets indirect light (all of it off the
+    hair)."""
+    from prtcore.emitters.lightfile import load_light_file
+    from prtcore.reference.camera import load_camera
+    from prtcore.runtime.strands import render_strands
+
+    light = tmp_path / "light.json"
+    light.write_text(json.dumps({"type": "point", "position": [0.25, 0.2, 0.2],
+                                 "intensity": 1.0}))
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"position": [0.0, 0.05, 0.45], "target": [0, 0, 0],
+                               "fov_y_deg": 45, "width": 64, "height": 64}))
+    lights, camera = load_light_file(light), load_camera(cam)
+    img = {m: render_strands(bundle, lights, camera, mode=m)
+           for m in ("full", "direct", "indirect")}
+    np.testing.assert_allclose(img["full"][..., :3], img["direct"][..., :3]
+                               + img["indirect"][..., :3], rtol=1e-5, atol=1e-7)
+    seen = img["full"][..., 3] > 0
+    centre = seen[24:40, 24:40]  # the head fills the middle of the frame
+    assert centre.all() and img["indirect"][24:40, 24:40, :3].mean() > 0
+    out = tmp_path / "r.png"
+    assert cli_main(["render", str(bundle), "--light", str(light), "--camera", str(cam),
+                     "--cpu", "--out", str(out)]) == 0 and out.stat().st_size > 0
 
 
 def test_a_mesh_needs_a_hair_asset(tmp_path):

@@ -20,8 +20,8 @@ and continues cosine-distributed about n_j with ``β ← β ρ_j``:
 
 Rays leave fibres from the tube's circumscribed cylinder (:mod:`prtcore.core.fibres`).
 After ``rr_depth`` bounces a path survives with probability ``q = min(1, max_c β_c)``
-and is divided by q. A miss ends the path; so does a hit on the mesh of a hair + mesh
-bake (the fast path does not carry light off the mesh yet either).
+and is divided by q. A miss ends the path; so does a hit on a mesh (one that only
+occludes; :mod:`prtcore.reference.hair_mesh` shades mesh hits, for hair + mesh bakes).
 
 Every estimate comes as two independent halves (a, b) so that the reference's own noise
 can be removed from an error: ``noise² ≈ mean((a − b)²) / 4`` per texel.

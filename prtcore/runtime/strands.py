@@ -8,6 +8,11 @@ shadow rays, plus the indirect light read from the relit strand texture
 (:func:`sample_strands`: bilinear, the arc position clamped between the strand's first and
 last texel centres, the row's centre line — never mixing strands). The paper's runtime
 reconstructs the texture the same way; only the rasterisation differs.
+
+A hair + mesh bundle (docs/hair.md) is drawn the same way with the mesh in the tracer: a
+pixel that sees the mesh gets ``ρ/π · E`` at the hit (shading normal, albedo at the hit,
+shadow rays through the mesh and the tubes) plus the relit lightmap sampled bilinearly at
+the hit's TEXCOORD_1, edges clamped.
 """
 
 from __future__ import annotations
@@ -18,10 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core.fibres import outside_offset, segment_hits
-from prtcore.core.materials import clamp_albedo
-from prtcore.core.scene import Light
+from prtcore.core.geometry import shading_normals
+from prtcore.core.materials import CLAMP_TO_EDGE, albedo_at, clamp_albedo, sample_texture
+from prtcore.core.scene import Light, Texture
 from prtcore.emitters.punctual import irradiance
-from prtcore.io.bundle import load_runtime, read_manifest
+from prtcore.io.bundle import is_hair_mesh, load_runtime, read_manifest, strand_runtime
+from prtcore.io.gltf.loader import load_asset
 from prtcore.io.hair import read_hair
 from prtcore.receivers.strands import azimuth_frame, build_strand_space, interp_points
 from prtcore.reference.camera import Camera
@@ -46,24 +53,31 @@ def sample_strands(image: np.ndarray, layout: dict, strand: np.ndarray,
 
 def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
                    n: int | None = None, mode: str = "full") -> np.ndarray:
-    """One frame of a hair bundle: (h, w, 4) float32 linear RGBA, A = 1 where a fibre is
-    seen. mode "full" | "direct" | "indirect"."""
+    """One frame of a hair bundle (or a hair + mesh bundle): (h, w, 4) float32 linear
+    RGBA, A = 1 where a fibre (or the mesh) is seen. mode "full" | "direct" |
+    "indirect"."""
     bundle = Path(bundle)
     manifest = read_manifest(bundle)
     layout = manifest["strands"]
-    hair = read_hair(bundle / manifest["asset"]["file"])
+    both = is_hair_mesh(manifest)
+    scene = load_asset(bundle / manifest["asset"]["file"]) if both else None
+    hair = read_hair(bundle / (manifest["asset"]["hair"]["file"] if both else
+                               manifest["asset"]["file"]))
     space = build_strand_space(hair, int(layout["texels_per_strand"]))
-    tracer, mesh = hair_tracer(space)
+    tracer, mesh = hair_tracer(space, scene)
+    first = scene.triangle_count if both else 0
     o, d = camera.primary_rays()
     hits = tracer.intersect(o, d)
-    hit = np.flatnonzero(hits.hit)
-    seg, t = segment_hits(mesh, hits.triangle[hit], hits.barycentric[hit])
+    hit = np.flatnonzero(hits.hit & (hits.triangle >= first))
+    seg, t = segment_hits(mesh, hits.triangle[hit] - first, hits.barycentric[hit])
     p0 = hair.segment_start[seg]
     arc = hair.arc_length[p0] + t * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
     strand = hair.strand_of_segment[seg]
     out = np.zeros((len(o), 3))
     if mode in ("full", "indirect"):
-        tex = relight(load_runtime(bundle, manifest), lights, tracer, n=n)
+        data = load_runtime(bundle, manifest)
+        strands = strand_runtime(bundle, manifest, data) if both else data
+        tex = relight(strands, lights, tracer, n=n)
         frac = arc / np.maximum(hair.strand_length[strand], 1e-300)
         out[hit] += sample_strands(tex[:, :, :3].astype(np.float64), layout, strand, frac)
     if mode in ("full", "direct"):
@@ -75,7 +89,21 @@ def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
         rho, _ = clamp_albedo(extra[:, 1:])
         e = sum(irradiance(li, origin, normal, tracer) for li in lights)
         out[hit] += rho / np.pi * e
+    seen = hits.hit & (hits.triangle >= first)
+    if both:  # the mesh's pixels: its relit lightmap and its direct light
+        mh = np.flatnonzero(hits.hit & hits.front & (hits.triangle < first))
+        tri, bary = hits.triangle[mh], hits.barycentric[mh]
+        if mode in ("full", "indirect"):
+            lightmap = relight(data, lights, tracer, n=n)[:, :, :3].astype(np.float64)
+            uv = np.einsum("nk,nkj->nj", bary, scene.uv1[scene.faces[tri]])
+            out[mh] += sample_texture(Texture(lightmap, CLAMP_TO_EDGE, CLAMP_TO_EDGE), uv)
+        if mode in ("full", "direct"):
+            p = tracer.surface_point(tri, bary)
+            ns = shading_normals(scene, tri, bary, tracer.face_normals[tri])
+            rho, _ = clamp_albedo(albedo_at(scene, tri, bary))
+            out[mh] += rho / np.pi * sum(irradiance(li, p, ns, tracer) for li in lights)
+        seen[mh] = True
     img = np.zeros((camera.height, camera.width, 4), dtype=np.float32)
     img[..., :3] = out.reshape(camera.height, camera.width, 3)
-    img[..., 3] = hits.hit.reshape(camera.height, camera.width)
+    img[..., 3] = seen.reshape(camera.height, camera.width)
     return img

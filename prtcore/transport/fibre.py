@@ -42,8 +42,9 @@ and
 ``first_bounce``): the bias fell to about 4 % (``benchmarks/hair_accuracy.py``). Later
 bounces stay radially constant.
 
-Not yet: rays that hit the mesh of a hair + mesh bake bring no light (the mesh occludes
-and shadows the hair, but light bounced off the mesh does not reach the hair yet).
+With a mesh that receives (a hair + mesh bake, :mod:`prtcore.transport.hair_mesh`), the
+gather's rays that hit the front of the mesh go to its atlas texels (``mesh_texels``);
+otherwise a mesh hit brings nothing (the mesh only occludes and shadows).
 """
 
 from __future__ import annotations
