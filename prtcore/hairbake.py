@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from prtcore.core.errors import LimitExceeded, SpecError
+from prtcore.core.errors import AssetError, LimitExceeded, SpecError
 from prtcore.core.hair import Hair
 from prtcore.core.limits import IntakeLimits
 from prtcore.core.progress import ProgressCallback, StageTimer
@@ -205,6 +205,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     caller's summary."""
     inputs_files = (asset,) if mesh is None else (asset, mesh)
     check_output(out, force, inputs=inputs_files)
+    if mesh is not None and not Path(mesh).is_file():  # before the hair's intake
+        raise AssetError(str(mesh), "", "cannot read asset: no such file (the --mesh of a "
+                         "hair bake)")
     t_start = time.perf_counter()
     spec = hair_spec(spec, with_mesh=mesh is not None)
     timer = StageTimer(quiet=quiet, callback=callback)

@@ -225,7 +225,18 @@ def test_cpu_render_draws_head_and_hair(bundle, tmp_path):
                      "--cpu", "--out", str(out)]) == 0 and out.stat().st_size > 0
 
 
-def test_a_mesh_needs_a_hair_asset(tmp_path):
+def test_a_mesh_needs_a_hair_asset_and_a_file(tmp_path, capsys):
     mesh = write_head(tmp_path / "head.glb")
     with pytest.raises(PrtError, match="not a hair asset"):
         bake(mesh, parse_spec({}), tmp_path / "out", quiet=True, mesh=mesh)
+    hair = write_hair(tmp_path / "h.hair", head_hair(20, seed=2))
+    assert cli_main(["bake", str(hair), "--mesh", str(tmp_path / "none.glb"), "--out",
+                     str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "none.glb: cannot read asset: no such file" in err
+    assert "[prtcore] load" not in err  # refused before any work
+    (tmp_path / "bad.glb").write_bytes(b"garbage")
+    assert cli_main(["bake", str(hair), "--mesh", str(tmp_path / "bad.glb"), "--out",
+                     str(tmp_path / "out")]) == 2
+    assert "bad.glb: truncated GLB" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # nothing left behind
