@@ -42,8 +42,8 @@ class Bake(BaseModel):
     error: ErrorBody | None
     asset: AssetInfo
     spec_sha256: str
-    content_key: str = Field(description="sha256 of asset sha256 + spec sha256: identical "
-                             "submissions share one job")
+    content_key: str = Field(description="sha256 of asset sha256 (+ mesh sha256) + spec "
+                             "sha256: identical submissions share one job")
     links: Links
 
 

@@ -27,7 +27,9 @@ from .errors import ApiError
 
 #: glTF, and hair (docs/hair.md): cyHair .hair and self-contained USD BasisCurves
 ASSET_SUFFIXES = (".glb", ".gltf", ".hair", ".usd", ".usda", ".usdc")
-FIELDS = ("asset", "spec")
+FIELDS = ("asset", "spec", "mesh")
+#: the optional ``mesh`` part of a hair bake (docs/hair.md): a glTF baked with the hair
+MESH_SUFFIXES = (".glb", ".gltf")
 _MULTIPART_OVERHEAD = 64 * 1024
 
 
@@ -43,7 +45,13 @@ class Upload:
     asset_sha256: str = ""
     spec_bytes: bytes = b""
     spec_seen: bool = False
+    #: the optional mesh baked with a hair asset: stored as ``mesh`` + suffix
+    mesh_path: Path | None = None
+    mesh_name: str = ""
+    mesh_bytes: int = 0
+    mesh_sha256: str = ""
     _hash: object = field(default=None, repr=False)
+    _mesh_hash: object = field(default=None, repr=False)
 
     def discard(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)
@@ -55,6 +63,15 @@ def _safe_suffix(filename: str) -> str:
         raise ApiError(422, "invalid_asset",
                        f"asset {_clean(filename)!r}: unsupported file type "
                        f"{suffix or '(none)'!r} (expected {', '.join(ASSET_SUFFIXES)})")
+    return suffix
+
+
+def _mesh_suffix(filename: str) -> str:
+    suffix = os.path.splitext(filename)[1].lower()
+    if suffix not in MESH_SUFFIXES:
+        raise ApiError(422, "invalid_asset",
+                       f"mesh {_clean(filename)!r}: unsupported file type "
+                       f"{suffix or '(none)'!r} (expected {', '.join(MESH_SUFFIXES)})")
     return suffix
 
 
@@ -81,7 +98,7 @@ async def receive(request: Request, settings: Settings) -> Upload:
     if ctype != b"multipart/form-data" or not params.get(b"boundary"):
         raise ApiError(415, "unsupported_media_type",
                        "expected multipart/form-data with parts 'asset' (file) and 'spec' "
-                       "(JSON)")
+                       "(JSON), and for hair optionally 'mesh' (a glTF file)")
     limit = settings.max_upload_bytes
     declared = request.headers.get("content-length")
     if declared is not None:
@@ -125,6 +142,14 @@ async def receive(request: Request, settings: Settings) -> Upload:
             up.asset_path = up.folder / up.asset_name
             state["file"] = open(up.asset_path, "wb")
             up._hash = hashlib.sha256()
+        elif name == "mesh":
+            if up.mesh_path is not None:
+                raise ApiError(422, "duplicate_field", "more than one 'mesh' part")
+            filename = opts.get(b"filename", b"").decode("utf-8", "replace")
+            up.mesh_name = "mesh" + _mesh_suffix(filename)
+            up.mesh_path = up.folder / up.mesh_name
+            state["file"] = open(up.mesh_path, "wb")
+            up._mesh_hash = hashlib.sha256()
         else:
             if up.spec_seen:
                 raise ApiError(422, "duplicate_field", "more than one 'spec' part")
@@ -132,13 +157,17 @@ async def receive(request: Request, settings: Settings) -> Upload:
 
     def on_part_data(data: bytes, start: int, end: int) -> None:
         chunk = data[start:end]
-        if state["field"] == "asset":
-            up.asset_bytes += len(chunk)
-            if up.asset_bytes > limit:
-                raise ApiError(413, "too_large", f"asset exceeds the upload limit "
-                                                 f"max_upload_bytes={limit}")
+        if state["field"] in ("asset", "mesh"):  # one limit for the files together
+            if state["field"] == "asset":
+                up.asset_bytes += len(chunk)
+                up._hash.update(chunk)  # type: ignore[attr-defined]
+            else:
+                up.mesh_bytes += len(chunk)
+                up._mesh_hash.update(chunk)  # type: ignore[attr-defined]
+            if up.asset_bytes + up.mesh_bytes > limit:
+                raise ApiError(413, "too_large", f"{state['field']} exceeds the upload "
+                                                 f"limit max_upload_bytes={limit}")
             state["file"].write(chunk)
-            up._hash.update(chunk)  # type: ignore[attr-defined]
         else:
             up.spec_bytes += chunk
             if len(up.spec_bytes) > settings.max_spec_bytes:
@@ -173,6 +202,8 @@ async def receive(request: Request, settings: Settings) -> Upload:
         up.discard()
         raise ApiError(422, "missing_asset", "the 'asset' file part is required")
     up.asset_sha256 = up._hash.hexdigest()  # type: ignore[attr-defined]
+    if up.mesh_path is not None:
+        up.mesh_sha256 = up._mesh_hash.hexdigest()  # type: ignore[attr-defined]
     return up
 
 

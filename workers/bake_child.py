@@ -118,8 +118,11 @@ def _bake(settings: Settings, job_id: str, token: str, asset_name: str, spec_jso
     asset = artifacts.input_dir(root, job_id) / asset_name
     out = artifacts.bundle_dir(root, job_id)
     job = store.get(job_id)
+    # a hair bake's head, uploaded as the 'mesh' part (service/uploads.py)
+    mesh = next((p for p in (artifacts.input_dir(root, job_id) / f"mesh{x}"
+                             for x in (".glb", ".gltf")) if p.is_file()), None)
     bake(asset, spec, out, quiet=True, force=True, limits=IntakeLimits.from_env(),
-         callback=callback, source_name=job.original_name if job else None)
+         callback=callback, source_name=job.original_name if job else None, mesh=mesh)
     ours, _cancel = store.progress(job_id, token, "package", done[0], timings)
     if not ours:
         raise Stop("lost")

@@ -40,6 +40,11 @@ _MULTIPART_BODY = {
                                          "or self-contained .usd/.usda/.usdc"},
                 "spec": {"type": "string", "description": "bake spec JSON (docs/spec.md); "
                          "every key optional, unknown keys rejected"},
+                "mesh": {"type": "string", "format": "binary",
+                         "description": "hair assets only, optional: a .glb or "
+                                        "self-contained .gltf (a head, a body) baked with "
+                                        "the hair in its own lightmap (docs/hair.md); the "
+                                        "asset and the mesh share max_upload_bytes"},
             },
         }}},
     }
@@ -51,6 +56,16 @@ def _get(store: JobStore, job_id: str) -> Job:
     if job is None:
         raise ApiError(404, "not_found", f"no bake with id {job_id}")
     return job
+
+
+def _asset_error(part: str, path, e) -> ApiError:
+    """An AssetError of an uploaded part as the 422 naming the part (and the external
+    file, when it is another)."""
+    parts = [part] + ([e.where] if e.where else [])
+    if os.path.realpath(e.file) != os.path.realpath(path):
+        parts.insert(1, os.path.basename(e.file))
+    msg = ": ".join(parts) + f": {e.what}" + (f" (limit {e.limit})" if e.limit else "")
+    return ApiError(422, "invalid_asset", msg)
 
 
 def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
@@ -88,19 +103,25 @@ def _validate(up: Upload, settings: Settings) -> tuple[str, str, str]:
         else:
             load_asset(up.asset_path, limits)
     except AssetError as e:
-        parts = ["asset"] + ([e.where] if e.where else [])
-        if os.path.realpath(e.file) != os.path.realpath(up.asset_path):
-            parts.insert(1, os.path.basename(e.file))
-        msg = ": ".join(parts) + f": {e.what}" + (f" (limit {e.limit})" if e.limit else "")
-        raise ApiError(422, "invalid_asset", msg) from None
+        raise _asset_error("asset", up.asset_path, e) from None
+    if up.mesh_path is not None:  # a head baked with the hair (docs/hair.md)
+        if not is_hair_file(up.asset_path):
+            raise ApiError(422, "invalid_asset", "mesh: a mesh is baked together with a hair "
+                                                 "asset (.hair, .usd, .usda, .usdc) only")
+        try:
+            load_asset(up.mesh_path, limits)
+        except AssetError as e:
+            raise _asset_error("mesh", up.mesh_path, e) from None
     canonical = canonical_spec_json(spec)
     s_hash = spec_hash(spec)
-    key = hashlib.sha256(f"{up.asset_sha256}:{s_hash}".encode()).hexdigest()
+    content = up.asset_sha256 if up.mesh_path is None else \
+        f"{up.asset_sha256}:{up.mesh_sha256}"
+    key = hashlib.sha256(f"{content}:{s_hash}".encode()).hexdigest()
     return canonical, s_hash, key
 
 
 @router.post("", status_code=202, response_model=Bake, openapi_extra=_MULTIPART_BODY,
-             summary="Submit a bake (multipart: asset file + spec JSON)",
+             summary="Submit a bake (multipart: asset file + spec JSON [+ mesh file])",
              responses={200: {"model": Bake, "description": "identical submission: the "
                               "existing job"}, **responses(400, 401, 409, 413, 415, 422)})
 async def submit(request: Request, response: Response,
@@ -149,6 +170,8 @@ def _register(up: Upload, settings: Settings, store: JobStore, huey: Any,
         dest = artifacts.input_dir(settings.artifacts, job.id)
         dest.mkdir(parents=True, exist_ok=True)
         os.replace(up.asset_path, dest / up.asset_name)  # type: ignore[arg-type]
+        if up.mesh_path is not None:  # the worker bakes it with the hair
+            os.replace(up.mesh_path, dest / up.mesh_name)
         (dest / "spec.json").write_text(spec_json + "\n", encoding="utf-8")
     except OSError as e:
         store.delete(job.id)

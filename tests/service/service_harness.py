@@ -170,12 +170,13 @@ class Cluster:
 
     # -- API -----------------------------------------------------------------------------
 
-    def submit(self, spec: dict, asset: Path = CORNELL, headers: dict | None = None
-               ) -> httpx.Response:
-        with open(asset, "rb") as f:
-            return self.client.post("/v1/bakes", headers=headers or {}, files={
-                "asset": (asset.name, f, "model/gltf-binary"),
-                "spec": ("spec.json", json.dumps(spec), "application/json")})
+    def submit(self, spec: dict, asset: Path = CORNELL, headers: dict | None = None,
+               mesh: Path | None = None) -> httpx.Response:
+        files = {"asset": (asset.name, asset.read_bytes(), "model/gltf-binary"),
+                 "spec": ("spec.json", json.dumps(spec), "application/json")}
+        if mesh is not None:  # a hair bake's head (docs/hair.md)
+            files["mesh"] = (mesh.name, mesh.read_bytes(), "model/gltf-binary")
+        return self.client.post("/v1/bakes", headers=headers or {}, files=files)
 
     def job(self, job_id: str) -> dict:
         r = self.client.get(f"/v1/bakes/{job_id}")

@@ -342,6 +342,42 @@ def test_readyz_reports_an_unreachable_database(app_client):
     assert r.status_code == 503 and r.json()["checks"]["database"].startswith("error")
 
 
+def test_a_hair_bake_takes_a_mesh_part(app_client, tmp_path):
+    """A hair asset with a 'mesh' part (a glTF head, docs/hair.md) is queued with the mesh
+    beside the asset; a mesh with a glTF asset, a broken mesh and a mesh of another type
+    are 422 naming the part; the mesh is part of the job's content key."""
+    from prtcore.io.hair import write_hair
+    from prtcore.scenes.hair import head_hair, write_head
+
+    c = app_client()
+    hair = write_hair(tmp_path / "h.hair", head_hair(20, seed=3)).read_bytes()
+    head = write_head(tmp_path / "head.glb").read_bytes()
+
+    def send(asset_name, asset, mesh_name, mesh):
+        return c.post("/v1/bakes", files={
+            "asset": (asset_name, asset, "application/octet-stream"),
+            "mesh": (mesh_name, mesh, "application/octet-stream"),
+            "spec": ("spec.json", json.dumps(TINY_SPEC), "application/json")})
+
+    r = send("h.hair", hair, "head.glb", head)
+    assert r.status_code == 202, r.text
+    inp = c.settings.artifacts / r.json()["id"] / "input"
+    assert (inp / "asset.hair").is_file() and (inp / "mesh.glb").read_bytes() == head
+    alone = post(c, tmp_path / "h.hair")  # the same hair without the mesh: another job
+    assert alone.status_code == 202 and alone.json()["id"] != r.json()["id"]
+    assert send("h.hair", hair, "head.glb", head).json()["id"] == r.json()["id"]
+    r = send("head.glb", head, "head.glb", head)
+    assert r.status_code == 422 and r.json()["error"]["message"].startswith(
+        "mesh: a mesh is baked together with a hair asset"), r.text
+    r = send("h.hair", hair, "head.glb", b"garbage")
+    assert r.status_code == 422 and r.json()["error"]["message"].startswith(
+        "mesh: truncated GLB"), r.text
+    r = send("h.hair", hair, "head.obj", head)
+    assert r.status_code == 422 and "mesh 'head.obj': unsupported file type" in \
+        r.json()["error"]["message"], r.text
+    assert not any(p.startswith(".uploads/") for p in left_behind(c))
+
+
 def test_hair_uploads_are_validated_by_the_hair_readers(app_client, tmp_path):
     """.hair and USD hair are bake assets (docs/hair.md): a good one is queued, a broken
     one is 422 with the reader's one-line message, naming the field."""

@@ -201,3 +201,37 @@ def test_keyframe_bakes_through_the_service(make_cluster, shared_assets, tmp_pat
                            cwd=ROOT, capture_output=True, text=True)
         assert p.returncode == 0, (name, p.stderr)
         assert f"keyframe 1 at {t_last:g} s" in p.stdout, (name, p.stdout)
+
+
+def test_hair_with_a_head_bakes_through_the_service(make_cluster, tmp_path):
+    """A hair asset and its head (the 'mesh' part) as one job: the worker bakes them
+    together and the downloaded bundle holds the head's lightmap and the strand texture,
+    which `prtcore relight` writes (docs/hair.md)."""
+    from prtcore.io.hair import write_hair
+    from prtcore.scenes.hair import head_hair, write_head
+
+    hair = write_hair(tmp_path / "hair.hair", head_hair(100, "curly", seed=4))
+    head = write_head(tmp_path / "head.glb")
+    spec = {"atlas": {"resolution": 32}, "hair": {"texels_per_strand": 4},
+            "lights": {"count": 16, "holdout": 4},
+            "measurement_points": {"count": 16, "supersample": 2},
+            "transport": {"gather_rays": 16}, "fit": {"basis": 4}}
+    c = make_cluster()
+    c.start_api()
+    c.start_worker()
+    r = c.submit(spec, asset=hair, mesh=head)
+    assert r.status_code == 202, r.text
+    job = c.wait(r.json()["id"])
+    assert job["status"] == "succeeded", job
+    z = c.client.get(f"/v1/bakes/{job['id']}/artifacts/bundle.zip")
+    bundle = tmp_path / "bundle"
+    zipfile.ZipFile(io.BytesIO(z.content)).extractall(bundle)
+    manifest = json.loads((bundle / "manifest.json").read_text())
+    assert manifest["asset"]["hair"]["strands"] == 100
+    assert manifest["strands"]["basis_files"] and manifest["atlas"]["uv"] == "TEXCOORD_1"
+    out = tmp_path / "relit.exr"
+    p = subprocess.run([sys.executable, "-m", "prtcore", "relight", str(bundle), "--light",
+                        str(bundle / "holdout_lights.json"), "--out", str(out)],
+                       cwd=ROOT, capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert out.is_file() and (tmp_path / "relit.strands.exr").is_file()
