@@ -57,21 +57,14 @@ class Upload:
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def _safe_suffix(filename: str) -> str:
+def _safe_suffix(filename: str, part: str = "asset",
+                 allowed: tuple[str, ...] = ASSET_SUFFIXES) -> str:
+    """The checked, lowercase file type of an uploaded ``part``, one of ``allowed``."""
     suffix = os.path.splitext(filename)[1].lower()
-    if suffix not in ASSET_SUFFIXES:
+    if suffix not in allowed:
         raise ApiError(422, "invalid_asset",
-                       f"asset {_clean(filename)!r}: unsupported file type "
-                       f"{suffix or '(none)'!r} (expected {', '.join(ASSET_SUFFIXES)})")
-    return suffix
-
-
-def _mesh_suffix(filename: str) -> str:
-    suffix = os.path.splitext(filename)[1].lower()
-    if suffix not in MESH_SUFFIXES:
-        raise ApiError(422, "invalid_asset",
-                       f"mesh {_clean(filename)!r}: unsupported file type "
-                       f"{suffix or '(none)'!r} (expected {', '.join(MESH_SUFFIXES)})")
+                       f"{part} {_clean(filename)!r}: unsupported file type "
+                       f"{suffix or '(none)'!r} (expected {', '.join(allowed)})")
     return suffix
 
 
@@ -146,7 +139,7 @@ async def receive(request: Request, settings: Settings) -> Upload:
             if up.mesh_path is not None:
                 raise ApiError(422, "duplicate_field", "more than one 'mesh' part")
             filename = opts.get(b"filename", b"").decode("utf-8", "replace")
-            up.mesh_name = "mesh" + _mesh_suffix(filename)
+            up.mesh_name = "mesh" + _safe_suffix(filename, "mesh", MESH_SUFFIXES)
             up.mesh_path = up.folder / up.mesh_name
             state["file"] = open(up.mesh_path, "wb")
             up._mesh_hash = hashlib.sha256()
