@@ -251,9 +251,6 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from prtcore.io.bundle import is_hair_mesh
 
     manifest = read_manifest(Path(args.bundle))
-    if is_hair_mesh(manifest) and not args.cpu:
-        raise PrtError(f"render: {args.bundle} is a hair + mesh bundle, which the GL "
-                       "renderer does not draw yet; --cpu ray traces it")
     if "strands" in manifest:  # hair: the fibre tubes
         from prtcore.reference.camera import load_camera
         from prtcore.runtime.gl import write_render
@@ -266,13 +263,18 @@ def _cmd_render(args: argparse.Namespace) -> int:
             label = "the CPU (hair: fibre tubes ray traced, strand texture sampled" + (
                 "; the mesh's lightmap sampled)" if is_hair_mesh(manifest) else ")")
         else:
+            from prtcore.runtime.hair_mesh_gl import HairMeshRenderer
             from prtcore.runtime.strands_gl import render_strands_gl
 
+            both = is_hair_mesh(manifest)
             res, label = render_strands_gl(args.bundle, lights, camera, n=args.basis,
                                            mode=mode,
-                                           shadow_resolution=args.shadow_resolution)
+                                           shadow_resolution=args.shadow_resolution,
+                                           renderer=HairMeshRenderer if both else None)
             image = res.image
-            label += " (hair: fibre tubes, shadow maps, strand texture blended)"
+            label += (" (hair + mesh: the mesh's lightmap and the fibre tubes' strand "
+                      "texture blended, one shadow atlas of both)" if both else
+                      " (hair: fibre tubes, shadow maps, strand texture blended)")
         write_render(args.out, image, args.exposure)
         print(f"rendered: {args.out} ({image.shape[1]}×{image.shape[0]}, {mode}) on {label}")
         return 0

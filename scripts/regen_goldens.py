@@ -1,6 +1,7 @@
 #!/usr/bin/env python
 """Regenerate the golden images of tests/test_render.py, tests/test_viewer.py and
-tests/test_hairbake.py (the GL hair drawing), and write a difference report.
+tests/test_hairbake.py and tests/test_hair_mesh.py (the GL hair drawings), and write a
+difference report.
 
     .venv/bin/python scripts/regen_goldens.py [--dry-run] [-k EXPR]
 
@@ -60,6 +61,7 @@ def main(argv: list[str] | None = None) -> int:
             proc = subprocess.run(
                 [sys.executable, "-m", "pytest", "-q", "-m", "", "-p", "no:cacheprovider",
                  "tests/test_render.py", "tests/test_viewer.py", "tests/test_hairbake.py",
+                 "tests/test_hair_mesh.py",
                  "-k", args.k], cwd=ROOT,
                 env=env, stdout=f,
                 stderr=subprocess.STDOUT)

@@ -167,14 +167,16 @@ class GLRenderer:
         return self._fbos[key][0]
 
 
-def draw_depth_tested(ctx, fbo, draw) -> None:
-    """Clear ``fbo`` (colour 0, depth 1) and run ``draw()`` into it with the depth test on,
-    no culling, no blending — how every camera pass draws."""
+def draw_depth_tested(ctx, fbo, draw, clear: bool = True) -> None:
+    """Clear ``fbo`` (colour 0, depth 1; not with ``clear`` False: over what an earlier
+    pass drew) and run ``draw()`` into it with the depth test on, no culling, no blending —
+    how every camera pass draws."""
     import moderngl
 
     fbo.use()
     fbo.viewport = (0, 0, *fbo.size)
-    fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+    if clear:
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
     ctx.enable(moderngl.DEPTH_TEST)
     ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
     draw()

@@ -100,7 +100,7 @@ class StrandRenderer(GLRenderer):
                  shadow_resolution: int = SHADOW_RESOLUTION):
         import moderngl
 
-        from prtcore.io.bundle import load_runtime, read_manifest
+        from prtcore.io.bundle import is_hair_mesh, load_runtime, read_manifest, strand_runtime
         from prtcore.io.hair import read_hair
 
         if not 16 <= int(shadow_resolution) <= 8192:
@@ -111,7 +111,11 @@ class StrandRenderer(GLRenderer):
             raise PrtError(f"{self.bundle}: not a hair bundle (no strands layout)")
         self.layout = self.manifest["strands"]
         self.data = load_runtime(self.bundle, self.manifest)
-        self.hair = read_hair(self.bundle / self.manifest["asset"]["file"])
+        asset = self.manifest["asset"]
+        if is_hair_mesh(self.manifest):  # hair + mesh: the strand texture's planes
+            self.data = strand_runtime(self.bundle, self.manifest, self.data)
+            asset = asset["hair"]
+        self.hair = read_hair(self.bundle / asset["file"])
         if self.hair.strand_count > MAX_GL_STRANDS:
             raise PrtError(f"{self.bundle}: {self.hair.strand_count} strands; the GL "
                            f"renderer draws at most {MAX_GL_STRANDS}")
@@ -159,13 +163,30 @@ class StrandRenderer(GLRenderer):
         if mode not in MODES:
             raise PrtError(f"render: mode {mode!r}: expected one of {', '.join(MODES)}")
         weights = self.plane_weights(lights, n)
-        ctx, prog = self.ctx, self._prog
+        ctx = self.ctx
         self._timer.reset()
         self._shadows.render(lights, self._timer)
+        fbo = self._target(camera.width, camera.height, 2)
+        self.camera_pass(fbo, camera, mode, weights)
+        h, w = camera.height, camera.width
+        img = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=0), "<f4")
+        aux = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=1), "<f4")
+        check_gl(ctx, "render strands")
+        gpu, wall = self._timer.results()
+        return RenderResult(image=img.reshape(h, w, 4)[::-1].copy(),
+                            uv1=np.ascontiguousarray(aux.reshape(h, w, 4)[::-1, :, :2]),
+                            milliseconds=gpu, wall_milliseconds=wall)
+
+    @current
+    def camera_pass(self, fbo, camera: Camera, mode: str, weights: np.ndarray,
+                    clear: bool = True) -> None:
+        """Draw the tubes into ``fbo`` (two float RGBA attachments and a depth buffer)
+        with the plane ``weights`` (q, 3) and the shadow maps already rendered; ``clear``
+        False draws over what is there, depth-tested (a mesh drawn first)."""
+        ctx, prog = self.ctx, self._prog
         buf = np.zeros((self._weights.size // 16, 4), "<f4")
         buf[:len(weights), :3] = weights
         self._weights.write(buf.tobytes())
-        fbo = self._target(camera.width, camera.height, 2)
         self._shadows.bind(prog)
         self._weights.bind_to_storage_buffer(4)
         self._basis.use(location=1)
@@ -179,24 +200,22 @@ class StrandRenderer(GLRenderer):
         set_uniform(prog, "strands_per_row", int(self.layout["strands_per_row"]))
         set_uniform(prog, "texture_size", (float(self.layout["width"]),
                                            float(self.layout["height"])))
+
+        def draw() -> None:
+            self._vao.render(self._mgl.TRIANGLES)
+
         with self._timer.timed("camera"):
-            draw_depth_tested(ctx, fbo, lambda: self._vao.render(self._mgl.TRIANGLES))
-        h, w = camera.height, camera.width
-        img = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=0), "<f4")
-        aux = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=1), "<f4")
-        check_gl(ctx, "render strands")
-        gpu, wall = self._timer.results()
-        return RenderResult(image=img.reshape(h, w, 4)[::-1].copy(),
-                            uv1=np.ascontiguousarray(aux.reshape(h, w, 4)[::-1, :, :2]),
-                            milliseconds=gpu, wall_milliseconds=wall)
+            draw_depth_tested(ctx, fbo, draw, clear=clear)
 
 
 def render_strands_gl(bundle: str | Path, lights: Sequence[Light], camera: Camera,
                       n: int | None = None, mode: str = "full",
-                      shadow_resolution: int = SHADOW_RESOLUTION
+                      shadow_resolution: int = SHADOW_RESOLUTION, renderer=None
                       ) -> tuple[RenderResult, str]:
-    """One frame of a hair bundle on the GPU, and the GL renderer's label."""
-    with StrandRenderer(bundle, shadow_resolution=shadow_resolution) as r:
+    """One frame of a hair bundle on the GPU, and the GL renderer's label. ``renderer``:
+    the class drawing it (default :class:`StrandRenderer`; a hair + mesh bundle's is
+    :class:`prtcore.runtime.hair_mesh_gl.HairMeshRenderer`)."""
+    with (renderer or StrandRenderer)(bundle, shadow_resolution=shadow_resolution) as r:
         res = r.render(lights, camera, n=n, mode=mode)
         label = renderer_label(r.ctx)
     return res, label
