@@ -294,13 +294,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from prtcore.io.bundle import is_hair_mesh, read_manifest
     from prtcore.viewer.server import ViewerServer
 
-    if is_hair_mesh(read_manifest(Path(args.bundle))):
-        raise PrtError(f"view: {args.bundle} is a hair + mesh bundle, which the viewer does "
-                       "not draw yet; `prtcore relight` writes its lightmap and its strand "
-                       "texture")
     server = ViewerServer(Path(args.bundle), port=args.port, quiet=args.quiet,
                           reference=args.reference, reference_light=args.light)
     print(f"viewer: {server.url} (Ctrl-C stops)", flush=True)

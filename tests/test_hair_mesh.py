@@ -9,7 +9,6 @@ import json
 import numpy as np
 import pytest
 
-from prtcore.cli import build_parser
 from prtcore.cli import main as cli_main
 from prtcore.core.errors import PrtError
 from prtcore.core.raytrace import RayTracer
@@ -183,15 +182,6 @@ def test_relight_writes_both_textures(bundle, tmp_path):
         covered = img[:, :, 3] > 0.5
         assert np.isfinite(img).all() and img[covered, :3].mean() > 0
     assert int((strands[:, :, 3] > 0.5).sum()) == 1800
-
-
-def test_the_viewer_refuses_a_hair_mesh_bundle_by_name(bundle, tmp_path):
-    light = tmp_path / "light.json"
-    light.write_text(json.dumps({"type": "point", "position": [0.25, 0.2, 0.2],
-                                 "intensity": 1.0}))
-    args = build_parser().parse_args(["view", str(bundle), "--no-browser"])
-    with pytest.raises(PrtError, match="viewer does not draw"):
-        args.func(args)
 
 
 @pytest.fixture(scope="module")

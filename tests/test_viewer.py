@@ -34,7 +34,7 @@ from prtcore.emitters.lightfile import light_from_dict
 from prtcore.io.bundle import load_runtime, read_manifest
 from prtcore.io.gltf.loader import load_asset
 from prtcore.io.imageio import read_image
-from prtcore.runtime.cpu import shade_points
+from prtcore.runtime.cpu import plane_weights, shade_points
 from prtcore.viewer.server import ViewerServer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -498,6 +498,17 @@ def hair_page(browser, tmp_path_factory):
         yield page, bundle, log
 
 
+def _page_and_relight(page, bundle: Path, light: dict, tmp_path: Path
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(the page's indirect lightmap, `prtcore relight`'s X.exr) for ``light``, both
+    (H, W, 4) float32; the page's light already set."""
+    (tmp_path / "light.json").write_text(json.dumps(light))
+    assert main(["relight", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
+                 str(tmp_path / "relit.exr")]) == 0
+    want = read_image(tmp_path / "relit.exr")
+    return np.asarray(page.evaluate("prt.atlas()"), np.float32).reshape(want.shape), want
+
+
 def test_hair_strand_texture_matches_relight(hair_page, tmp_path):
     """A hair bundle: x at the hull points (no shadow maps: nothing of the hair can shadow a
     point of its convex hull from a light the point faces) equals the CPU runtime's
@@ -523,11 +534,7 @@ def test_hair_strand_texture_matches_relight(hair_page, tmp_path):
     assert (want_x.sum(axis=1) > 0).sum() >= 4  # some points lit
     assert np.linalg.norm(x - want_x) <= 1e-3 * np.linalg.norm(want_x)
 
-    (tmp_path / "light.json").write_text(json.dumps(HAIR_LIGHT))
-    assert main(["relight", str(bundle), "--light", str(tmp_path / "light.json"), "--out",
-                 str(tmp_path / "relit.exr")]) == 0
-    want = read_image(tmp_path / "relit.exr")
-    got = np.asarray(page.evaluate("prt.atlas()"), np.float32).reshape(want.shape)
+    got, want = _page_and_relight(page, bundle, HAIR_LIGHT, tmp_path)
     cov = want[:, :, 3] > 0
     assert cov.sum() == 800
     err = np.sqrt(((got[cov, :3] - want[cov, :3]) ** 2).mean() / (want[cov, :3] ** 2).mean())
@@ -586,6 +593,84 @@ def test_hair_gizmo_moves_the_light(hair_page):
     moved = np.asarray(page.evaluate("prt.light")["position"])
     assert np.linalg.norm(moved - pos) > 5e-3
     assert not np.allclose(np.asarray(page.evaluate("prt.x")), x0)
+    assert log == []
+
+
+#: A light beside the head of the hair + mesh test: it lights both the hair and the head.
+HEAD_LIGHT = {"type": "point", "position": [0.25, 0.2, 0.2], "intensity": 1.0,
+              "color": [1.0, 0.9, 0.8]}
+
+
+@pytest.fixture(scope="module")
+def hair_mesh_page(browser, tmp_path_factory):
+    """(page, bundle, log): 150 curly strands baked with the test head (docs/hair.md), a
+    32² atlas, half basis, in its own page."""
+    from prtcore.io.hair import write_hair
+    from prtcore.scenes.hair import head_hair, write_head
+
+    d = tmp_path_factory.mktemp("hairmesh")
+    spec = {"atlas": {"resolution": 32}, "hair": {"texels_per_strand": 4},
+            "measurement_points": {"count": 24, "supersample": 2},
+            "lights": {"count": 16, "holdout": 2}, "transport": {"gather_rays": 16},
+            "fit": {"basis": 6}, "output": {"dtype": "half"}}
+    bundle = pipeline.bake(write_hair(d / "hair.hair", head_hair(150, "curly", seed=5)),
+                           parse_spec(spec), d / "bundle", quiet=True,
+                           mesh=write_head(d / "head.glb"))
+    with served_page(browser, bundle) as (page, log):
+        yield page, bundle, log
+
+
+def test_hair_with_a_head_matches_relight(hair_mesh_page, tmp_path):
+    """A hair + mesh bundle in the page: the head's lightmap (the atlas pass) equals
+    `prtcore relight`'s X.exr, and what the lines read at their vertices equals the strand
+    texture's planes sampled by the manifest's rule and blended with the CPU runtime's
+    plane weights (one set for both textures), both to 1e-3; the camera pass draws the head
+    and the lines, full = direct + indirect; no console errors."""
+    from prtcore.io.hair import load_hair
+    from prtcore.runtime.strands import sample_strands
+
+    page, bundle, log = hair_mesh_page
+    m = read_manifest(bundle)
+    assert "150 strands" in page.text_content("#message")
+    assert "32×32 atlas" in page.text_content("#message")
+    _set_light(page, HEAD_LIGHT)
+    got, want = _page_and_relight(page, bundle, HEAD_LIGHT, tmp_path)
+    cov = want[:, :, 3] > 0
+    err = np.sqrt(((got[cov, :3] - want[cov, :3]) ** 2).mean() / (want[cov, :3] ** 2).mean())
+    assert want[cov, :3].mean() > 0 and err <= 1e-3, err
+
+    # what the lines read: the planes sampled by the sampling rule, then blended and
+    # clamped (the runtime formula per fragment, as the GL renderer). relight's texture,
+    # clamped per texel before bilinear filtering, differs where a neighbour is negative.
+    from prtcore.intake.hair import with_hair
+    from prtcore.io.bundle import strand_runtime
+    from prtcore.io.gltf.loader import load_asset
+
+    assert (tmp_path / "relit.strands.exr").is_file()
+    hair = load_hair(bundle / "asset.hair")
+    scene = with_hair(load_asset(bundle / "asset.glb"), hair)
+    data = load_runtime(bundle)
+    weights = plane_weights(data, shade_points(data, [light_from_dict(HEAD_LIGHT)], RayTracer(
+        scene.positions, scene.faces, scene.radius)))
+    planes = strand_runtime(bundle, m, data).planes.astype(np.float64)
+    strand = np.repeat(hair.strand_of_segment, 2)
+    point = np.stack([hair.segment_start, hair.segment_start + 1], axis=1).ravel()
+    frac = hair.arc_length[point] / hair.strand_length[strand]
+    lines = np.asarray(page.evaluate("prt.strands()")["indirect"]).reshape(-1, 3)
+    ref = np.maximum(sample_strands(planes, m["strands"], strand, frac) @ weights, 0)
+    assert ref.max() > 0 and np.abs(lines - ref).max() <= 1e-3 * np.abs(ref).max()
+
+    w, h = page.evaluate("[document.getElementById('view').width, "
+                         "document.getElementById('view').height]")
+    img = {}
+    for mode in ("full", "direct", "indirect"):
+        raw = base64.b64decode(page.evaluate("m => prt.image(m)", mode))
+        img[mode] = np.frombuffer(raw, "<f4").reshape(h, w, 4)
+    on = img["full"][:, :, 3] > 0
+    assert on.mean() > 0.05 and img["indirect"][on, :3].max() > 0
+    np.testing.assert_allclose(img["full"][on, :3],
+                               img["direct"][on, :3] + img["indirect"][on, :3],
+                               rtol=1e-4, atol=1e-6 * img["full"][on, :3].max())
     assert log == []
 
 

@@ -55,7 +55,8 @@ async function loadRaw(base, desc) {
 
 // Everything the viewer needs from a bundle directory served at `base` (ends with '/'):
 // a surface bundle's meshes (asset.glb), or a hair bundle's strands (asset.hair, `hair`, and
-// their line geometry, `strandGeometry`; `meshes` empty).
+// their line geometry, `strandGeometry`; `meshes` empty), or both for hair baked with a mesh
+// (`withMesh`; the strands' planes in `strandBasis`).
 export async function loadBundle(base) {
   const manifest = await (await fetchOk(base + 'manifest.json')).json();
   if (manifest.schema !== 'prtcore.bundle') {
@@ -68,6 +69,9 @@ export async function loadBundle(base) {
   if (strands && strands.kind !== 'strands') {
     throw new BundleError(`strands.kind ${strands.kind}: expected strands`);
   }
+  // hair baked with a mesh (docs/hair.md): asset.glb with its lightmap (basis.files), and
+  // the hair (asset.hair.file) with its strand texture (strands.basis_files), one transfer
+  const withMesh = Boolean(strands && strands.basis_files);
   if (manifest.transfer && manifest.transfer.learnt) {  // docs/bundle.md, fit.transfer "mlp"
     throw new BundleError('bundles with a learnt transfer (fit.transfer "mlp") are not shown ' +
                           'by this viewer yet; use `prtcore relight` or `prtcore render`');
@@ -79,10 +83,10 @@ export async function loadBundle(base) {
     throw new BundleError(`atlas.exr_row_order ${rowOrder}: expected top_down or bottom_up`);
   }
   const exr = new EXRLoader().setDataType(THREE.HalfFloatType);
-  const [asset, layers, coverage, M, b, clusters, owner, points, holdout] = await Promise.all([
-    strands ? fetchOk(base + manifest.asset.file).then((r) => r.arrayBuffer())
-      .then((buf) => parseHair(buf, manifest.asset.file))
-      : new GLTFLoader().loadAsync(base + manifest.asset.file),
+  const hairFile = withMesh ? manifest.asset.hair.file : manifest.asset.file;
+  const [asset, layers, coverage, M, b, clusters, owner, points, holdout, hairAsset,
+         strandLayers] = await Promise.all([
+    strands && !withMesh ? null : new GLTFLoader().loadAsync(base + manifest.asset.file),
     Promise.all(manifest.basis.files.map((f) => exr.loadAsync(base + f))),
     exr.loadAsync(base + manifest.atlas.coverage),
     loadRaw(base, manifest.transfer.matrix),
@@ -91,6 +95,9 @@ export async function loadBundle(base) {
     loadRaw(base, manifest.points.clusters_owner),
     loadRaw(base, manifest.points.points),
     fetchOk(base + manifest.validation.holdout_lights).then((r) => r.json()),
+    strands ? fetchOk(base + hairFile).then((r) => r.arrayBuffer())
+      .then((buf) => parseHair(buf, hairFile)) : null,
+    withMesh ? Promise.all(strands.basis_files.map((f) => exr.loadAsync(base + f))) : null,
   ]);
   const span = manifest.family ? await loadRaw(base, manifest.family.span) : null;
   // keyframe bundles: per keyframe, posed vertices (asset.glb order), clusters and points,
@@ -102,25 +109,17 @@ export async function loadBundle(base) {
     points: await loadRaw(base, kf.points),
   } : null;
   const W = manifest.atlas.width, H = manifest.atlas.height;
-  const data = new Uint16Array(W * H * 4 * layers.length);
-  layers.forEach((t, f) => {
-    if (t.image.width !== W || t.image.height !== H) {
-      throw new BundleError(`${manifest.basis.files[f]}: ${t.image.width}×${t.image.height}, ` +
-                            `atlas is ${W}×${H}`);
-    }
-    data.set(t.image.data, f * W * H * 4);
-  });
-  const basis = new THREE.DataArrayTexture(data, W, H, layers.length);
-  basis.type = THREE.HalfFloatType;
-  basis.format = THREE.RGBAFormat;
-  basis.minFilter = basis.magFilter = THREE.LinearFilter;
-  basis.needsUpdate = true;
+  const basis = basisTexture(layers, manifest.basis.files, W, H, 'atlas');
+  // a hair + mesh bundle's strand texture: the same planes, blended with the same weights
+  const strandBasis = withMesh ? basisTexture(strandLayers, strands.basis_files,
+                                              strands.width, strands.height,
+                                              'strand texture') : null;
   coverage.minFilter = coverage.magFilter = THREE.NearestFilter;
   // (3, nB, P), or (keyframes, 3, nB, P) with one transfer per keyframe
   const [nB, P] = manifest.transfer.matrix.shape.slice(-2);
   const perKeyframe = manifest.transfer.matrix.shape.length === 4;
   const meshes = [];
-  if (!strands) {
+  if (asset) {
     asset.scene.updateMatrixWorld(true);
     asset.scene.traverse((o) => { if (o.isMesh) meshes.push(o); });
   }
@@ -136,10 +135,12 @@ export async function loadBundle(base) {
                             `vertices per keyframe, ${manifest.asset.file} has ${rows}`);
     }
   }
-  const hair = strands ? asset : null;
-  const { center, radius } = hair ? hairSphere(hair) : boundingSphere(meshes);
+  const hair = hairAsset;
+  const { center, radius } = !hair ? boundingSphere(meshes)
+    : withMesh ? unionSphere(boundingSphere(meshes), hairSphere(hair)) : hairSphere(hair);
   return {
-    manifest, meshes, hair, strands, strandGeometry: hair ? strandGeometry(hair) : null, basis, coverage, W, H, flipV: rowOrder === 'top_down',
+    manifest, meshes, hair, strands, withMesh, strandBasis,
+    strandGeometry: hair ? strandGeometry(hair) : null, basis, coverage, W, H, flipV: rowOrder === 'top_down',
     layers: layers.length, planes: manifest.basis.planes,
     planeElement: manifest.basis.plane_element, planeChannel: manifest.basis.plane_channel,
     nBasis: manifest.basis.count, M, b, nB, P, perKeyframe, keyframes, gamma: manifest.fit.gamma,
@@ -147,6 +148,37 @@ export async function loadBundle(base) {
     warnAbove: manifest.family ? manifest.family.warn_above : null,
     holdoutLights: holdout.lights, center, radius,
   };
+}
+
+// The basis planes of `files` (RGBA EXR layers of w × h) as one half-float texture array,
+// bilinear.
+function basisTexture(layers, files, w, h, what) {
+  const data = new Uint16Array(w * h * 4 * layers.length);
+  layers.forEach((t, f) => {
+    if (t.image.width !== w || t.image.height !== h) {
+      throw new BundleError(`${files[f]}: ${t.image.width}×${t.image.height}, ` +
+                            `${what} is ${w}×${h}`);
+    }
+    data.set(t.image.data, f * w * h * 4);
+  });
+  const basis = new THREE.DataArrayTexture(data, w, h, layers.length);
+  basis.type = THREE.HalfFloatType;
+  basis.format = THREE.RGBAFormat;
+  basis.minFilter = basis.magFilter = THREE.LinearFilter;
+  basis.needsUpdate = true;
+  return basis;
+}
+
+// The sphere around two spheres' bounding boxes (a hair + mesh bundle's scale).
+function unionSphere(a, b) {
+  const box = new THREE.Box3();
+  for (const s of [a, b]) {
+    box.expandByPoint(s.center.clone().addScalar(-s.radius));
+    box.expandByPoint(s.center.clone().addScalar(s.radius));
+  }
+  const center = box.getCenter(new THREE.Vector3());
+  return { center, radius: Math.max(center.distanceTo(a.center) + a.radius,
+                                    center.distanceTo(b.center) + b.radius) };
 }
 
 // Centre of the bounding box and the radius around it (prtcore.core.scene: the scale of

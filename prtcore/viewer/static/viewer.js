@@ -53,7 +53,9 @@ async function main() {
   const m = bundle.manifest;
   const reference = await loadReference(document.body.dataset.reference, bundle);
   if (!reference || bundle.hair) $('mode').querySelector('option[value=error]').remove();
-  if (bundle.hair) $('mode').querySelector('option[value=uv]').remove();  // no TEXCOORD_1
+  if (bundle.hair && !bundle.withMesh) {  // no TEXCOORD_1
+    $('mode').querySelector('option[value=uv]').remove();
+  }
   poseKeyframe(bundle, 0);  // keyframe bundles: the first keyframe (as relight without --time)
   const pass = new LightPass(renderer, bundle);
   const weights = new THREE.DataTexture(new Float32Array(4 * bundle.planes), bundle.planes, 1,
@@ -95,9 +97,14 @@ async function main() {
     meshes.push(mesh);
   }
   let strandProbe = null;
+  // hair baked with a mesh: the lines read the strand texture (its own size), the meshes
+  // the lightmap; one set of plane weights
+  const strandView = bundle.withMesh ? { ...view, u_basis: { value: bundle.strandBasis },
+    u_atlasSize: { value: new THREE.Vector2(bundle.strands.width, bundle.strands.height) },
+  } : view;
   if (bundle.hair) {  // hair: the strands as lines sampling the strand texture
     const lines = new THREE.LineSegments(bundle.strandGeometry, new THREE.RawShaderMaterial({
-      glslVersion: THREE.GLSL3, defines, uniforms: { ...pass.uniforms, ...view },
+      glslVersion: THREE.GLSL3, defines, uniforms: { ...pass.uniforms, ...strandView },
       vertexShader: STRAND_VS, fragmentShader: STRAND_FS }));
     lines.frustumCulled = false;
     scene.add(lines);
@@ -113,7 +120,8 @@ async function main() {
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter });
     const points = new THREE.Points(bundle.strandGeometry, new THREE.RawShaderMaterial({
       glslVersion: THREE.GLSL3, defines, depthTest: false, depthWrite: false,
-      uniforms: { ...view, u_output: { value: 0 }, u_size: { value: new THREE.Vector2(cols, rows) } },
+      uniforms: { ...strandView, u_output: { value: 0 },
+                  u_size: { value: new THREE.Vector2(cols, rows) } },
       vertexShader: STRAND_PROBE_VS, fragmentShader: STRAND_PROBE_FS }));
     points.frustumCulled = false;
     const probeScene = new THREE.Scene().add(points), raw = new Float32Array(4 * cols * rows);
@@ -506,9 +514,12 @@ async function main() {
   frame();
   autoExposure();
   renderNow();
-  const texture = bundle.hair
-    ? `${bundle.hair.strands} strands, ${m.atlas.width}×${m.atlas.height} strand texture`
-    : `${m.atlas.width}×${m.atlas.height} atlas`;
+  const texture = bundle.withMesh
+    ? `${m.atlas.width}×${m.atlas.height} atlas and ${bundle.hair.strands} strands, ` +
+      `${bundle.strands.width}×${bundle.strands.height} strand texture`
+    : bundle.hair
+      ? `${bundle.hair.strands} strands, ${m.atlas.width}×${m.atlas.height} strand texture`
+      : `${m.atlas.width}×${m.atlas.height} atlas`;
   $('message').textContent = `${m.asset.source}: ${texture}, ` +
     `${bundle.nBasis} basis elements. Drag the light; T/R: move/aim.`;
   window.addEventListener('keydown', (e) => {
