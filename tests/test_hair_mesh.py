@@ -227,9 +227,9 @@ def test_gl_render_is_the_cpu_drawing(bundle, frames, tmp_path):
     """The GL drawing against the ray-traced one, over the pixels both cover: the
     indirect term (lightmap and strand texture blended per fragment) per pixel to the
     GPU's precision; the direct term on average (shadow maps resolve a fibre's shadow
-    only on average: 25 % per pixel here, as for hair alone, docs/hair.md). Measured: 0.09 %
-    of the pixels covered by one drawing only, indirect 0.29 % per pixel, direct mean
-    +1.3 % (96² … 256² frames)."""
+    only on average: 25 % per pixel here, as for hair alone, docs/hair.md). Measured at
+    256²: 0.09 % of the pixels covered by one drawing only, indirect 0.24 % per pixel,
+    direct mean +1.3 %."""
     cpu, gl, light, cam = frames
     both = (cpu["full"][..., 3] > 0) & (gl["full"][..., 3] > 0)
     assert both.mean() > 0.2  # the head and the hair: a quarter of the frame

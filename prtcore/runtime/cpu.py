@@ -93,11 +93,19 @@ def blend(data: RuntimeData, weights: np.ndarray) -> np.ndarray:
     (negative light is clamped: the runtime's negative-value policy, core/formula.py and
     docs/bundle.md; the fit's own reconstruction stays linear)."""
     h, w, q = data.planes.shape
-    out = data.planes.reshape(-1, q).astype(np.float32) @ weights.astype(np.float32)
+    return blend_at(data.planes.reshape(-1, q), weights, data.gamma).reshape(h, w, 3)
+
+
+def blend_at(planes: np.ndarray, weights: np.ndarray, gamma: float | None) -> np.ndarray:
+    """:func:`blend` of planes already sampled somewhere, (n, q) → (n, 3) float32: what a
+    fragment shader computes from its bilinear sample of the basis (the GL renderer, the
+    viewer); sampling a relit texture instead clamps each texel before filtering, which
+    differs where a neighbouring texel is negative."""
+    out = np.asarray(planes).astype(np.float32) @ weights.astype(np.float32)
     out = np.maximum(out, np.float32(0.0))
-    if data.gamma is not None and data.gamma != 1.0:
-        out = out ** np.float32(data.gamma)
-    return out.reshape(h, w, 3)
+    if gamma is not None and gamma != 1.0:
+        out = out ** np.float32(gamma)
+    return out
 
 
 def relight(data: RuntimeData, lights: Sequence[Light], tracer: RayTracer | None,

@@ -11,8 +11,8 @@ reconstructs the texture the same way; only the rasterisation differs.
 
 A hair + mesh bundle (docs/hair.md) is drawn the same way with the mesh in the tracer: a
 pixel that sees the mesh gets ``ρ/π · E`` at the hit (shading normal, albedo at the hit,
-shadow rays through the mesh and the tubes) plus the relit lightmap sampled bilinearly at
-the hit's TEXCOORD_1, edges clamped.
+shadow rays through the mesh and the tubes) plus the lightmap's planes sampled bilinearly
+at the hit's TEXCOORD_1 (edges clamped) and blended likewise.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from prtcore.io.gltf.loader import load_asset
 from prtcore.io.hair import read_hair
 from prtcore.receivers.strands import azimuth_frame, build_strand_space, interp_points
 from prtcore.reference.camera import Camera
-from prtcore.runtime.cpu import relight
+from prtcore.runtime.cpu import blend_at, plane_weights, shade_points
 from prtcore.transport.fibre import hair_tracer
 
 
@@ -74,12 +74,13 @@ def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
     arc = hair.arc_length[p0] + t * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
     strand = hair.strand_of_segment[seg]
     out = np.zeros((len(o), 3))
-    if mode in ("full", "indirect"):
+    if mode in ("full", "indirect"):  # the planes sampled, then blended (per fragment)
         data = load_runtime(bundle, manifest)
         strands = strand_runtime(bundle, manifest, data) if both else data
-        tex = relight(strands, lights, tracer, n=n)
+        weights = plane_weights(data, shade_points(data, lights, tracer), n)
         frac = arc / np.maximum(hair.strand_length[strand], 1e-300)
-        out[hit] += sample_strands(tex[:, :, :3].astype(np.float64), layout, strand, frac)
+        out[hit] += blend_at(sample_strands(strands.planes.astype(np.float64), layout,
+                                            strand, frac), weights, data.gamma)
     if mode in ("full", "direct"):
         point = o[hit] + hits.t[hit][:, None] * d[hit]
         axis, normal, _ = azimuth_frame(hair, strand, arc, point)
@@ -94,9 +95,10 @@ def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
         mh = np.flatnonzero(hits.hit & hits.front & (hits.triangle < first))
         tri, bary = hits.triangle[mh], hits.barycentric[mh]
         if mode in ("full", "indirect"):
-            lightmap = relight(data, lights, tracer, n=n)[:, :, :3].astype(np.float64)
             uv = np.einsum("nk,nkj->nj", bary, scene.uv1[scene.faces[tri]])
-            out[mh] += sample_texture(Texture(lightmap, CLAMP_TO_EDGE, CLAMP_TO_EDGE), uv)
+            planes = sample_texture(Texture(data.planes.astype(np.float64), CLAMP_TO_EDGE,
+                                            CLAMP_TO_EDGE), uv)
+            out[mh] += blend_at(planes, weights, data.gamma)
         if mode in ("full", "direct"):
             p = tracer.surface_point(tri, bary)
             ns = shading_normals(scene, tri, bary, tracer.face_normals[tri])
