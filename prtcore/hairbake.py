@@ -221,7 +221,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         if scene is not None:
             b = np.stack([np.minimum(b[0], scene.bounds[0]), np.maximum(b[1], scene.bounds[1])])
         center, radius = b.mean(axis=0), float(np.linalg.norm(b[1] - b[0]) / 2)
-        train, hold = sample_configurations(spec.lights, center, radius, ())
+        # the mesh's own lights (KHR_lights_punctual) serve families with from_asset
+        train, hold = sample_configurations(spec.lights, center, radius,
+                                            scene.lights if scene is not None else ())
     tracer, fibres = hair_tracer(space, scene)
     if scene is None:
         data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,

@@ -5,6 +5,7 @@ tracer (prtcore/reference/hair_mesh.py), and the bundle with both textures."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -254,6 +255,47 @@ def test_golden_hair_mesh_full(frames):
     from prtcore.runtime.gl import tone_map
 
     check_golden("hair_mesh_full", tone_map(frames[1]["full"], exposure=2.0))
+
+
+def _with_point_light(glb: Path, out: Path) -> Path:
+    """``glb`` with a KHR_lights_punctual point light on a new node (the JSON chunk
+    rewritten, the binary chunk kept)."""
+    import struct
+
+    raw = glb.read_bytes()
+    n = struct.unpack_from("<I", raw, 12)[0]
+    doc = json.loads(raw[20:20 + n])
+    rest = raw[20 + n:]
+    doc.setdefault("extensionsUsed", []).append("KHR_lights_punctual")
+    doc.setdefault("extensions", {})["KHR_lights_punctual"] = {
+        "lights": [{"type": "point", "intensity": 2.0, "color": [1, 1, 1]}]}
+    doc["nodes"].append({"translation": [0.3, 0.3, 0.3],
+                         "extensions": {"KHR_lights_punctual": {"light": 0}}})
+    doc["scenes"][doc.get("scene", 0)]["nodes"].append(len(doc["nodes"]) - 1)
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<I4s", len(text), b"JSON") + text + rest
+    out.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+    return out
+
+
+def test_a_mesh_brings_its_lights_to_from_asset_families(tmp_path):
+    """A light family with ``from_asset`` draws around the mesh's own lights (hair alone
+    has none and is refused, naming the family)."""
+    from prtcore.core.errors import LightFileError
+
+    hair = write_hair(tmp_path / "h.hair", head_hair(30, seed=6))
+    mesh = _with_point_light(write_head(tmp_path / "head.glb"), tmp_path / "lit.glb")
+    spec = parse_spec({"atlas": {"resolution": 32}, "hair": {"texels_per_strand": 2},
+                       "lights": {"count": 6, "holdout": 2, "families": [
+                           {"type": "point", "from_asset": True}]},
+                       "measurement_points": {"count": 8, "supersample": 1},
+                       "transport": {"gather_rays": 8}, "fit": {"basis": 2}})
+    out = bake(hair, spec, tmp_path / "out", quiet=True, mesh=mesh)
+    lights = json.loads((out / "holdout_lights.json").read_text())["lights"]
+    assert all(np.linalg.norm(np.asarray(li["position"]) - 0.3) < 0.3 for li in lights)
+    with pytest.raises(LightFileError, match="from_asset"):
+        bake(hair, spec, tmp_path / "alone", quiet=True)
 
 
 def test_a_mesh_needs_a_hair_asset_and_a_file(tmp_path, capsys):
