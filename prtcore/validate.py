@@ -47,6 +47,12 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     source = Path(light_file) if light_file else bundle / m["validation"]["holdout_lights"]
     lights = load_light_file(source)[:count]
     kf = m.get("keyframes")
+    if (m.get("strands") or {}).get("basis_files"):  # hair baked with a mesh
+        from prtcore.core.errors import PrtError
+        raise PrtError(f"{bundle}: a hair + mesh bundle is not validated against the path "
+                       "tracer by `report --reference-spp` yet; "
+                       "benchmarks/hair_mesh_accuracy.py checks its transport against "
+                       "prtcore.reference.hair_mesh (docs/hair.md)")
     if "strands" in m:  # a hair bundle: the fibre path tracer over the strand texels
         if time is not None:
             from prtcore.core.errors import PrtError

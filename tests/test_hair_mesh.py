@@ -209,6 +209,15 @@ def frames(bundle, tmp_path_factory):
     return cpu, gl, light, cam
 
 
+def test_report_refuses_to_validate_a_hair_mesh_bundle_by_name(bundle, capsys):
+    """`report --reference-spp` does not validate hair + mesh bundles yet: one line that
+    says so and where the transport is checked, exit 2 (not a traceback from reading the
+    mesh as hair)."""
+    assert cli_main(["report", str(bundle), "--reference-spp", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "hair + mesh bundle is not validated" in err and "Traceback" not in err
+
+
 def test_cpu_render_draws_head_and_hair(bundle, frames, tmp_path):
     """``render --cpu``: the head's pixels take the relit lightmap and the hair's the strand
     texture; full = direct + indirect; the head gets indirect light (all of it off the
