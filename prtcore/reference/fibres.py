@@ -45,7 +45,7 @@ from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 PATH_BATCH = 1 << 16
 
 
-def _direct(lights: Sequence[Light], tracer: RayTracer, points: np.ndarray,
+def irradiance_per_light(lights: Sequence[Light], tracer: RayTracer, points: np.ndarray,
             normals: np.ndarray) -> np.ndarray:
     """(n, K, 3) float64 shadowed irradiance of each light."""
     return np.stack([irradiance(li, points, normals, tracer) for li in lights], axis=1)
@@ -162,7 +162,7 @@ def fibre_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             o_hit, n_hit, rho = fibre_vertices(
                 hair, mesh, off, rho_pt, hits.triangle[fib] - mesh_faces,
                 hits.barycentric[fib], d, rng, radially_averaged)
-            e = _direct(lights, tracer, o_hit, n_hit)  # (m, K, 3)
+            e = irradiance_per_light(lights, tracer, o_hit, n_hit)  # (m, K, 3)
             contrib = (beta[alive] * rho / np.pi)[:, None, :] * e
             np.add.at(acc, owner[alive], contrib)
             beta[alive] *= rho

@@ -36,16 +36,13 @@ from prtcore.core.scene import Light, Scene
 from prtcore.receivers.strands import StrandSpace
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
 from prtcore.reference.fibres import (
-    _direct,
     cosine_about,
     fibre_vertices,
+    irradiance_per_light,
     roulette,
     strand_starts,
     two_halves,
 )
-
-#: paths traced together per wavefront
-PATH_BATCH = 1 << 16
 
 
 def hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSpace,
@@ -126,7 +123,7 @@ def hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSpace,
                 rho[si] = clamp_albedo(albedo_at(scene, tri[si], bary[si]))[0]
                 x_shade[si] = p
                 p_out[si] = p + fn * tracer.offset
-            e = _direct(lights, tracer, x_shade, n_out)  # (m, K, 3)
+            e = irradiance_per_light(lights, tracer, x_shade, n_out)  # (m, K, 3)
             np.add.at(acc, owner[alive], (beta[alive] * rho / math.pi)[:, None, :] * e)
             beta[alive] *= rho
             origin[alive], normal[alive], geo[alive] = p_out, n_out, g_out

@@ -110,4 +110,3 @@ class HairMeshRenderer:
 
     def __exit__(self, *exc) -> None:
         self.release()
-

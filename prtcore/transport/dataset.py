@@ -154,7 +154,7 @@ def channel_matrices(traced: Sequence[Traced]) -> tuple | None:
                  for c in range(3))
 
 
-def _add_first_bounce(a: tuple[np.ndarray, np.ndarray] | None,
+def add_first_bounce(a: tuple[np.ndarray, np.ndarray] | None,
                       b: tuple[np.ndarray, np.ndarray] | None
                       ) -> tuple[np.ndarray, np.ndarray] | None:
     """The sum of two first-bounce corrections (rows sorted unique, values (r, K, 3))."""
@@ -255,7 +255,7 @@ def light_texels(scene: Scene, texels: TexelSpace, tracer: RayTracer,
     rays1 = tracer.rays_traced
     first = None
     for t in traced:
-        first = _add_first_bounce(first, t.operator.first_bounce(
+        first = add_first_bounce(first, t.operator.first_bounce(
             t.term, scene, tracer, tuple(lights), direct, timer))
     rays2 = tracer.rays_traced
     coarse = coarsen_texels(texels.xy, texels.position, texels.normal, texels.footprint,

@@ -175,14 +175,13 @@ class MeshHits:
     """The fibre gather's rays whose first hit is the front of the mesh (a hair + mesh
     bake), in the order traced: ``row`` (n,) int64 strand texel, ``col`` (n,) int64 atlas
     texel, ``triangle`` (n,) int64 and ``barycentric`` (n, 3) float64 the hit, ``t`` (n,)
-    float64 its distance, ``phi`` (n,) float32 the azimuth the ray left its fibre at."""
+    float64 its distance."""
 
     row: np.ndarray
     col: np.ndarray
     triangle: np.ndarray
     barycentric: np.ndarray
     t: np.ndarray
-    phi: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -250,7 +249,8 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
             mesh_rows.append(((a + on) // rays).astype(np.int32))
             mesh_cols.append(mesh_texels(hits.triangle, hits.barycentric, on, origin, d,
                                          hits.t, index=on).astype(np.int32))
-            mesh_po.append(phi[a:b][on].astype(np.float32))
+            if all_bounces:
+                mesh_po.append(phi[a:b][on].astype(np.float32))
             mesh_tri.append(hits.triangle[on])
             mesh_bary.append(hits.barycentric[on])
             mesh_t.append(hits.t[on])
@@ -279,14 +279,14 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     if all_bounces:
         po = np.concatenate(po_all) if po_all else np.zeros(0, np.float32)
         block = harmonic_block(t, rays, rows, cols, po, psi, orders)
-    mesh = mesh_block = None
+    to_mesh = mesh_block = mesh_hits = None
     if mesh_texels is not None:
         mr = np.concatenate(mesh_rows) if mesh_rows else np.zeros(0, np.int32)
         mc = np.concatenate(mesh_cols) if mesh_cols else np.zeros(0, np.int32)
-        mesh = sp.csr_matrix((np.full(len(mr), 1 / np.float32(rays), np.float32),
-                              (mr, mc)), shape=(t, mesh_columns))
-        mesh.sum_duplicates()
-        mesh.sort_indices()
+        to_mesh = sp.csr_matrix((np.full(len(mr), 1 / np.float32(rays), np.float32),
+                                 (mr, mc)), shape=(t, mesh_columns))
+        to_mesh.sum_duplicates()
+        to_mesh.sort_indices()
         if all_bounces:
             mpo = np.concatenate(mesh_po) if mesh_po else np.zeros(0, np.float32)
             w = fourier_rows(mpo, orders, 2)
@@ -301,12 +301,9 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                              np.zeros(0, np.int64),
                              barycentric=np.concatenate(mesh_bary) if mesh_bary else
                              np.zeros((0, 3)),
-                             t=np.concatenate(mesh_t) if mesh_t else np.zeros(0),
-                             phi=np.concatenate(mesh_po) if mesh_po else
-                             np.zeros(0, np.float32))
+                             t=np.concatenate(mesh_t) if mesh_t else np.zeros(0))
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
-                     block=block, mesh=mesh, mesh_block=mesh_block,
-                     mesh_hits=mesh_hits if mesh_texels is not None else None,
+                     block=block, mesh=to_mesh, mesh_block=mesh_block, mesh_hits=mesh_hits,
                      stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
                             "misses": total - n_fibre - n_mesh})
 

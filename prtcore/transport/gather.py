@@ -371,6 +371,12 @@ class HitMapper:
         return idx[np.arange(len(points)), first]
 
 
+def near_field_reach(texels: TexelSpace, near_field: float) -> np.ndarray:
+    """(T,) float64: how far from texel i a gather hit counts as near field —
+    ``near_field`` × its footprint (|dP/dx| + |dP/dy|)/2, in world units."""
+    return near_field * 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
+
+
 def gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, rays: int,
                     seed: int, timer: StageTimer | None = None, near_field: float = 0.0,
                     direct_samples: int = 1, foreign: ForeignHits | None = None) -> Gather:
@@ -440,7 +446,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
         initial=1.0) > 0))
     mapper = HitMapper(scene, texels, tracer)
     # near-field reach of each texel: near_field × its footprint, in world units
-    reach = near_field * 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
+    reach = near_field_reach(texels, near_field)
     near_parts: list[tuple[np.ndarray, ...]] = []
 
     i = np.arange(m, dtype=np.float64)

@@ -40,7 +40,7 @@ from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.receivers.texels import TexelSpace
-from prtcore.transport.dataset import Dataset, _add_first_bounce, direct_at_points
+from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import (
     FibreTerm,
@@ -51,12 +51,8 @@ from prtcore.transport.fibre import (
     fibre_hits,
     fourier_rows,
 )
-from prtcore.transport.gather import HitMapper, NearField, gather_operator
+from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.solve import solve_indirect
-
-#: the timed stages of :func:`bake_hair_mesh_dataset`, in the order they run
-STAGES = ("gather operator", "fibre gather", "direct points", "direct texels", "near field",
-          "direct fibres", "indirect solve")
 
 
 class StrandHits:
@@ -139,8 +135,7 @@ def hair_near_field(hits: MeshHits, texels: TexelSpace, t_m: int, reach: float,
     --strands 500 --resolution 32 --max-bounces 2``), while the mean rows alone leave it
     at −1.8 % and bring the hair's from +1.7 % to +1.4 %; why the harmonic rows' correction
     overshoots is not understood yet."""
-    fp = 0.5 * np.linalg.norm(texels.footprint, axis=2).sum(axis=1)
-    close = np.flatnonzero(hits.t < reach * fp[hits.col])
+    close = np.flatnonzero(hits.t < near_field_reach(texels, reach)[hits.col])
     return NearField(row=t_m + hits.row[close], col=hits.col[close],
                      triangle=hits.triangle[close], barycentric=hits.barycentric[close],
                      weight=np.full(len(close), 1 / rays, np.float32))
@@ -215,7 +210,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
         with timer.stage("near field"):
             nf = hair_near_field(mesh_hits, texels, t_m, reach, spec.gather_rays)
             if nf.count:
-                near = _add_first_bounce(near, near_field_correction(
+                near = add_first_bounce(near, near_field_correction(
                     scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
     with timer.stage("direct fibres"):
@@ -230,7 +225,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
         else:
             direct[t_m:], first = direct_and_first_bounce(
                 space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1, both)
-            first = _add_first_bounce(first, near)
+            first = add_first_bounce(first, near)
     r6 = tracer.rays_traced
     rho_h = np.asarray(space.albedo, np.float64)
     albedo = np.concatenate([np.asarray(texels.albedo, np.float64),
