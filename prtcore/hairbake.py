@@ -62,6 +62,7 @@ from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
 from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, hair_tracer
+from prtcore.transport.fibre_chiang import CHIANG_LIGHT_TYPES, chiang_fibre
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
 
@@ -111,9 +112,15 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
+    if spec.hair.fibre == "chiang" and with_mesh:
+        raise SpecError("hair.fibre", "the 'chiang' fibre is baked for hair alone; with a "
+                        "--mesh use the 'diffuse' fibre (the hair + mesh operator carries "
+                        "the diffuse fibre's azimuthal harmonics)")
     spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     harmonics = spec.hair.harmonics
-    if harmonics == "auto":
+    if spec.hair.fibre == "chiang":
+        harmonics = "auto"  # the Chiang fibre carries no harmonics (its own transport)
+    elif harmonics == "auto":
         harmonics = "all_bounces" if with_mesh else "first_bounce"
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
@@ -176,6 +183,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \
         + 2 * t * held * 12 + segments * MEM_PER_FIBRE_SEGMENT
+    if spec.hair.fibre == "chiang":  # two more CSR operators, and each ray's weights
+        est += t * spec.transport.gather_rays * (2 * 8 + 12)
     if everything:
         est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
     else:  # the indirect light overwrites the direct
@@ -224,12 +233,20 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         # the mesh's own lights (KHR_lights_punctual) serve families with from_asset
         train, hold = sample_configurations(spec.lights, center, radius,
                                             scene.lights if scene is not None else ())
+    fibre = None
+    if spec.hair.fibre == "chiang":
+        bad = sorted({li.type for li in (*train, *hold)} - set(CHIANG_LIGHT_TYPES))
+        if bad:
+            raise SpecError("lights.families", f"the 'chiang' fibre shades "
+                            f"{', '.join(CHIANG_LIGHT_TYPES)} lights, not {', '.join(bad)} "
+                            "(use hair.fibre 'diffuse')")
+        fibre = chiang_fibre(spec.hair.chiang, space)
     tracer, fibres = hair_tracer(space, scene)
     if scene is None:
         data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
                                           spec.transport, timer,
                                           harmonics=spec.hair.harmonics,
-                                          keep_direct_texels=False)
+                                          keep_direct_texels=False, fibre=fibre)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,
@@ -242,7 +259,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     def write(tmp: Path) -> dict:
         write_hair(tmp / "asset.hair", hair)
         sections, report = m.write(tmp, inputs, result)
-        fibre = {"model": spec.hair.fibre, "harmonics": spec.hair.harmonics,
+        fibre_section = {"model": spec.hair.fibre, "harmonics": spec.hair.harmonics,
                  "geometry": "triangulated tubes, 3 sides, mean projected width = diameter"}
         if scene is None:
             common = {
@@ -257,12 +274,18 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                           "uv": "strands", "coverage": "coverage.exr",
                           "covered_texels": space.count},
                 "strands": space.layout(),
-                "fibre": {"model": spec.hair.fibre, "geometry": fibre["geometry"]},
+                "fibre": {"model": spec.hair.fibre, "geometry": fibre_section["geometry"]},
             }
+            if spec.hair.fibre == "chiang":
+                common["fibre"]["chiang"] = spec_to_dict(spec.hair.chiang)
+                common["units"]["radiance"] = (
+                    "linear RGB outgoing radiance averaged over every direction with the "
+                    "fibre's projected width (1/pi^2 * integral of L_o cos theta), over "
+                    "the texel's arc interval")
         else:
             common = _mesh_sections(tmp, scene, intake.texels, result, spec, asset, mesh,
                                     source_name, hair)
-            common["fibre"] = fibre
+            common["fibre"] = fibre_section
         run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         run = {"spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
                "timings": dict(timer.seconds)}

@@ -188,7 +188,8 @@ class BasisAtTexels:
 def _hair_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
                      timer: StageTimer):
     """References of a hair bundle: every strand texel's indirect light for each light by
-    the diffuse-fibre path tracer (:func:`prtcore.reference.fibres.fibre_reference`,
+    the path tracer of its fibre (:func:`prtcore.reference.fibres.fibre_reference`, or
+    :func:`prtcore.reference.chiang.chiang_reference` for the Chiang fibre,
     ``spp`` paths per texel in two independent halves). Returns the strand space, the
     tracer of its fibre tubes, and ``ref`` (L, T, 3) with per-texel standard errors
     ``err`` (L, T, 3) (|a − b| / 2: its square is an unbiased estimate of the variance)."""
@@ -204,9 +205,19 @@ def _hair_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
         ref = np.zeros((len(lights), space.count, 3))
         err = np.zeros((len(lights), space.count, 3))
         every = np.arange(space.count)
+        fibre = (manifest.get("fibre") or {}).get("chiang")
+        if fibre is not None:  # the Chiang fibre's own path tracer
+            from prtcore.core.spec import ChiangSpec
+            from prtcore.reference.chiang import chiang_reference
+            from prtcore.transport.fibre_chiang import chiang_fibre
+            fib = chiang_fibre(ChiangSpec(**fibre), space)
         for h, light in enumerate(lights):
-            a, b = fibre_reference(space, tracer, mesh, 0, [light], every, spp,
-                                   seed=seed + h)
+            if fibre is not None:
+                a, b = chiang_reference(space, tracer, mesh, 0, [light], every, spp,
+                                        seed + h, fib.params, fib.sigma_points)
+            else:
+                a, b = fibre_reference(space, tracer, mesh, 0, [light], every, spp,
+                                       seed=seed + h)
             ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
     return space, tracer, ref, err
 

@@ -218,3 +218,44 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
     est = check_hair_memory(asset, space, s, 1 << 62)
     print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
     assert peak <= est <= 1.6 * peak, (peak, est)
+
+
+CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}
+
+
+def test_a_chiang_fibre_bake_states_its_fibre_and_validates_with_its_own_path_tracer(
+        tmp_path):
+    """hair.fibre = chiang: the bundle names the fibre and its parameters, the verdict
+    passes, and `report --reference-spp` traces the Chiang fibre (not the diffuse one: the
+    two references differ by far more than this test's tolerance)."""
+    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    out = bake(asset, parse_spec(CHIANG), tmp_path / "out", quiet=True)
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["fibre"]["model"] == "chiang" and m["fibre"]["chiang"]["beta_m"] == 0.3
+    assert "every direction" in m["units"]["radiance"]
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"]["status"] == "pass"
+    v = validate_bundle(out, spp=64, count=1)
+    row = next(r for r in v["rows"] if r["n"] == 8)
+    assert 0 < row["rmse_noise_corrected_mean"] < 0.6
+    diffuse = bake(asset, parse_spec(SPEC), tmp_path / "diffuse", quiet=True)
+    a = load_runtime(out)
+    b = load_runtime(diffuse)
+    cov = a.coverage
+    # another fibre, other light: the mean planes differ
+    assert not np.allclose(a.planes[cov][:, :3], b.planes[cov][:, :3], rtol=0.05)
+
+
+def test_a_chiang_bake_refuses_a_mesh_and_environment_lights_by_key(tmp_path):
+    from prtcore.scenes.hair import write_head
+    asset = write_hair(tmp_path / "t.hair", tangle(20))
+    with pytest.raises(SpecError, match=r"hair\.fibre"):
+        bake(asset, parse_spec(CHIANG), tmp_path / "a", quiet=True,
+             mesh=write_head(tmp_path / "head.glb"))
+    sky = {**CHIANG, "lights": {"count": 8, "holdout": 2,
+                                "families": [{"type": "environment"}]}}
+    with pytest.raises(SpecError, match=r"lights\.families"):
+        bake(asset, parse_spec(sky), tmp_path / "b", quiet=True)
+    with pytest.raises(SpecError, match=r"hair\.harmonics"):
+        parse_spec({"hair": {"fibre": "chiang", "harmonics": "all_bounces"}})
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -24,8 +24,12 @@ this sum by the cosine of its ribbon frame, which its integrator multiplies back
 is left out. Absorption from melanin (:func:`sigma_a_from_melanin`) uses the eumelanin and
 pheomelanin absorption coefficients of d'Eon et al. 2011 (per unit fibre radius).
 
-Not yet used by the bake: ``hair.fibre`` accepts only ``"diffuse"``; this module is the
-tested building block for the path tracer and the fast path.
+What a strand texel stores for this fibre (``hair.fibre = "chiang"``, docs/hair.md): the
+paper's radially constant value, taken as the fibre's outgoing radiance averaged over all
+directions with the weight of its projected width, ``L̄ = (1/π²) ∫ L_o(ω) cos θ dω``. It
+needs only the directional albedo :class:`FibreAlbedo`, ``Ā(θi) = (1/cos θi) ∫ S(ωo, ωi)
+cos θo dωo`` averaged over h: ``L̄ = (1/π²) ∫ L_i(ωi) Ā(θi) cos θi dωi``, the diffuse
+fibre's formula with its albedo ρ replaced by Ā of the direction the light comes from.
 """
 
 from __future__ import annotations
@@ -71,6 +75,17 @@ class ChiangParams:
 def sigma_a_from_melanin(eumelanin: float, pheomelanin: float = 0.0) -> np.ndarray:
     """(3,) absorption per unit radius for melanin concentrations."""
     return eumelanin * EUMELANIN_SIGMA_A + pheomelanin * PHEOMELANIN_SIGMA_A
+
+
+def sigma_a_from_color(color: np.ndarray, beta_n: float) -> np.ndarray:
+    """(..., 3) absorption per unit radius that gives a hair volume of multiple-scattering
+    colour ``color`` (..., 3) in (0, 1] at azimuthal roughness β_n (Chiang et al. 2016,
+    eq. 9; pbrt's SigmaAFromReflectance): ``σ_a = (ln c / (5.969 − 0.215 β_n + 2.532 β_n²
+    − 10.73 β_n³ + 5.574 β_n⁴ + 0.245 β_n⁵))²``."""
+    b = beta_n
+    d = 5.969 - 0.215 * b + 2.532 * b ** 2 - 10.73 * b ** 3 + 5.574 * b ** 4 + 0.245 * b ** 5
+    c = np.clip(np.asarray(color, dtype=np.float64), 1e-4, 1.0)
+    return (np.log(c) / d) ** 2
 
 
 def _fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
@@ -133,6 +148,15 @@ def attenuation(cos_theta_o: np.ndarray, h: np.ndarray, params: ChiangParams
     return a, gamma_o, gamma_t
 
 
+def _tilted(sin_o: np.ndarray, cos_o: np.ndarray, alpha: float) -> list:
+    """(sin, cos) of θo rotated by the cuticle tilt: −2α for R, +α for TT, +4α for TRT."""
+    s2a = [np.sin(2 ** k * alpha) for k in range(3)]
+    c2a = [np.cos(2 ** k * alpha) for k in range(3)]
+    return [(sin_o * c2a[1] - cos_o * s2a[1], cos_o * c2a[1] + sin_o * s2a[1]),
+            (sin_o * c2a[0] + cos_o * s2a[0], cos_o * c2a[0] - sin_o * s2a[0]),
+            (sin_o * c2a[2] + cos_o * s2a[2], cos_o * c2a[2] - sin_o * s2a[2])]
+
+
 def scattering(tangent: np.ndarray, wo: np.ndarray, wi: np.ndarray, h: np.ndarray,
                params: ChiangParams) -> np.ndarray:
     """S(wo, wi) (n, 3) for fibres of unit tangents (n, 3), unit directions wo (toward the
@@ -143,12 +167,7 @@ def scattering(tangent: np.ndarray, wo: np.ndarray, wi: np.ndarray, h: np.ndarra
     v = params.variances
     s = params.logistic_scale
     phi = phi_i - phi_o
-    s2a = [np.sin(2 ** k * params.alpha) for k in range(3)]
-    c2a = [np.cos(2 ** k * params.alpha) for k in range(3)]
-    # θo rotated by the tilt: −2α for R, +α for TT, +4α for TRT
-    rot = [(sin_o * c2a[1] - cos_o * s2a[1], cos_o * c2a[1] + sin_o * s2a[1]),
-           (sin_o * c2a[0] + cos_o * s2a[0], cos_o * c2a[0] - sin_o * s2a[0]),
-           (sin_o * c2a[2] + cos_o * s2a[2], cos_o * c2a[2] - sin_o * s2a[2])]
+    rot = _tilted(sin_o, cos_o, params.alpha)
     out = np.zeros((len(h), 3))
     for p in range(P_MAX):
         sin_op, cos_op = rot[p]
@@ -158,3 +177,142 @@ def scattering(tangent: np.ndarray, wo: np.ndarray, wi: np.ndarray, h: np.ndarra
         out += lobe[:, None] * a[p]
     out += (_mp(cos_i, cos_o, sin_i, sin_o, v[P_MAX]) / (2 * np.pi))[:, None] * a[P_MAX]
     return out
+
+
+#: the directional albedo table: sin θi nodes, √σ nodes up to SIGMA_MAX (per unit radius),
+#: and the Gauss–Legendre nodes over θo and h of its quadrature
+ALBEDO_SIN_NODES = 129
+ALBEDO_SIGMA_NODES = 49
+SIGMA_MAX = 32.0
+ALBEDO_THETA_QUAD = 512
+ALBEDO_H_QUAD = 64
+
+
+@dataclass(frozen=True)
+class FibreAlbedo:
+    """The directional albedo of a fibre, ``Ā(θi; σ) = (1/cos θi) ∫ S(ωo, ωi) cos θo dωo``
+    averaged over the offset h, tabulated per absorption σ of one channel (channels are
+    independent): ``sin_theta`` (S,) and ``root_sigma`` (Q,) float64 nodes, ``values``
+    (S, Q) float64. Call it with sin θi (n,) and σ (n, 3) for (n, 3) by bilinear
+    interpolation (sin θi clamped to the nodes' range, σ to [0, SIGMA_MAX])."""
+
+    sin_theta: np.ndarray
+    root_sigma: np.ndarray
+    values: np.ndarray
+
+    def __call__(self, sin_theta: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+        s = self.sin_theta
+        x = (np.clip(sin_theta, s[0], s[-1]) - s[0]) / (s[1] - s[0])
+        i = np.minimum(x.astype(np.int64), len(s) - 2)
+        fx = (x - i)[:, None]
+        r = self.root_sigma
+        y = (np.sqrt(np.clip(sigma, 0.0, r[-1] ** 2)) - r[0]) / (r[1] - r[0])
+        j = np.minimum(y.astype(np.int64), len(r) - 2)
+        fy = y - j
+        v = self.values
+        i2 = i[:, None]
+        top = v[i2, j] * (1 - fy) + v[i2, j + 1] * fy
+        bottom = v[i2 + 1, j] * (1 - fy) + v[i2 + 1, j + 1] * fy
+        return top * (1 - fx) + bottom * fx
+
+
+def fibre_albedo(params: ChiangParams) -> FibreAlbedo:
+    """:class:`FibreAlbedo` of the fibre ``params`` (its ``sigma_a`` is ignored: the table
+    spans σ). ∫ S dφo is Σ_p M_p A_p (each N_p integrates to one over the azimuth), so the
+    table is a quadrature over θo and h only: Gauss–Legendre, ALBEDO_THETA_QUAD ×
+    ALBEDO_H_QUAD nodes (tests/test_bcsdf.py checks it against Monte Carlo over ωo and h
+    with :func:`scattering` itself)."""
+    x, w = np.polynomial.legendre.leggauss(ALBEDO_THETA_QUAD)
+    theta_o, w_o = x * np.pi / 2, w * np.pi / 2
+    sin_o, cos_o = np.sin(theta_o), np.cos(theta_o)
+    xh, wh = np.polynomial.legendre.leggauss(ALBEDO_H_QUAD)
+    wh = wh / 2  # the mean over h ∈ [−1, 1]
+    root = np.linspace(0.0, np.sqrt(SIGMA_MAX), ALBEDO_SIGMA_NODES)
+    sigma = root ** 2
+    # mean over h of A_p(θo, h; σ): (P_MAX + 1, O, Q), three σ nodes per call
+    a_mean = np.empty((P_MAX + 1, len(theta_o), len(sigma)))
+    cos_rep, h_rep = np.repeat(cos_o, len(xh)), np.tile(xh, len(theta_o))
+    for q0 in range(0, len(sigma), 3):
+        trip = np.resize(sigma[q0:q0 + 3], 3)
+        a, _, _ = attenuation(cos_rep, h_rep, ChiangParams(
+            sigma_a=tuple(trip), beta_m=params.beta_m, beta_n=params.beta_n,
+            alpha=params.alpha, eta=params.eta))
+        part = np.einsum("pohc,h->poc", a.reshape(P_MAX + 1, len(theta_o), len(xh), 3), wh)
+        n = min(3, len(sigma) - q0)
+        a_mean[:, :, q0:q0 + n] = part[:, :, :n]
+    sin_i = np.linspace(-1.0, 1.0, ALBEDO_SIN_NODES) * 0.995
+    cos_i = np.sqrt(1 - sin_i ** 2)
+    v = params.variances
+    rot = [*_tilted(sin_o, cos_o, params.alpha), (sin_o, cos_o)]
+    table = np.zeros((len(sin_i), len(sigma)))
+    for p in range(P_MAX + 1):
+        sin_op, cos_op = rot[p]
+        m = _mp(cos_i[:, None], np.abs(cos_op)[None, :], sin_i[:, None], sin_op[None, :],
+                v[p])  # (S, O)
+        table += (m * (w_o * cos_o ** 2)[None, :]) @ a_mean[p]
+    return FibreAlbedo(sin_theta=sin_i, root_sigma=root, values=table / cos_i[:, None])
+
+
+def sample_scattering(tangent: np.ndarray, wo: np.ndarray, h: np.ndarray,
+                      params: ChiangParams, rng: np.random.Generator
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Importance-sample wi of :func:`scattering` as pbrt-v3's HairBSDF::Sample_f does: a
+    lobe p with probability A_p / Σ A (at wo and h), θi from the longitudinal lobe about
+    the tilted −θo (d'Eon's lobe is the marginal of a von Mises–Fisher distribution, sampled
+    exactly), φi = φo + Φ(p, h) + a trimmed logistic sample (uniform for the rest). The
+    density is then ``Σ_p (A_p/ΣA) M_p N_p`` and the weight ``S / pdf = Σ_p A_p`` exactly.
+
+    tangent, wo : (n, 3) unit; h : (n,). Returns wi (n, 3) unit and the weight (n, 3)."""
+    n = len(h)
+    sin_o, cos_o, phi_o = _frame(tangent, wo)
+    a, gamma_o, gamma_t = attenuation(cos_o, h, params)
+    lum = a.mean(axis=2)  # (P + 1, n): the lobe picked by its mean over channels
+    cdf = np.cumsum(lum, axis=0) / np.maximum(lum.sum(axis=0), 1e-300)
+    p = (rng.random(n)[None, :] > cdf).sum(axis=0).clip(0, P_MAX)
+    rot = [*_tilted(sin_o, cos_o, params.alpha), (sin_o, cos_o)]
+    sin_op = np.choose(p, [r[0] for r in rot])
+    cos_op = np.abs(np.choose(p, [r[1] for r in rot]))
+    v = params.variances[p]
+    u = np.maximum(rng.random(n), 1e-5)
+    cos_t = 1 + v * np.log(u + (1 - u) * np.exp(-2 / v))
+    sin_t = np.sqrt(np.clip(1 - cos_t ** 2, 0.0, None))
+    sin_i = np.clip(-cos_t * sin_op + sin_t * np.cos(2 * np.pi * rng.random(n)) * cos_op,
+                    -1.0, 1.0)
+    cos_i = np.sqrt(1 - sin_i ** 2)
+    s = params.logistic_scale
+
+    def cdf_l(x):
+        return 1 / (1 + np.exp(-x / s))
+    k = cdf_l(np.pi) - cdf_l(-np.pi)
+    x = np.clip(-s * np.log(1 / (rng.random(n) * k + cdf_l(-np.pi)) - 1), -np.pi, np.pi)
+    dphi = np.where(p < P_MAX, 2 * p * gamma_t - 2 * gamma_o + p * np.pi + x,
+                    2 * np.pi * rng.random(n))
+    phi_i = phi_o + dphi
+    uu, vv = orthonormal_frame(tangent)
+    wi = sin_i[:, None] * tangent + (cos_i * np.cos(phi_i))[:, None] * uu \
+        + (cos_i * np.sin(phi_i))[:, None] * vv
+    # S/pdf = Σ A_p only when the lobe is picked with A_p/ΣA per channel; with one pick
+    # for all channels by their mean, it is S_c / Σ_p (mean A_p / mean ΣA) M_p N_p
+    return wi, _sampled_weight(tangent, wo, wi, h, params, lum)
+
+
+def _sampled_weight(tangent, wo, wi, h, params, lum) -> np.ndarray:
+    """S(wo, wi) / pdf(wi) (n, 3) for :func:`sample_scattering`'s density with the lobe
+    probabilities ``lum`` (P + 1, n)."""
+    s = scattering(tangent, wo, wi, h, params)
+    sin_o, cos_o, phi_o = _frame(tangent, wo)
+    sin_i, cos_i, phi_i = _frame(tangent, wi)
+    _, gamma_o, gamma_t = attenuation(cos_o, h, params)
+    rot = _tilted(sin_o, cos_o, params.alpha)
+    v = params.variances
+    sc = params.logistic_scale
+    prob = lum / np.maximum(lum.sum(axis=0), 1e-300)
+    pdf = np.zeros(len(h))
+    for p in range(P_MAX):
+        sin_op, cos_op = rot[p]
+        dphi = (phi_i - phi_o) - (2 * p * gamma_t - 2 * gamma_o + p * np.pi)
+        dphi = np.mod(dphi + np.pi, 2 * np.pi) - np.pi
+        pdf += prob[p] * _mp(cos_i, np.abs(cos_op), sin_i, sin_op, v[p]) \
+            * _trimmed_logistic(dphi, sc)
+    pdf += prob[P_MAX] * _mp(cos_i, cos_o, sin_i, sin_o, v[P_MAX]) / (2 * np.pi)
+    return s / np.maximum(pdf, 1e-300)[:, None]

@@ -254,6 +254,25 @@ class LearntShSpec:
 
 
 @dataclass(frozen=True)
+class ChiangSpec:
+    """``hair.chiang``: the Chiang et al. 2016 fibre (``hair.fibre = "chiang"``,
+    prtcore/core/bcsdf.py). With ``eumelanin`` null, σ_a comes from the fibre colour (the
+    file's or ``hair.albedo``) read as the hair volume's colour."""
+
+    #: eumelanin concentration (0 blond … 8 black), or null: σ_a from the colour
+    eumelanin: float | None = None
+    #: pheomelanin concentration (red), with eumelanin
+    pheomelanin: float = 0.0
+    #: longitudinal and azimuthal roughness
+    beta_m: float = 0.3
+    beta_n: float = 0.3
+    #: cuticle tilt, degrees
+    alpha_deg: float = 2.0
+    #: index of refraction of the fibre
+    eta: float = 1.55
+
+
+@dataclass(frozen=True)
 class HairSpec:
     """``hair``: how a hair asset (``.hair``, USD BasisCurves) is baked (docs/hair.md)."""
 
@@ -266,10 +285,12 @@ class HairSpec:
     #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "auto" (docs/hair.md;
     #: "auto": first_bounce for hair alone, all_bounces for hair baked with a mesh)
     harmonics: str = "auto"
+    #: the Chiang fibre's parameters (used with ``fibre = "chiang"``)
+    chiang: ChiangSpec = ChiangSpec()
 
 
 #: fibre models a hair bake can use
-FIBRE_MODELS = ("diffuse",)
+FIBRE_MODELS = ("diffuse", "chiang")
 
 
 @dataclass(frozen=True)
@@ -507,6 +528,21 @@ def _material(v: Any, key: str) -> MaterialOverride:
                           lo=0.0, hi=1.0))
 
 
+def _chiang(v: Any) -> ChiangSpec:
+    c = _section(ChiangSpec, v, "hair.chiang")
+    d = ChiangSpec()
+    eu = c.get("eumelanin", d.eumelanin)
+    return ChiangSpec(
+        eumelanin=None if eu is None else _num(eu, "hair.chiang.eumelanin", lo=0.0, hi=50.0),
+        pheomelanin=_num(c.get("pheomelanin", d.pheomelanin), "hair.chiang.pheomelanin",
+                         lo=0.0, hi=50.0),
+        beta_m=_num(c.get("beta_m", d.beta_m), "hair.chiang.beta_m", lo=0.1, hi=1.0),
+        beta_n=_num(c.get("beta_n", d.beta_n), "hair.chiang.beta_n", lo=0.1, hi=1.0),
+        alpha_deg=_num(c.get("alpha_deg", d.alpha_deg), "hair.chiang.alpha_deg", lo=-10.0,
+                       hi=10.0),
+        eta=_num(c.get("eta", d.eta), "hair.chiang.eta", lo=1.0, hi=3.0))
+
+
 def _section(cls: type, v: Any, key: str) -> dict:
     return _obj(v, key, tuple(f.name for f in dataclasses.fields(cls)))
 
@@ -719,7 +755,12 @@ def _parse(data: Any) -> BakeSpec:
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
         harmonics=_choice(hs.get("harmonics", "auto"), "hair.harmonics",
                           ("auto", "first_bounce", "all_bounces")),
+        chiang=_chiang(hs.get("chiang", {})),
     )
+    if hair.fibre == "chiang" and hair.harmonics != "auto":
+        raise SpecError("hair.harmonics", "the azimuthal harmonics belong to the diffuse "
+                        "fibre; the 'chiang' fibre averages over every direction (leave "
+                        "it 'auto')")
 
     mats = root.get("materials", {})
     if not isinstance(mats, dict):

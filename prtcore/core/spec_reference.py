@@ -11,7 +11,13 @@ from __future__ import annotations
 import dataclasses
 import json
 
-from prtcore.core.spec import BakeSpec, LightFamily, MaterialOverride, SubsurfaceSpec
+from prtcore.core.spec import (
+    BakeSpec,
+    ChiangSpec,
+    LightFamily,
+    MaterialOverride,
+    SubsurfaceSpec,
+)
 
 #: "section.key" → what it means, its unit or choices, its range
 DOCS: dict[str, str] = {
@@ -67,7 +73,17 @@ DOCS: dict[str, str] = {
                               "(docs/hair.md), 1–4096",
     "hair.albedo": "null (the hair file's colours), or [r, g, b] in [0, 1]: one fibre "
                    "colour for every strand",
-    "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged)",
+    "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged) · `chiang` (the "
+                  "Chiang et al. 2016 hair BCSDF, parameters in `hair.chiang`; point, "
+                  "spot and directional lights)",
+    "hair.chiang": "the Chiang fibre's parameters (`hair.chiang` below)",
+    "chiang.eumelanin": "eumelanin concentration (0 blond … 8 black), 0–50, or null: "
+                        "σ_a from the fibre colour read as the hair volume's colour",
+    "chiang.pheomelanin": "pheomelanin concentration (red), 0–50, with eumelanin",
+    "chiang.beta_m": "longitudinal roughness, 0.1–1",
+    "chiang.beta_n": "azimuthal roughness, 0.1–1",
+    "chiang.alpha_deg": "cuticle tilt in degrees, −10–10",
+    "chiang.eta": "index of refraction of the fibre, 1–3",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `all_bounces` for hair baked "
                       "with a mesh) · `first_bounce` (the direct light's first azimuthal "
                       "harmonic in the first bounce) · `all_bounces` (every texel's mean, "
@@ -202,6 +218,7 @@ def keys() -> list[str]:
     out += [f"family.{f.name}" for f in dataclasses.fields(LightFamily)]
     out += [f"material.{f.name}" for f in dataclasses.fields(MaterialOverride)]
     out += [f"subsurface.{f.name}" for f in dataclasses.fields(SubsurfaceSpec)]
+    out += [f"chiang.{f.name}" for f in dataclasses.fields(ChiangSpec)]
     return out
 
 
@@ -239,6 +256,13 @@ def reference() -> str:
         for f in dataclasses.fields(cls):
             lines.append(f"| `{f.name}` | {_default(getattr(obj, f.name))} | "
                          f"{DOCS[prefix + '.' + f.name]} |")
+    lines += ["", "## `hair.chiang`", "",
+              "The Chiang fibre's parameters (`hair.fibre = \"chiang\"`, docs/hair.md):", "",
+              "| key | default | meaning |", "|---|---|---|"]
+    obj = ChiangSpec()
+    for f in dataclasses.fields(ChiangSpec):
+        lines.append(f"| `{f.name}` | {_default(getattr(obj, f.name))} | "
+                     f"{DOCS['chiang.' + f.name]} |")
     return "\n".join(lines) + "\n"
 
 

@@ -148,9 +148,13 @@ def _direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
 
 
 def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
-               drawn: tuple, harmonics: int, block: int, progress: bool) -> FibreDirect:
+               drawn: tuple, harmonics: int, block: int, progress: bool,
+               weight: Callable | None = None) -> FibreDirect:
     """:func:`fibre_direct` for ``lights`` from :func:`_direct_samples`' ``drawn``,
-    ``block`` texels at a time (a progress bar over them with ``progress``)."""
+    ``block`` texels at a time (a progress bar over them with ``progress``).
+    weight : another fibre's albedo per sample and light instead of the texel's ρ:
+    ``weight(idx (n,) texels, origin (n, J, 3), lights)`` → (n, J, K, 3) float32
+    (:mod:`prtcore.transport.fibre_chiang`)."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
     mean = np.empty((t, k, 3), dtype=np.float32)
@@ -158,10 +162,13 @@ def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
     blocks = range(0, t, block)
     for a in bar(blocks, "direct fibres", total=len(blocks)) if progress else blocks:
         idx = order[a:a + block]
+        # with a weight, E/π·max(0, n·ω)·V alone (ρ = 1/2 and twice: ρ is clamped < 1)
+        rho = space.albedo[idx] if weight is None else np.full((len(idx), 3), 0.5)
         rad = direct_radiance(None, tracer, lights, origin[idx].reshape(-1, 3),
-                              normal[idx].reshape(-1, 3),
-                              np.repeat(space.albedo[idx], j, axis=0)
+                              normal[idx].reshape(-1, 3), np.repeat(rho, j, axis=0)
                               ).reshape(len(idx), j, k, 3)
+        if weight is not None:
+            rad *= 2 * weight(idx, origin[idx], lights)
         mean[idx] = rad.mean(axis=1)
         for h in range(harmonics):
             for i, f in enumerate((np.cos, np.sin)):
@@ -206,12 +213,16 @@ class FibreTerm:
     mesh_block: sp.csr_matrix | None = None
     #: with a mesh that receives: every ray's hit on it (:class:`MeshHits`)
     mesh_hits: MeshHits | None = None
+    #: with :func:`fibre_gather`'s ``ray_weight``: three (T, T) float32 CSR, the gather
+    #: with each ray weighted by the weight's R, G, B / M
+    channels: tuple[sp.csr_matrix, ...] | None = None
 
 
 def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
                  rays: int, seed: int, harmonics: int = HARMONICS,
                  all_bounces: bool = False, mesh_texels: Callable | None = None,
-                 mesh_columns: int = 0, orders: int = 1) -> FibreTerm:
+                 mesh_columns: int = 0, orders: int = 1,
+                 ray_weight: Callable | None = None) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
     mesh_texels : the mesh receives too (a hair + mesh bake): a
@@ -219,7 +230,10 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     rays whose first hit is the front of a mesh face go to :attr:`FibreTerm.mesh` (None:
     mesh hits bring nothing).
     all_bounces : also build :attr:`FibreTerm.block`, the gather on the (mean, cos, sin)
-    harmonics of every texel (:func:`harmonic_block`), up to order ``orders``."""
+    harmonics of every texel (:func:`harmonic_block`), up to order ``orders``.
+    ray_weight : another fibre's albedo per ray, ``ray_weight(texel (n,), arc (n,), d (n,
+    3))`` → (n, 3): also build :attr:`FibreTerm.channels`, the gather with every ray
+    weighted by it per colour channel (:mod:`prtcore.transport.fibre_chiang`)."""
     t = space.count
     hair = space.hair
     # the samples' places drawn once (16 bytes a ray), their points made per batch: the
@@ -228,7 +242,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     sample_arc, phi = (x.reshape(-1) for x in space.surface_sample_params(rays, seed))
     rng = np.random.default_rng([seed, 1])
     frame_u = transported_frames(hair)[1]  # once, not per batch
-    rows_all, cols_all, cs_all, po_all = [], [], [], []
+    rows_all, cols_all, cs_all, po_all, rw_all = [], [], [], [], []
     mesh_rows, mesh_cols, mesh_po, mesh_tri, mesh_bary, mesh_t = [], [], [], [], [], []
     n_fibre = n_mesh = 0
     total = t * rays
@@ -260,6 +274,9 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
         cols_all.append(texel.astype(np.int32))
         cs_all.append(cs.astype(np.float32))
+        if ray_weight is not None:
+            rw_all.append(ray_weight(np.arange(a, b)[fib] // rays, sample_arc[a:b][fib],
+                                     d[fib]).astype(np.float32))
         if all_bounces:
             po_all.append(phi[a:b][fib].astype(np.float32))
     rows = np.concatenate(rows_all) if rows_all else np.zeros(0, np.int32)
@@ -302,8 +319,13 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                              barycentric=np.concatenate(mesh_bary) if mesh_bary else
                              np.zeros((0, 3)),
                              t=np.concatenate(mesh_t) if mesh_t else np.zeros(0))
+    channels = None
+    if ray_weight is not None:
+        rw = np.concatenate(rw_all) if rw_all else np.zeros((0, 3), np.float32)
+        channels = tuple(csr(rw[:, c]) for c in range(3))
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
                      block=block, mesh=to_mesh, mesh_block=mesh_block, mesh_hits=mesh_hits,
+                     channels=channels,
                      stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
                             "misses": total - n_fibre - n_mesh})
 

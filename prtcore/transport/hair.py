@@ -21,6 +21,12 @@ from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.dataset import Dataset, direct_at_points
 from prtcore.transport.fibre import direct_and_first_bounce, fibre_direct, fibre_gather
+from prtcore.transport.fibre_chiang import (
+    ChiangFibre,
+    channel_operator,
+    chiang_direct,
+    chiang_gather,
+)
 from prtcore.transport.solve import solve_indirect
 
 #: the timed stages of :func:`bake_hair_dataset`, in the order they run
@@ -31,7 +37,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
                       lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                       spec: TransportSpec | None = None, timer: StageTimer | None = None,
                       scene: Scene | None = None, harmonics: str = "first_bounce",
-                      keep_direct_texels: bool = True) -> Dataset:
+                      keep_direct_texels: bool = True, fibre: ChiangFibre | None = None
+                      ) -> Dataset:
     """The lighting database of a hair bake (``Dataset``: direct at the points, direct and
     indirect at the strand texels, training lights first). ``tracer`` is
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene`` (the mesh of a
@@ -46,7 +53,15 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
 
     keep_direct_texels : False — the solve writes the indirect light over the texels' direct
     light (``Dataset.direct_texels`` is then None; the fit never reads it), which saves one
-    (T, K, 3) float32 array at the peak: 2.4 GB at 140k strands, K = 144."""
+    (T, K, 3) float32 array at the peak: 2.4 GB at 140k strands, K = 144.
+
+    fibre : the Chiang fibre (``hair.fibre = "chiang"``,
+    :mod:`prtcore.transport.fibre_chiang`; ``harmonics`` is then ignored), or None for the
+    diffuse fibre."""
+    if fibre is not None:
+        return _chiang_dataset(space, points, tracer, lights_train, lights_holdout,
+                               spec or TransportSpec(), timer or StageTimer(quiet=True),
+                               scene, keep_direct_texels, fibre)
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
@@ -85,6 +100,39 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
             threads=tracer.threads, first_bounce=first,
             out=None if keep_direct_texels else direct_mean)
     stats = {"train": len(lights_train), "fibre": term.stats, "harmonics": harmonics,
+             "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
+                      "direct_fibres": rays3 - rays2}, "solve": solve_stats}
+    return Dataset(lights=lights, direct_points=direct_points,
+                   direct_texels=direct_mean if keep_direct_texels else None,
+                   indirect=indirect, iterations=bounces, residual=resid, stats=stats)
+
+
+def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTracer,
+                    lights_train: Sequence[Light], lights_holdout: Sequence[Light],
+                    spec: TransportSpec, timer: StageTimer, scene: Scene | None,
+                    keep_direct_texels: bool, fibre: ChiangFibre) -> Dataset:
+    """:func:`bake_hair_dataset` with the Chiang fibre: the same stages and rays, every
+    gather ray and direct sample weighted by the fibre's directional albedo, the three
+    channels' operators solved together."""
+    lights = (*tuple(lights_train), *tuple(lights_holdout))
+    rays0 = tracer.rays_traced
+    with timer.stage("fibre gather"):
+        term = chiang_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
+                             scene.triangle_count if scene is not None else 0,
+                             spec.gather_rays, spec.seed, fibre)
+    rays1 = tracer.rays_traced
+    direct_points = direct_at_points(scene, tracer, lights, points, timer)
+    rays2 = tracer.rays_traced
+    with timer.stage("direct fibres"):
+        direct_mean = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
+                                    spec.seed + 1, fibre)
+    rays3 = tracer.rays_traced
+    shared, channels, rho = channel_operator(term)
+    indirect, bounces, resid, solve_stats = solve_indirect(
+        shared, rho, direct_mean, spec.max_bounces, spec.tolerance, timer,
+        threads=tracer.threads, channel_matrices=channels,
+        out=None if keep_direct_texels else direct_mean)
+    stats = {"train": len(lights_train), "fibre": term.stats, "model": "chiang",
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}
     return Dataset(lights=lights, direct_points=direct_points,

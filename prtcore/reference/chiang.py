@@ -1,0 +1,174 @@
+"""Independent Monte Carlo reference for light in hair with the Chiang et al. 2016 fibre
+(``hair.fibre = "chiang"``): the ground truth :mod:`prtcore.transport.fibre_chiang` is
+checked against.
+
+It shares the hair, the strand texels, the fibre tubes (as occlusion proxies), the ray
+tracer, the light evaluation and :func:`prtcore.core.bcsdf.scattering`, but none of the
+fast path's shortcuts: no directional-albedo table, no texel → texel operator, no
+isotropic outgoing radiance at the fibre hit (every hit is shaded with the BCSDF toward
+the direction the path came from), no iteration to a fixed point.
+
+A texel stores ``L̄ = (1/π²) ∫ L_o(ωo) cos θo dωo`` averaged over its arc interval
+(:mod:`prtcore.core.bcsdf`). Estimator: a point uniform over the texel's arc, a view
+direction ωo with density cos θo / π² (a cosine direction about a uniformly random radial
+normal), then ``L_o(ωo)`` at that fibre as at any path vertex. At a vertex on a fibre of
+tangent t, seen from ωo, with an impact offset h uniform in [−1, 1]:
+
+* next-event estimation, ``β · S(ωo, ωl, h) · E⊥_l · V`` per light, E⊥ the light's
+  irradiance on a plane facing it and V its visibility from a point of the fibre's lit
+  half (an azimuth ψ from the side facing the light with density cos ψ / 2, which is the
+  fast path's cosine-weighted visibility over the fibre surface, in expectation) — counted
+  from the second vertex on (the texel's own direct light is not indirect);
+* continuation along ωi drawn by :func:`prtcore.core.bcsdf.sample_scattering` (pbrt's
+  importance sampling of the lobes), ``β ← β · S/pdf``, from the tube's circumscribed
+  cylinder on the side facing ωi; the next hit's ωo is −ωi.
+
+σ_a along the fibre is interpolated between the hair's points. Russian roulette after
+``rr_depth`` vertices, as :mod:`prtcore.reference.fibres`; a miss or a mesh hit ends the
+path (the mesh only occludes). Two independent halves, for the noise to be removed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from prtcore.core.bcsdf import ChiangParams, sample_scattering, scattering
+from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
+from prtcore.core.geometry import orthonormal_frame
+from prtcore.core.raytrace import RayTracer
+from prtcore.core.scene import Light
+from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
+from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
+from prtcore.reference.fibres import cosine_about, roulette, two_halves
+
+
+def _radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) unit radial directions of uniformly random azimuth about ``tangent``."""
+    u, v = orthonormal_frame(tangent)
+    phi = 2 * np.pi * rng.random(len(tangent))
+    return np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
+
+
+def facing(tangent: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n, 3) unit radial directions of fibres (tangents (n, 3)) toward ``direction``
+    (n, 3): its component across the fibre, normalised (any radial one where it is
+    along the fibre)."""
+    w = direction - np.einsum("ij,ij->i", direction, tangent)[:, None] * tangent
+    n = np.linalg.norm(w, axis=1, keepdims=True)
+    fallback = np.cross(tangent, np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0, 0]],
+                                          [[0, 1.0, 0]]))
+    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+    return np.where(n > 1e-9, w / np.maximum(n, 1e-300), fallback)
+
+
+def _lit_side(tangent: np.ndarray, toward: np.ndarray, rng: np.random.Generator
+              ) -> np.ndarray:
+    """Radial unit directions on the half of the fibre facing ``toward``, at azimuth ψ from
+    its middle with density cos ψ / 2."""
+    n = facing(tangent, toward)
+    b = np.cross(tangent, n)
+    psi = np.arcsin(2 * rng.random(len(n)) - 1)
+    return np.cos(psi)[:, None] * n + np.sin(psi)[:, None] * b
+
+
+def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
+                     mesh_faces: int, lights: Sequence[Light], texels: np.ndarray,
+                     paths: int, seed: int, params: ChiangParams,
+                     sigma_points: np.ndarray, max_depth: int = 64, rr_depth: int = 3,
+                     isotropic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Indirect ``L̄_ind`` of ``texels`` (n,) int for every light, two independent halves
+    of ``paths // 2`` paths each: (a, b), each (n, K, 3) float64. ``params``: the fibre
+    (its sigma_a ignored); ``sigma_points`` (p, 3) float64 absorption per unit radius at
+    every hair point. ``mesh_faces``: scene triangles before the tubes in ``tracer``.
+
+    isotropic : at every hit, shade toward a fresh ωo drawn as at the texel (density
+    cos θo / π²) instead of toward where the path came from — the fast path's isotropic
+    texel, in expectation; the difference between the two references is the error of that
+    approximation alone (a diagnostic, not the reference)."""
+    texels = np.asarray(texels, dtype=np.int64)
+    hair = space.hair
+    off = outside_offset(hair, mesh.sides)
+    k = len(lights)
+    sig_pt = np.asarray(sigma_points, dtype=np.float64)
+
+    def shade(beta, centre, tangent, radius, wo, sigma, h, rng):
+        """NEE at the vertices: (m, K, 3) contributions."""
+        out = np.zeros((len(centre), k, 3))
+        for li, light in enumerate(lights):
+            _, to_light, _ = unshadowed_irradiance(light, centre, np.tile(
+                [0.0, 0.0, 1.0], (len(centre), 1)))
+            side = _lit_side(tangent, to_light, rng)
+            p = centre + radius[:, None] * side
+            e = irradiance(light, p, to_light, tracer)  # E⊥ · V: the normal faces the light
+            s = _scatter(tangent, wo, to_light, h, sigma)
+            out[:, li] = beta * s * e
+        return out
+
+    def trace(owner: np.ndarray, rng: np.random.Generator, acc: np.ndarray) -> None:
+        tex = texels[owner]
+        n = len(owner)
+        strand = space.strand[tex]
+        arc = space.arc[tex, 0] + rng.random(n) * (space.arc[tex, 1] - space.arc[tex, 0])
+        centre, tangent, u = axis_frame(hair, strand, arc)
+        radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
+        sigma = interp_points(hair, sig_pt, strand, arc)
+        del u
+        wo = cosine_about(_radial(tangent, rng), rng)  # density cos θo / π² over the sphere
+        beta = np.ones((n, 3))
+        alive = np.arange(n)
+        for depth in range(max_depth + 1):  # the texel, then up to max_depth fibre hits
+            if not len(alive):
+                break
+            h = 2 * rng.random(len(alive)) - 1
+            tg, c, r, sg = tangent[alive], centre[alive], radius[alive], sigma[alive]
+            if depth > 0:
+                np.add.at(acc, owner[alive], shade(beta[alive], c, tg, r, wo[alive], sg,
+                                                   h, rng))
+            if depth == max_depth:
+                break
+            wo_a = wo[alive]
+            wi, weight = _by_sigma(sg, lambda sel, par, tg=tg, wo_a=wo_a, h=h:
+                                   sample_scattering(tg[sel], wo_a[sel], h[sel], par, rng), 2)
+            beta[alive] *= weight
+            hits = tracer.intersect(c + r[:, None] * facing(tg, wi), wi)
+            fib = hits.triangle >= mesh_faces
+            alive, wi = alive[fib], wi[fib]
+            if not len(alive):
+                break
+            seg, t = segment_hits(mesh, hits.triangle[fib] - mesh_faces,
+                                  hits.barycentric[fib])
+            p0 = hair.segment_start[seg]
+            a0, b0 = hair.points[p0], hair.points[p0 + 1]
+            ax = b0 - a0
+            tangent[alive] = ax / np.linalg.norm(ax, axis=1, keepdims=True)
+            centre[alive] = a0 + t[:, None] * ax
+            radius[alive] = (1 - t) * off[p0] + t * off[p0 + 1]
+            sigma[alive] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
+            wo[alive] = -wi
+            if isotropic:
+                wo[alive] = cosine_about(_radial(tangent[alive], rng), rng)
+            if depth + 1 >= rr_depth:
+                alive = roulette(beta, alive, rng)
+
+    def _by_sigma(sigma, fn, outputs):
+        """``fn(sel, params)`` per distinct σ_a row (one call for hair of one colour, one
+        per vertex at worst), its ``outputs`` (m, 3) results gathered."""
+        out = [np.empty((len(sigma), 3)) for _ in range(outputs)]
+        uniq, inv = np.unique(sigma, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        for g, sa in enumerate(uniq):
+            sel = np.flatnonzero(inv == g)
+            res = fn(sel, dataclasses.replace(params, sigma_a=tuple(sa)))
+            for o, r in zip(out, res if outputs > 1 else (res,), strict=True):
+                o[sel] = r
+        return out if outputs > 1 else out[0]
+
+    def _scatter(tg, wo, wi, h, sigma):
+        """S (m, 3) with a per-vertex σ_a."""
+        return _by_sigma(sigma, lambda sel, par: scattering(tg[sel], wo[sel], wi[sel],
+                                                            h[sel], par), 1)
+
+    return two_halves(len(texels), k, paths, seed, trace)
