@@ -62,7 +62,12 @@ from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
 from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, hair_tracer
-from prtcore.transport.fibre_chiang import CHIANG_LIGHT_TYPES, chiang_fibre
+from prtcore.transport.fibre_chiang import (
+    CHIANG_BYTES_PER_RAY,
+    CHIANG_LIGHT_TYPES,
+    CHIANG_LINEAR_BYTES_PER_RAY,
+    chiang_fibre,
+)
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
 
@@ -183,8 +188,12 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \
         + 2 * t * held * 12 + segments * MEM_PER_FIBRE_SEGMENT
-    if spec.hair.fibre == "chiang":  # two more CSR operators, and each ray's weights
-        est += t * spec.transport.gather_rays * (2 * 8 + 12)
+    if spec.hair.fibre == "chiang":  # each hit's direction and tangent, three operators
+        if spec.hair.chiang.exitance == "linear":  # 16 blocks each, built from COO
+            est += t * spec.transport.gather_rays * CHIANG_LINEAR_BYTES_PER_RAY \
+                + 6 * 4 * t * k * 12
+        else:
+            est += t * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY
     if everything:
         est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
     else:  # the indirect light overwrites the direct
@@ -246,7 +255,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
                                           spec.transport, timer,
                                           harmonics=spec.hair.harmonics,
-                                          keep_direct_texels=False, fibre=fibre)
+                                          keep_direct_texels=False, fibre=fibre,
+                                          chiang_exitance=spec.hair.chiang.exitance)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,

@@ -53,20 +53,25 @@ def _sphere_mc(rng, n):
 
 
 @pytest.mark.parametrize("sin_i, sigma", [(0.0, 0.0), (0.5, 0.5), (-0.7, 3.0), (0.9, 0.2)])
-def test_directional_albedo_table_is_the_monte_carlo_integral_of_the_bcsdf(sin_i, sigma):
-    """Ā(θi) = (1/cos θi) ∫ S(ωo, ωi) cos θo dωo averaged over h: the table's reduced
-    quadrature against plain Monte Carlo over ωo and h with scattering() itself."""
+def test_directional_albedo_tables_are_monte_carlo_integrals_of_the_bcsdf(sin_i, sigma):
+    """The four moments (1/cos θi) ∫ S(ωo, ωi) f(ωo) dωo averaged over h, f = cos θo,
+    sin θo cos θo, cos² θo cos Δφ, cos³ θo cos 2Δφ: the table's reduced quadrature against
+    plain Monte Carlo over ωo and h with scattering() itself."""
     from prtcore.core.bcsdf import fibre_albedo
     rng = np.random.default_rng(3)
     n = 1_000_000
     t = np.tile([0.0, 0.0, 1.0], (n, 1))
-    wi = np.tile([np.sqrt(1 - sin_i ** 2), 0.0, sin_i], (n, 1))
+    wi = np.tile([np.sqrt(1 - sin_i ** 2), 0.0, sin_i], (n, 1))  # φi = 0
     wo = _sphere_mc(rng, n)
     s = scattering(t, wo, wi, rng.uniform(-1, 1, n), ChiangParams(sigma_a=(sigma,) * 3))
-    x = 4 * np.pi * s[:, 0] * np.sqrt(1 - wo[:, 2] ** 2) / np.sqrt(1 - sin_i ** 2)
-    table = fibre_albedo(ChiangParams())(np.array([sin_i]), np.full((1, 3), sigma))[0]
-    assert abs(table[0] - x.mean()) < 4 * x.std() / np.sqrt(n) + 2e-3
-    np.testing.assert_allclose(table, table[0])  # the channels share one σ here
+    co, phi = np.sqrt(1 - wo[:, 2] ** 2), np.arctan2(wo[:, 1], wo[:, 0])
+    table = fibre_albedo(ChiangParams())
+    for m, f in enumerate((co, wo[:, 2] * co, co ** 2 * np.cos(phi),
+                           co ** 3 * np.cos(2 * phi))):
+        x = 4 * np.pi * s[:, 0] * f / np.sqrt(1 - sin_i ** 2)
+        got = table(np.array([sin_i]), np.full((1, 3), sigma), m)[0]
+        assert abs(got[0] - x.mean()) < 4 * x.std() / np.sqrt(n) + 2e-3, (m, got, x.mean())
+        np.testing.assert_allclose(got, got[0])  # the channels share one σ here
 
 
 def test_a_non_absorbing_fibre_stores_the_light_it_receives():

@@ -259,3 +259,14 @@ def test_a_chiang_bake_refuses_a_mesh_and_environment_lights_by_key(tmp_path):
     with pytest.raises(SpecError, match=r"hair\.harmonics"):
         parse_spec({"hair": {"fibre": "chiang", "harmonics": "all_bounces"}})
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_chiang_bake_with_linear_exitance_reports_what_it_clamped(tmp_path):
+    spec = {**CHIANG, "hair": {**CHIANG["hair"], "chiang": {"exitance": "linear"}}}
+    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    report = json.loads((out / "report.json").read_text())
+    assert report["transport"]["exitance"] == "linear"
+    assert report["transport"]["solve"]["negative_clamped"] >= 0
+    assert report["verdict"]["status"] == "pass"
+    assert load_runtime(out).planes[load_runtime(out).coverage][:, :3].min() >= 0

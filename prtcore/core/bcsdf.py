@@ -190,17 +190,25 @@ ALBEDO_H_QUAD = 64
 
 @dataclass(frozen=True)
 class FibreAlbedo:
-    """The directional albedo of a fibre, ``Ā(θi; σ) = (1/cos θi) ∫ S(ωo, ωi) cos θo dωo``
-    averaged over the offset h, tabulated per absorption σ of one channel (channels are
-    independent): ``sin_theta`` (S,) and ``root_sigma`` (Q,) float64 nodes, ``values``
-    (S, Q) float64. Call it with sin θi (n,) and σ (n, 3) for (n, 3) by bilinear
+    """The directional albedo of a fibre and its first moments over the outgoing
+    direction, averaged over the offset h, tabulated per absorption σ of one channel
+    (channels are independent): ``sin_theta`` (S,) and ``root_sigma`` (Q,) float64 nodes,
+    ``values`` (4, S, Q) float64, moment m of
+
+    * 0: ``Ā(θi) = (1/cos θi) ∫ S(ωo, ωi) cos θo dωo``;
+    * 1: ``Ā_t(θi) = (1/cos θi) ∫ S(ωo, ωi) sin θo cos θo dωo``;
+    * 2: ``Ā_⊥(θi) = (1/cos θi) ∫ S(ωo, ωi) cos² θo cos(φo − φi) dωo``;
+    * 3: ``Ā_2(θi) = (1/cos θi) ∫ S(ωo, ωi) cos³ θo cos 2(φo − φi) dωo``.
+
+    Call it with sin θi (n,), σ (n, 3) and the moment for (n, 3) by bilinear
     interpolation (sin θi clamped to the nodes' range, σ to [0, SIGMA_MAX])."""
 
     sin_theta: np.ndarray
     root_sigma: np.ndarray
     values: np.ndarray
 
-    def __call__(self, sin_theta: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    def __call__(self, sin_theta: np.ndarray, sigma: np.ndarray, moment: int = 0
+                 ) -> np.ndarray:
         s = self.sin_theta
         x = (np.clip(sin_theta, s[0], s[-1]) - s[0]) / (s[1] - s[0])
         i = np.minimum(x.astype(np.int64), len(s) - 2)
@@ -209,7 +217,7 @@ class FibreAlbedo:
         y = (np.sqrt(np.clip(sigma, 0.0, r[-1] ** 2)) - r[0]) / (r[1] - r[0])
         j = np.minimum(y.astype(np.int64), len(r) - 2)
         fy = y - j
-        v = self.values
+        v = self.values[moment]
         i2 = i[:, None]
         top = v[i2, j] * (1 - fy) + v[i2, j + 1] * fy
         bottom = v[i2 + 1, j] * (1 - fy) + v[i2 + 1, j + 1] * fy
@@ -218,10 +226,11 @@ class FibreAlbedo:
 
 def fibre_albedo(params: ChiangParams) -> FibreAlbedo:
     """:class:`FibreAlbedo` of the fibre ``params`` (its ``sigma_a`` is ignored: the table
-    spans σ). ∫ S dφo is Σ_p M_p A_p (each N_p integrates to one over the azimuth), so the
-    table is a quadrature over θo and h only: Gauss–Legendre, ALBEDO_THETA_QUAD ×
-    ALBEDO_H_QUAD nodes (tests/test_bcsdf.py checks it against Monte Carlo over ωo and h
-    with :func:`scattering` itself)."""
+    spans σ). ∫ S dφo is Σ_p M_p A_p (each N_p integrates to one over the azimuth) and
+    ∫ S cos(φo − φi) dφo is Σ_p M_p A_p cos Φ_p · E[cos x] (x the lobe's trimmed logistic;
+    the sin Φ_p part cancels over ±h), so the tables are quadratures over θo and h only:
+    Gauss–Legendre, ALBEDO_THETA_QUAD × ALBEDO_H_QUAD nodes (tests/test_bcsdf.py checks
+    them against Monte Carlo over ωo and h with :func:`scattering` itself)."""
     x, w = np.polynomial.legendre.leggauss(ALBEDO_THETA_QUAD)
     theta_o, w_o = x * np.pi / 2, w * np.pi / 2
     sin_o, cos_o = np.sin(theta_o), np.cos(theta_o)
@@ -229,28 +238,45 @@ def fibre_albedo(params: ChiangParams) -> FibreAlbedo:
     wh = wh / 2  # the mean over h ∈ [−1, 1]
     root = np.linspace(0.0, np.sqrt(SIGMA_MAX), ALBEDO_SIGMA_NODES)
     sigma = root ** 2
-    # mean over h of A_p(θo, h; σ): (P_MAX + 1, O, Q), three σ nodes per call
+    # means over h of A_p(θo, h; σ) and A_p cos Φ_p: (P_MAX + 1, O, Q), three σ per call
     a_mean = np.empty((P_MAX + 1, len(theta_o), len(sigma)))
+    a_cos = np.zeros_like(a_mean)
+    a_cos2 = np.zeros_like(a_mean)
     cos_rep, h_rep = np.repeat(cos_o, len(xh)), np.tile(xh, len(theta_o))
+    # E[cos x] of the azimuthal lobe (the trimmed logistic is even)
+    xl, wl = np.polynomial.legendre.leggauss(512)
+    lobe = wl * np.pi * _trimmed_logistic(xl * np.pi, params.logistic_scale)
+    lobe_cos = float(np.sum(lobe * np.cos(xl * np.pi)))
+    lobe_cos2 = float(np.sum(lobe * np.cos(2 * xl * np.pi)))
     for q0 in range(0, len(sigma), 3):
         trip = np.resize(sigma[q0:q0 + 3], 3)
-        a, _, _ = attenuation(cos_rep, h_rep, ChiangParams(
+        a, gamma_o, gamma_t = attenuation(cos_rep, h_rep, ChiangParams(
             sigma_a=tuple(trip), beta_m=params.beta_m, beta_n=params.beta_n,
             alpha=params.alpha, eta=params.eta))
-        part = np.einsum("pohc,h->poc", a.reshape(P_MAX + 1, len(theta_o), len(xh), 3), wh)
         n = min(3, len(sigma) - q0)
-        a_mean[:, :, q0:q0 + n] = part[:, :, :n]
+        shape = (len(theta_o), len(xh), 3)
+        for p in range(P_MAX + 1):
+            a_mean[p, :, q0:q0 + n] = np.einsum("ohc,h->oc", a[p].reshape(shape), wh)[:, :n]
+            if p < P_MAX:
+                phi_p = 2 * p * gamma_t - 2 * gamma_o + p * np.pi
+                for arr, c in ((a_cos, np.cos(phi_p) * lobe_cos),
+                               (a_cos2, np.cos(2 * phi_p) * lobe_cos2)):
+                    arr[p, :, q0:q0 + n] = np.einsum("ohc,h->oc", (a[p] * c[:, None]).reshape(
+                        shape), wh)[:, :n]
     sin_i = np.linspace(-1.0, 1.0, ALBEDO_SIN_NODES) * 0.995
     cos_i = np.sqrt(1 - sin_i ** 2)
     v = params.variances
     rot = [*_tilted(sin_o, cos_o, params.alpha), (sin_o, cos_o)]
-    table = np.zeros((len(sin_i), len(sigma)))
+    table = np.zeros((4, len(sin_i), len(sigma)))
     for p in range(P_MAX + 1):
         sin_op, cos_op = rot[p]
         m = _mp(cos_i[:, None], np.abs(cos_op)[None, :], sin_i[:, None], sin_op[None, :],
                 v[p])  # (S, O)
-        table += (m * (w_o * cos_o ** 2)[None, :]) @ a_mean[p]
-    return FibreAlbedo(sin_theta=sin_i, root_sigma=root, values=table / cos_i[:, None])
+        table[0] += (m * (w_o * cos_o ** 2)[None, :]) @ a_mean[p]
+        table[1] += (m * (w_o * sin_o * cos_o ** 2)[None, :]) @ a_mean[p]
+        table[2] += (m * (w_o * cos_o ** 3)[None, :]) @ a_cos[p]
+        table[3] += (m * (w_o * cos_o ** 4)[None, :]) @ a_cos2[p]
+    return FibreAlbedo(sin_theta=sin_i, root_sigma=root, values=table / cos_i[None, :, None])
 
 
 def sample_scattering(tangent: np.ndarray, wo: np.ndarray, h: np.ndarray,

@@ -270,6 +270,9 @@ class ChiangSpec:
     alpha_deg: float = 2.0
     #: index of refraction of the fibre
     eta: float = 1.55
+    #: what transport carries of each texel's outgoing radiance: "isotropic" (its average,
+    #: the paper's) or "linear" (plus a linear function of direction: 16× the operator)
+    exitance: str = "isotropic"
 
 
 @dataclass(frozen=True)
@@ -540,7 +543,9 @@ def _chiang(v: Any) -> ChiangSpec:
         beta_n=_num(c.get("beta_n", d.beta_n), "hair.chiang.beta_n", lo=0.1, hi=1.0),
         alpha_deg=_num(c.get("alpha_deg", d.alpha_deg), "hair.chiang.alpha_deg", lo=-10.0,
                        hi=10.0),
-        eta=_num(c.get("eta", d.eta), "hair.chiang.eta", lo=1.0, hi=3.0))
+        eta=_num(c.get("eta", d.eta), "hair.chiang.eta", lo=1.0, hi=3.0),
+        exitance=_choice(c.get("exitance", d.exitance), "hair.chiang.exitance",
+                         ("isotropic", "linear", "quadratic")))
 
 
 def _section(cls: type, v: Any, key: str) -> dict:

@@ -84,6 +84,9 @@ DOCS: dict[str, str] = {
     "chiang.beta_n": "azimuthal roughness, 0.1–1",
     "chiang.alpha_deg": "cuticle tilt in degrees, −10–10",
     "chiang.eta": "index of refraction of the fibre, 1–3",
+    "chiang.exitance": "`isotropic` (transport carries each texel's direction-averaged "
+                       "outgoing radiance, the paper's) · `linear` (plus a linear function "
+                       "of direction: 16× the operator, docs/hair.md)",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `all_bounces` for hair baked "
                       "with a mesh) · `first_bounce` (the direct light's first azimuthal "
                       "harmonic in the first bounce) · `all_bounces` (every texel's mean, "

@@ -44,6 +44,31 @@ from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 from prtcore.reference.fibres import cosine_about, roulette, two_halves
 
+#: the fibre's outgoing radiance at a hit, by name (:func:`chiang_reference`): the
+#: azimuthal orders its projection keeps (None: the BCSDF's own, toward the path)
+EXITANCE_ORDERS = {"exact": None, "isotropic": 0, "linear": 1, "quadratic": 2,
+                   "second_order": 3, "linear_first": 1, "quadratic_first": 2}
+
+
+def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
+                      orders: int) -> np.ndarray:
+    """(n,) reproducing kernel ``k(w, target)`` of the weighted projection (weight
+    cos θ / π² over the sphere) onto {1} (orders 0), {1, sin θ, cos θ cos φ, cos θ sin φ}
+    (1) and also cos² θ (cos 2φ, sin 2φ) (2), in the frames of ``tangent`` (n, 3): for
+    w drawn with that density, ``E[k(w, target) f(w)]`` is the projection of f evaluated at
+    ``target``. Duals: 1, 4 sin θ, 8/3 cos θ (cos φ, sin φ), 16/5 cos² θ (cos 2φ, sin 2φ)."""
+    k = np.ones(len(w))
+    if orders >= 1:
+        s1 = np.einsum("ij,ij->i", w, tangent)
+        s2 = np.einsum("ij,ij->i", target, tangent)
+        perp = np.einsum("ij,ij->i", w, target) - s1 * s2  # cos θ cos θ* cos(φ − φ*)
+        k += 4 * s1 * s2 + 8 / 3 * perp
+        if orders >= 2:
+            k += 16 / 5 * (2 * perp ** 2 - (1 - s1 ** 2) * (1 - s2 ** 2))
+        if orders >= 3:  # the rest of second order: (sin² θ − 1/4) and sin θ · ω⊥
+            k += 16 * (s1 ** 2 - 0.25) * (s2 ** 2 - 0.25) + 16 * s1 * s2 * perp
+    return k
+
 
 def _radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(n, 3) unit radial directions of uniformly random azimuth about ``tangent``."""
@@ -78,16 +103,20 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
                      mesh_faces: int, lights: Sequence[Light], texels: np.ndarray,
                      paths: int, seed: int, params: ChiangParams,
                      sigma_points: np.ndarray, max_depth: int = 64, rr_depth: int = 3,
-                     isotropic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                     exitance: str = "exact") -> tuple[np.ndarray, np.ndarray]:
     """Indirect ``L̄_ind`` of ``texels`` (n,) int for every light, two independent halves
     of ``paths // 2`` paths each: (a, b), each (n, K, 3) float64. ``params``: the fibre
     (its sigma_a ignored); ``sigma_points`` (p, 3) float64 absorption per unit radius at
     every hair point. ``mesh_faces``: scene triangles before the tubes in ``tracer``.
 
-    isotropic : at every hit, shade toward a fresh ωo drawn as at the texel (density
-    cos θo / π²) instead of toward where the path came from — the fast path's isotropic
-    texel, in expectation; the difference between the two references is the error of that
-    approximation alone (a diagnostic, not the reference)."""
+    exitance : "exact" (the reference) or a diagnostic model of the fast path's: at every
+    hit, shade toward a fresh ωo drawn as at the texel (density cos θo / π²) and weight
+    it by :func:`projection_kernel` toward where the path came from — "isotropic" (no
+    weight: the texel's average), "linear" or "quadratic" (its projection on those
+    orders, in expectation); "linear_first" / "quadratic_first" project the first hit's
+    direct light only and leave later hits isotropic. The difference from "exact" is the
+    error of that model alone. Beyond one bounce the kernels' weights multiply and the
+    projected variants' variance explodes: use them at ``max_depth = 1``."""
     texels = np.asarray(texels, dtype=np.int64)
     hair = space.hair
     off = outside_offset(hair, mesh.sides)
@@ -118,6 +147,7 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
         del u
         wo = cosine_about(_radial(tangent, rng), rng)  # density cos θo / π² over the sphere
         beta = np.ones((n, 3))
+        first = np.ones(n)  # the first hit's kernel on its direct light (``*_first``)
         alive = np.arange(n)
         for depth in range(max_depth + 1):  # the texel, then up to max_depth fibre hits
             if not len(alive):
@@ -125,8 +155,8 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             h = 2 * rng.random(len(alive)) - 1
             tg, c, r, sg = tangent[alive], centre[alive], radius[alive], sigma[alive]
             if depth > 0:
-                np.add.at(acc, owner[alive], shade(beta[alive], c, tg, r, wo[alive], sg,
-                                                   h, rng))
+                b_nee = beta[alive] if depth > 1 else beta[alive] * first[alive, None]
+                np.add.at(acc, owner[alive], shade(b_nee, c, tg, r, wo[alive], sg, h, rng))
             if depth == max_depth:
                 break
             wo_a = wo[alive]
@@ -148,8 +178,16 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             radius[alive] = (1 - t) * off[p0] + t * off[p0 + 1]
             sigma[alive] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
             wo[alive] = -wi
-            if isotropic:
-                wo[alive] = cosine_about(_radial(tangent[alive], rng), rng)
+            if exitance != "exact":  # shade toward a fresh ωo, weighted by the kernel
+                fresh = cosine_about(_radial(tangent[alive], rng), rng)
+                kern = projection_kernel(tangent[alive], fresh, -wi,
+                                         EXITANCE_ORDERS[exitance.removesuffix("_first")])
+                if exitance.endswith("_first"):
+                    if depth == 0:
+                        first[alive] = kern
+                else:
+                    beta[alive] *= kern[:, None]
+                wo[alive] = fresh
             if depth + 1 >= rr_depth:
                 alive = roulette(beta, alive, rng)
 

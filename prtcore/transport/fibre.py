@@ -149,16 +149,18 @@ def _direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
 
 def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                drawn: tuple, harmonics: int, block: int, progress: bool,
-               weight: Callable | None = None) -> FibreDirect:
+               weight: Callable | None = None) -> FibreDirect | np.ndarray:
     """:func:`fibre_direct` for ``lights`` from :func:`_direct_samples`' ``drawn``,
     ``block`` texels at a time (a progress bar over them with ``progress``).
-    weight : another fibre's albedo per sample and light instead of the texel's ρ:
-    ``weight(idx (n,) texels, origin (n, J, 3), lights)`` → (n, J, K, 3) float32
-    (:mod:`prtcore.transport.fibre_chiang`)."""
+    weight : another fibre's F weights per sample and light instead of the texel's ρ,
+    ``weight(idx (n,) texels, origin (n, J, 3), lights)`` → (F, n, J, K, 3) float32
+    (:mod:`prtcore.transport.fibre_chiang`); the result is then the F weighted means
+    (F, T, K, 3) float32 (no harmonics)."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
     mean = np.empty((t, k, 3), dtype=np.float32)
     harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
+    weighted = None
     blocks = range(0, t, block)
     for a in bar(blocks, "direct fibres", total=len(blocks)) if progress else blocks:
         idx = order[a:a + block]
@@ -168,12 +170,18 @@ def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                               normal[idx].reshape(-1, 3), np.repeat(rho, j, axis=0)
                               ).reshape(len(idx), j, k, 3)
         if weight is not None:
-            rad *= 2 * weight(idx, origin[idx], lights)
+            w = weight(idx, origin[idx], lights)
+            if weighted is None:
+                weighted = np.empty((len(w), t, k, 3), dtype=np.float32)
+            weighted[:, idx] = 2 * np.einsum("fnjkc,njkc->fnkc", w, rad) / j
+            continue
         mean[idx] = rad.mean(axis=1)
         for h in range(harmonics):
             for i, f in enumerate((np.cos, np.sin)):
                 harm[2 * h + i, idx] = 2 * np.einsum("tjkc,tj->tkc", rad,
                                                      f((h + 1) * phi[idx])) / j
+    if weight is not None:
+        return weighted
     return FibreDirect(mean, harm)
 
 
@@ -213,16 +221,16 @@ class FibreTerm:
     mesh_block: sp.csr_matrix | None = None
     #: with a mesh that receives: every ray's hit on it (:class:`MeshHits`)
     mesh_hits: MeshHits | None = None
-    #: with :func:`fibre_gather`'s ``ray_weight``: three (T, T) float32 CSR, the gather
-    #: with each ray weighted by the weight's R, G, B / M
-    channels: tuple[sp.csr_matrix, ...] | None = None
+    #: with :func:`fibre_gather`'s ``ray_data``: every fibre hit's (row (n,) int32,
+    #: column (n,) int32, data (n, F) float32)
+    rays: tuple | None = None
 
 
 def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
                  rays: int, seed: int, harmonics: int = HARMONICS,
                  all_bounces: bool = False, mesh_texels: Callable | None = None,
                  mesh_columns: int = 0, orders: int = 1,
-                 ray_weight: Callable | None = None) -> FibreTerm:
+                 ray_data: Callable | None = None) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
     mesh_texels : the mesh receives too (a hair + mesh bake): a
@@ -231,9 +239,9 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     mesh hits bring nothing).
     all_bounces : also build :attr:`FibreTerm.block`, the gather on the (mean, cos, sin)
     harmonics of every texel (:func:`harmonic_block`), up to order ``orders``.
-    ray_weight : another fibre's albedo per ray, ``ray_weight(texel (n,), arc (n,), d (n,
-    3))`` → (n, 3): also build :attr:`FibreTerm.channels`, the gather with every ray
-    weighted by it per colour channel (:mod:`prtcore.transport.fibre_chiang`)."""
+    ray_data : what another fibre needs of every ray that hits a fibre, ``ray_data(texel
+    (n,), arc (n,), d (n, 3))`` → (n, F): kept in :attr:`FibreTerm.rays`
+    (:mod:`prtcore.transport.fibre_chiang` weights the rays with it)."""
     t = space.count
     hair = space.hair
     # the samples' places drawn once (16 bytes a ray), their points made per batch: the
@@ -274,9 +282,9 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
         cols_all.append(texel.astype(np.int32))
         cs_all.append(cs.astype(np.float32))
-        if ray_weight is not None:
-            rw_all.append(ray_weight(np.arange(a, b)[fib] // rays, sample_arc[a:b][fib],
-                                     d[fib]).astype(np.float32))
+        if ray_data is not None:
+            rw_all.append(ray_data(np.arange(a, b)[fib] // rays, sample_arc[a:b][fib],
+                                   d[fib]).astype(np.float32))
         if all_bounces:
             po_all.append(phi[a:b][fib].astype(np.float32))
     rows = np.concatenate(rows_all) if rows_all else np.zeros(0, np.int32)
@@ -319,13 +327,13 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                              barycentric=np.concatenate(mesh_bary) if mesh_bary else
                              np.zeros((0, 3)),
                              t=np.concatenate(mesh_t) if mesh_t else np.zeros(0))
-    channels = None
-    if ray_weight is not None:
-        rw = np.concatenate(rw_all) if rw_all else np.zeros((0, 3), np.float32)
-        channels = tuple(csr(rw[:, c]) for c in range(3))
+    kept = None
+    if ray_data is not None:
+        kept = (rows, cols, np.concatenate(rw_all) if rw_all else np.zeros((0, 1),
+                                                                           np.float32))
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
                      block=block, mesh=to_mesh, mesh_block=mesh_block, mesh_hits=mesh_hits,
-                     channels=channels,
+                     rays=kept,
                      stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
                             "misses": total - n_fibre - n_mesh})
 

@@ -14,17 +14,28 @@ non-absorbing fibre Ā ≈ 1 (the white furnace holds).
   samples and shadow rays, each sample's ``E/π · max(0, n·ωl) · V`` weighted by
   ``Ā(t·ωl, σ)`` at its own tangent t: ``L̄_d = Ā E⊥ cos θl V̄ / π²``, V̄ the cosine-weighted
   visibility over the fibre's surface.
-* **Multiple scattering** (:func:`chiang_gather`): the diffuse fibre's gather rays (density
-  cos θ / π² over the sphere), each weighted by ``Ā(t·d, σ_i)`` of its own direction and
-  the receiving texel's σ, one CSR per colour channel, solved by
-  :func:`prtcore.transport.solve.solve_indirect` with them as its per-channel matrices.
+* **Multiple scattering** (:func:`chiang_gather`, :func:`chiang_operator`): the diffuse
+  fibre's gather rays (density cos θ / π² over the sphere), each weighted by
+  ``Ā(t·d, σ_i)`` of its own direction and the receiving texel's σ, one operator per
+  colour channel, solved by :func:`prtcore.transport.solve.solve_indirect` with them as
+  its per-channel matrices.
 
-**The approximation** (the paper's, "radially constant illumination at each point on the
-fiber"): a gather ray that hits fibre j brings ``L̄_j``, not the BCSDF's outgoing radiance
-toward the ray. Hair scatters forward (TT) and back (R, TRT) unevenly, so this is where
-the fast path departs from the reference; docs/hair.md has the measured error. The
-direct light's azimuthal harmonics of the diffuse fibre have no counterpart here: the
-fibre's radiance is already averaged over every direction.
+**Isotropic exitance** (``hair.chiang.exitance = "isotropic"``, the paper's "radially
+constant illumination at each point on the fiber"): a gather ray that hits fibre j
+brings ``L̄_j``, not the BCSDF's outgoing radiance toward the ray. Hair scatters forward
+(TT) and back (R, TRT), so this is where the fast path departs from the reference: 34 %
+per texel on a light tangle (docs/hair.md).
+
+**Linear exitance** (``"linear"``): transport carries each texel's outgoing radiance as
+``L_o(ω) ≈ c0 + c · ω`` (world vector c), the projection with the weight cos θ / π² onto
+{1, sin θ, cos θ cos φ, cos θ sin φ} (duals 1, 4 sin θ, 8/3 cos θ (cos φ, sin φ)). Light
+arriving from ωi adds ``Ā`` to c0 and ``g = 4 Ā_t t + (8/3) Ā_⊥ ω̂i⊥`` to c (the
+table's other two moments: forward scattering makes Ā_⊥ negative); a ray toward d
+reads ``c0 − c · d`` of the fibre it hits. The direct light's coefficients come from the
+same weights; every bounce goes through the (4T, 4T) operator (16 blocks per channel,
+Neumann series); the few texels whose truncated exitance dips below zero are clamped and
+counted. The stored texel is still c0 (the runtime is unchanged). Measured: 8.9 % on the
+same tangle; 16× the operator's memory.
 """
 
 from __future__ import annotations
@@ -91,51 +102,144 @@ def check_lights(lights: Sequence[Light]) -> None:
                          f"this bake has {', '.join(bad)} lights (use hair.fibre 'diffuse')")
 
 
+#: Memory per gather ray beyond the diffuse fibre's (bytes): each hit's direction and
+#: tangent (24) and row/column (8), the three channels' CSR (8 each) and their COO build
+#: (16); with "linear" exitance 16 blocks of those, plus the int64 block indices (256).
+CHIANG_BYTES_PER_RAY = 100
+CHIANG_LINEAR_BYTES_PER_RAY = 700
+#: the fibre's outgoing radiance carried through transport (``hair.chiang.exitance``)
+EXITANCE = ("isotropic", "linear", "quadratic")
+#: coefficients per texel of each
+EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6}
+
+
+def texel_frames(space: StrandSpace) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) (T, 3) float64: a unit frame across each texel's fibre at the middle of its
+    arc (the transported frame), for the azimuthal second-order terms."""
+    _, tangent, u = axis_frame(space.hair, space.strand, space.arc.mean(axis=1))
+    return u, np.cross(tangent, u)
+
+
+def _second_order(w: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray,
+                                                                         np.ndarray]:
+    """``((w·u)² − (w·v)², 2 (w·u)(w·v))`` (n,) each: cos² θ (cos 2φ, sin 2φ) of w (n, 3) in
+    the frames (u, v) (n, 3)."""
+    a, b = np.einsum("ij,ij->i", w, u), np.einsum("ij,ij->i", w, v)
+    return a * a - b * b, 2 * a * b
+
+
+def _weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray, sigma: np.ndarray,
+             exitance: str, frame: tuple | None = None) -> np.ndarray:
+    """Per incident direction w (n, 3) at fibres of tangents (n, 3) and absorption σ
+    (n, 3): the weights that turn light arriving from w (with density cos θ / π²) into the
+    exitance coefficients, (F, n, 3): F = 1, Ā (isotropic); F = 4, Ā then the world
+    vector ``g = 4 Ā_t t + (8/3) Ā_⊥ ŵ_⊥`` (linear); F = 6, those then
+    ``(16/5) Ā_2 (cos 2φ, sin 2φ)`` of w in the receiving texels' ``frame`` (u, v)
+    (quadratic)."""
+    sin = np.einsum("ij,ij->i", tangent, w)
+    mean = albedo(sin, sigma)
+    if exitance == "isotropic":
+        return mean[None]
+    perp = w - sin[:, None] * tangent
+    perp /= np.maximum(np.linalg.norm(perp, axis=1, keepdims=True), 1e-12)
+    at, ap = albedo(sin, sigma, 1), albedo(sin, sigma, 2)
+    g = 4 * at[:, None, :] * tangent[:, :, None] + 8 / 3 * ap[:, None, :] * perp[:, :, None]
+    out = [mean[None], np.moveaxis(g, 1, 0)]
+    if exitance == "quadratic":
+        c2, s2 = _second_order(w, *frame)
+        norm = np.maximum(c2 * c2 + s2 * s2, 1e-24) ** 0.5  # cos² θ of w
+        a2 = 16 / 5 * albedo(sin, sigma, 3)
+        out += [(a2 * (c2 / norm)[:, None])[None], (a2 * (s2 / norm)[:, None])[None]]
+    return np.concatenate(out)
+
+
+def _reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
+    """What a ray toward d (n, 3) reads of each coefficient of the fibre it hits (frames
+    (u, v) (n, 3) of the texels hit, for the second-order terms): 1, −d, then
+    cos² θ (cos 2φ, sin 2φ) of −d."""
+    out = [np.ones(len(d))]
+    if terms >= 4:
+        out += [-d[:, 0], -d[:, 1], -d[:, 2]]
+    if terms == 6:
+        out += list(_second_order(d, *frame))  # even in d
+    return out
+
+
 def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
-                  samples: int, seed: int, fibre: ChiangFibre) -> np.ndarray:
-    """Direct ``L̄_d`` (T, K, 3) float32 of every strand texel for every light, from the
+                  samples: int, seed: int, fibre: ChiangFibre, exitance: str = "isotropic"
+                  ) -> np.ndarray:
+    """Direct exitance coefficients of every strand texel for every light, (F, T, K, 3)
+    float32 (F = 1 isotropic: L̄_d; F = 4 linear: L̄_d then the world vector c), from the
     same surface samples as :func:`prtcore.transport.fibre.fibre_direct`."""
     check_lights(lights)
     drawn = _direct_samples(space, samples, seed)
     arc, _ = space.surface_sample_params(samples, seed)  # the samples' arcs, as drawn
     tangent = axis_frame(space.hair, np.repeat(space.strand, samples),
                          arc.reshape(-1))[1].reshape(space.count, samples, 3)
+    frames = texel_frames(space) if exitance == "quadratic" else None
 
     def weight(idx: np.ndarray, origin: np.ndarray, lights_: Sequence[Light]) -> np.ndarray:
         n, j = origin.shape[:2]
         pts = origin.reshape(-1, 3)
         tg = tangent[idx].reshape(-1, 3)
         sig = np.repeat(fibre.sigma_texels[idx], j, axis=0)
-        out = np.empty((n * j, len(lights_), 3), dtype=np.float32)
+        frame = None if frames is None else tuple(np.repeat(f[idx], j, axis=0)
+                                                  for f in frames)
+        out = None
         for k, light in enumerate(lights_):
             _, to_light, _ = unshadowed_irradiance(light, pts, tg)
-            out[:, k] = fibre.albedo(np.einsum("ij,ij->i", tg, to_light), sig)
-        return out.reshape(n, j, len(lights_), 3)
+            w = _weights(fibre.albedo, tg, to_light, sig, exitance, frame)
+            if out is None:
+                out = np.empty((len(w), n * j, len(lights_), 3), dtype=np.float32)
+            out[:, :, k] = w
+        return out.reshape(len(out), n, j, len(lights_), 3)
 
     return _direct_of(space, tracer, lights, drawn, 0, 1 << 14, progress=True,
-                      weight=weight).mean
+                      weight=weight)
 
 
 def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
                   rays: int, seed: int, fibre: ChiangFibre) -> FibreTerm:
-    """:func:`prtcore.transport.fibre.fibre_gather` with every ray weighted by
-    ``Ā(t·d, σ_i)`` (``FibreTerm.channels``); the same rays as the diffuse fibre's."""
+    """:func:`prtcore.transport.fibre.fibre_gather` (the same rays as the diffuse fibre's)
+    keeping every fibre hit's direction and tangent at its origin
+    (``FibreTerm.rays``, data (n, 6): d, t) for :func:`chiang_operator`."""
     hair = space.hair
 
-    def ray_weight(texel: np.ndarray, arc: np.ndarray, d: np.ndarray) -> np.ndarray:
-        tg = axis_frame(hair, space.strand[texel], arc)[1]
-        return fibre.albedo(np.einsum("ij,ij->i", tg, d), fibre.sigma_texels[texel])
+    def ray_data(texel: np.ndarray, arc: np.ndarray, d: np.ndarray) -> np.ndarray:
+        return np.concatenate([d, axis_frame(hair, space.strand[texel], arc)[1]], axis=1)
 
     return fibre_gather(space, tracer, mesh, mesh_faces, rays, seed, harmonics=0,
-                        ray_weight=ray_weight)
+                        ray_data=ray_data)
 
 
-def channel_operator(term: FibreTerm) -> tuple[sp.csr_matrix, tuple, np.ndarray]:
-    """``solve_indirect``'s (shared matrix, per-channel matrices, albedo) for the weighted
-    gather W_c: the solver computes ``L = ρ ∘ (G + C_c)(L_d + L)``; with an empty G,
-    ``C_c = 2 W_c`` and ρ = 1/2 (below the solver's albedo clamp) that is ``L = W_c (L_d +
-    L)``."""
+def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, rays: int,
+                    exitance: str = "isotropic"
+                    ) -> tuple[sp.csr_matrix, tuple, np.ndarray]:
+    """``solve_indirect``'s (shared matrix, per-channel matrices, albedo) for the gather
+    on the exitance coefficients, W_c (FT, FT) per channel c: row block a of the
+    receiving texel takes each ray's weight a (:func:`_weights` of its direction, the
+    receiving texel's σ) times column block b of the texel hit, read toward the ray
+    (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its second-order terms
+    at −d, :func:`_reads`), over M. The solver computes
+    ``L = ρ ∘ (G + C_c)(L_d + L)``; with an empty G, ``C_c = 2 W_c`` and ρ = 1/2 (below
+    its albedo clamp) that is ``L = W_c (L_d + L)``."""
+    rows, cols, data = term.rays
     t = term.matrix.shape[0]
-    shared = sp.csr_matrix((t, t), dtype=np.float32)
-    channels = tuple((2 * m).astype(np.float32) for m in term.channels)
-    return shared, channels, np.full((t, 3), 0.5)
+    d, tangent = data[:, :3].astype(np.float64), data[:, 3:6].astype(np.float64)
+    frames = texel_frames(space) if exitance == "quadratic" else None
+    w = _weights(fibre.albedo, tangent, d, fibre.sigma_texels[rows], exitance,
+                 None if frames is None else (frames[0][rows], frames[1][rows]))  # (F, n, 3)
+    f = len(w)
+    read = _reads(d, None if frames is None else (frames[0][cols], frames[1][cols]), f)
+    r = np.concatenate([rows.astype(np.int64) + a * t for a in range(f) for _ in range(f)])
+    c = np.concatenate([cols.astype(np.int64) + b * t for _ in range(f) for b in range(f)])
+    channels = []
+    for ch in range(3):
+        v = np.concatenate([(2 * w[a, :, ch] * read[b] / rays).astype(np.float32)
+                            for a in range(f) for b in range(f)])
+        m = sp.csr_matrix((v, (r, c)), shape=(f * t, f * t))
+        m.sum_duplicates()
+        m.sort_indices()
+        channels.append(m)
+    shared = sp.csr_matrix((f * t, f * t), dtype=np.float32)
+    return shared, tuple(channels), np.full((f * t, 3), 0.5)

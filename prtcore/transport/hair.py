@@ -3,7 +3,9 @@
 As :func:`prtcore.transport.dataset.bake_dataset` for surfaces, with the fibre operators
 of :mod:`prtcore.transport.fibre`: direct light at the measurement points (on the hull of
 the hair) and at the strand texels (with its azimuthal harmonics), the fibre gather, the
-first bounce with the harmonics, and all bounces for every configuration at once.
+first bounce with the harmonics, and all bounces for every configuration at once. With
+the Chiang fibre (``hair.fibre = "chiang"``) the same stages go through
+:mod:`prtcore.transport.fibre_chiang`.
 """
 
 from __future__ import annotations
@@ -23,9 +25,9 @@ from prtcore.transport.dataset import Dataset, direct_at_points
 from prtcore.transport.fibre import direct_and_first_bounce, fibre_direct, fibre_gather
 from prtcore.transport.fibre_chiang import (
     ChiangFibre,
-    channel_operator,
     chiang_direct,
     chiang_gather,
+    chiang_operator,
 )
 from prtcore.transport.solve import solve_indirect
 
@@ -37,8 +39,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
                       lights_train: Sequence[Light], lights_holdout: Sequence[Light] = (),
                       spec: TransportSpec | None = None, timer: StageTimer | None = None,
                       scene: Scene | None = None, harmonics: str = "first_bounce",
-                      keep_direct_texels: bool = True, fibre: ChiangFibre | None = None
-                      ) -> Dataset:
+                      keep_direct_texels: bool = True, fibre: ChiangFibre | None = None,
+                      chiang_exitance: str = "isotropic") -> Dataset:
     """The lighting database of a hair bake (``Dataset``: direct at the points, direct and
     indirect at the strand texels, training lights first). ``tracer`` is
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene`` (the mesh of a
@@ -57,11 +59,12 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
 
     fibre : the Chiang fibre (``hair.fibre = "chiang"``,
     :mod:`prtcore.transport.fibre_chiang`; ``harmonics`` is then ignored), or None for the
-    diffuse fibre."""
+    diffuse fibre; ``chiang_exitance`` (``hair.chiang.exitance``): what its transport
+    carries of each texel's outgoing radiance, "isotropic" or "linear"."""
     if fibre is not None:
         return _chiang_dataset(space, points, tracer, lights_train, lights_holdout,
                                spec or TransportSpec(), timer or StageTimer(quiet=True),
-                               scene, keep_direct_texels, fibre)
+                               scene, keep_direct_texels, fibre, chiang_exitance)
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
@@ -110,7 +113,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
 def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTracer,
                     lights_train: Sequence[Light], lights_holdout: Sequence[Light],
                     spec: TransportSpec, timer: StageTimer, scene: Scene | None,
-                    keep_direct_texels: bool, fibre: ChiangFibre) -> Dataset:
+                    keep_direct_texels: bool, fibre: ChiangFibre,
+                    exitance: str = "isotropic") -> Dataset:
     """:func:`bake_hair_dataset` with the Chiang fibre: the same stages and rays, every
     gather ray and direct sample weighted by the fibre's directional albedo, the three
     channels' operators solved together."""
@@ -121,18 +125,35 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
                              scene.triangle_count if scene is not None else 0,
                              spec.gather_rays, spec.seed, fibre)
     rays1 = tracer.rays_traced
+    fibre_stats = term.stats
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
     with timer.stage("direct fibres"):
-        direct_mean = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
-                                    spec.seed + 1, fibre)
+        direct = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
+                               spec.seed + 1, fibre, exitance)
     rays3 = tracer.rays_traced
-    shared, channels, rho = channel_operator(term)
-    indirect, bounces, resid, solve_stats = solve_indirect(
-        shared, rho, direct_mean, spec.max_bounces, spec.tolerance, timer,
-        threads=tracer.threads, channel_matrices=channels,
-        out=None if keep_direct_texels else direct_mean)
-    stats = {"train": len(lights_train), "fibre": term.stats, "model": "chiang",
+    shared, channels, rho = chiang_operator(space, term, fibre, spec.gather_rays, exitance)
+    del term
+    t = space.count
+    if exitance == "isotropic":
+        direct_mean = direct[0]
+        indirect, bounces, resid, solve_stats = solve_indirect(
+            shared, rho, direct_mean, spec.max_bounces, spec.tolerance, timer,
+            threads=tracer.threads, channel_matrices=channels,
+            out=None if keep_direct_texels else direct_mean)
+    else:  # every texel's exitance coefficients, stacked: (FT, K, 3)
+        direct_mean = direct[0].copy() if keep_direct_texels else None
+        stacked = direct.reshape(-1, *direct.shape[2:])
+        del direct
+        indirect, bounces, resid, solve_stats = solve_indirect(
+            shared, rho, stacked, spec.max_bounces, spec.tolerance, timer,
+            method="neumann", threads=tracer.threads, channel_matrices=channels,
+            out=stacked)
+        # the truncated exitance can dip below zero at a few texels; light cannot
+        solve_stats["negative_clamped"] = int((indirect[:t] < 0).sum())
+        indirect = np.maximum(indirect[:t], np.float32(0))
+    stats = {"train": len(lights_train), "fibre": fibre_stats, "model": "chiang",
+             "exitance": exitance,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}
     return Dataset(lights=lights, direct_points=direct_points,

@@ -1,0 +1,121 @@
+"""Benchmark: the Chiang-fibre fast path against the project's Chiang path tracer.
+
+The dense procedural tangle (prtcore.scenes.hair.tangle, 1000 strands × 12 texels) under
+a sun and a point light, one hair colour read as the hair volume's colour (σ_a from it,
+Chiang et al. 2016 eq. 9), the default roughness, tilt and IOR. The fast path
+(prtcore.transport.fibre_chiang: J direct samples, M gather rays per texel, the solve) is
+compared on random strand texels with prtcore.reference.chiang, noise removed with two
+independent halves. Printed and written to benchmarks/results/hair_chiang_accuracy.json,
+per colour:
+
+* ``isotropic``: transport carries each texel's direction-averaged outgoing radiance (the
+  paper's storage, ``hair.chiang.exitance = "isotropic"``);
+* ``linear``: plus a linear function of direction through every bounce (``"linear"``);
+* ``isotropic_model``: the isotropic fast path against the path tracer that shades each
+  hit toward a fresh direction (``exitance="isotropic"``): the gather, table and solve
+  alone, without the approximation.
+
+Usage: python benchmarks/hair_chiang_accuracy.py [--strands 1000] [--texels-per-strand 12]
+       [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
+       [--colors 0.8,0.6,0.4 0.3,0.2,0.1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from prtcore.core.spec import ChiangSpec  # noqa: E402
+from prtcore.receivers.strands import build_strand_space  # noqa: E402
+from prtcore.reference.chiang import chiang_reference  # noqa: E402
+from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
+from prtcore.scenes.hair import tangle, tangle_lights  # noqa: E402
+from prtcore.transport.fibre import hair_tracer  # noqa: E402
+from prtcore.transport.fibre_chiang import (  # noqa: E402
+    EXITANCE,
+    chiang_direct,
+    chiang_fibre,
+    chiang_gather,
+    chiang_operator,
+)
+from prtcore.transport.solve import solve_indirect  # noqa: E402
+
+LIGHTS = tangle_lights()
+
+
+def fast_path(space, tracer, mesh, fibre, args) -> tuple[dict, dict]:
+    """{exitance: indirect (T, K, 3)} and {exitance: seconds} (the gather shared)."""
+    t0 = time.perf_counter()
+    term = chiang_gather(space, tracer, mesh, 0, args.rays, 2, fibre)
+    gather = time.perf_counter() - t0
+    out, seconds = {}, {}
+    for exitance in EXITANCE:
+        t1 = time.perf_counter()
+        direct = chiang_direct(space, tracer, LIGHTS, args.samples, 1, fibre, exitance)
+        shared, channels, rho = chiang_operator(space, term, fibre, args.rays, exitance)
+        x = solve_indirect(shared, rho, direct.reshape(-1, *direct.shape[2:]), 64, 1e-4,
+                           method="neumann", channel_matrices=channels)[0]
+        out[exitance] = np.maximum(x[:space.count], 0).astype(np.float64)
+        seconds[exitance] = gather + time.perf_counter() - t1
+    return out, seconds
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--strands", type=int, default=1000)
+    ap.add_argument("--texels-per-strand", type=int, default=12)
+    ap.add_argument("--rays", type=int, default=256)
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--paths", type=int, default=2048)
+    ap.add_argument("--texels", type=int, default=150)
+    ap.add_argument("--colors", nargs="+", default=["0.8,0.6,0.4", "0.3,0.2,0.1"])
+    args = ap.parse_args()
+    results = {}
+    for color in args.colors:
+        rgb = [float(c) for c in color.split(",")]
+        hair = tangle(args.strands)
+        hair = dataclasses.replace(hair, color=np.tile(rgb, (hair.point_count, 1)))
+        space = build_strand_space(hair, args.texels_per_strand)
+        tracer, mesh = hair_tracer(space)
+        fibre = chiang_fibre(ChiangSpec(), space)
+        fast, seconds = fast_path(space, tracer, mesh, fibre, args)
+        sel = np.random.default_rng(5).choice(space.count, args.texels, replace=False)
+        t0 = time.perf_counter()
+        ref = chiang_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, 7,
+                               fibre.params, fibre.sigma_points)
+        ref_s = time.perf_counter() - t0
+        iso = chiang_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, 8,
+                               fibre.params, fibre.sigma_points, exitance="isotropic")
+        rows = {e: noise_corrected_error(fast[e][sel], *ref) for e in EXITANCE}
+        rows["isotropic_model"] = noise_corrected_error(fast["isotropic"][sel], *iso)
+        print(f"colour {color} (σ_a {np.round(fibre.sigma_texels[0], 3).tolist()}), "
+              f"{space.count} texels")
+        for name, e in rows.items():
+            print(f"  {name:16}: rRMSE {e['rrmse']:.3f} (raw {e['raw_rrmse']:.3f}, reference "
+                  f"noise {e['reference_noise']:.3f})  bias {e['bias']:+.3f} ± "
+                  f"{e['bias_se']:.3f}")
+        print("  fast path " + ", ".join(f"{e} {s:.1f} s" for e, s in seconds.items())
+              + f"; reference {ref_s:.1f} s for {args.texels} texels × {args.paths} paths "
+              f"(load {os.getloadavg()[0]:.1f})")
+        results[color] = {"errors": rows, "fast_seconds": seconds,
+                          "reference_seconds": ref_s, "texels": space.count,
+                          "sigma_a": fibre.sigma_texels[0].tolist()}
+    out = ROOT / "benchmarks" / "results" / "hair_chiang_accuracy.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"args": vars(args), "results": results}, indent=1))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
