@@ -13,11 +13,14 @@ per colour:
 * ``linear``: plus a linear function of direction through every bounce (``"linear"``);
 * ``isotropic_model``: the isotropic fast path against the path tracer that shades each
   hit toward a fresh direction (``exitance="isotropic"``): the gather, table and solve
-  alone, without the approximation.
+  alone, without the approximation;
+* with ``--mitsuba-rays R``: ``pathtracer_vs_mitsuba``, prtcore's Chiang path tracer
+  against Mitsuba 3's own ``hair`` BSDF and path tracer (prtcore.reference.mitsuba_fibres:
+  the polylines as B-spline curves), both sides' noise removed.
 
 Usage: python benchmarks/hair_chiang_accuracy.py [--strands 1000] [--texels-per-strand 12]
        [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
-       [--colors 0.8,0.6,0.4 0.3,0.2,0.1]
+       [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0]
 """
 
 from __future__ import annotations
@@ -80,6 +83,7 @@ def main() -> None:
     ap.add_argument("--paths", type=int, default=2048)
     ap.add_argument("--texels", type=int, default=150)
     ap.add_argument("--colors", nargs="+", default=["0.8,0.6,0.4", "0.3,0.2,0.1"])
+    ap.add_argument("--mitsuba-rays", type=int, default=0)
     args = ap.parse_args()
     results = {}
     for color in args.colors:
@@ -99,6 +103,13 @@ def main() -> None:
                                fibre.params, fibre.sigma_points, exitance="isotropic")
         rows = {e: noise_corrected_error(fast[e][sel], *ref) for e in EXITANCE}
         rows["isotropic_model"] = noise_corrected_error(fast["isotropic"][sel], *iso)
+        if args.mitsuba_rays:
+            from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect
+            mit = mitsuba_fibre_indirect(space, LIGHTS, sel, args.mitsuba_rays, 9,
+                                         chiang=dataclasses.replace(
+                                             fibre.params,
+                                             sigma_a=tuple(fibre.sigma_texels[0])))
+            rows["pathtracer_vs_mitsuba"] = noise_corrected_error(ref, *mit)
         print(f"colour {color} (σ_a {np.round(fibre.sigma_texels[0], 3).tolist()}), "
               f"{space.count} texels")
         for name, e in rows.items():

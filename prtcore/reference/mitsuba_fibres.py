@@ -13,6 +13,13 @@ direct one, both drawn with the same sampler seed per ray so that their first ve
 coincide. Estimates come as two independent halves (noise removal as in
 :func:`prtcore.reference.fibres.noise_corrected_error`).
 
+The Chiang fibre (``chiang=``) goes through Mitsuba's own ``hair`` BSDF. That BSDF reads
+the fibre's direction from the shading frame, which ``linearcurve`` leaves arbitrary
+(``dp_du = 0``), so the polylines become ``bsplinecurve``s with every point tripled: a
+cubic B-spline that is the polyline itself. Its texel is the radiance averaged over view
+directions, so the query rays come from directions with density cos θ / π² at a uniform
+offset across the fibre (:func:`_chiang_queries`).
+
 Shared with prtcore: the hair (polylines and radii), the lights' meaning (point: intensity
 as radiant intensity, directional: illuminance as irradiance), the texels' arc intervals.
 Not shared: geometry (round curves with round joints, not triangulated tubes), ray
@@ -27,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.bcsdf import ChiangParams
 from prtcore.core.scene import Light
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 
@@ -34,15 +42,17 @@ from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 START_RADII = 1.02
 
 
-def _write_curves(space: StrandSpace, path: Path) -> None:
+def _write_curves(space: StrandSpace, path: Path, repeat: int = 1) -> None:
     """Mitsuba's curve text format: ``x y z radius`` per control point, curves separated
-    by an empty line."""
+    by an empty line; each point ``repeat`` times (3: a cubic B-spline through them that
+    is the polyline itself, segment by segment)."""
     h = space.hair
     with open(path, "w") as f:
         for s in range(h.strand_count):
             a, b = h.offsets[s], h.offsets[s + 1]
             for p, t in zip(h.points[a:b], h.thickness[a:b], strict=True):
-                f.write(f"{float(p[0])!r} {float(p[1])!r} {float(p[2])!r} {float(t) / 2!r}\n")
+                line = f"{float(p[0])!r} {float(p[1])!r} {float(p[2])!r} {float(t) / 2!r}\n"
+                f.write(line * repeat)
             f.write("\n")
 
 
@@ -58,17 +68,25 @@ def _emitter(light: Light) -> dict:
 
 
 def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: np.ndarray,
-                           samples: int, seed: int, max_depth: int = 64
+                           samples: int, seed: int, max_depth: int = 64,
+                           chiang: ChiangParams | None = None
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Indirect outgoing radiance of ``texels`` (n,) for each light, as two independent
     halves of ``samples`` // 2 rays each: (a, b), each (n, K, 3) float64. The hair must
-    have one colour (one Mitsuba BSDF)."""
+    have one colour (one Mitsuba BSDF).
+
+    chiang : the Chiang fibre instead (Mitsuba's ``hair`` BSDF with this fibre's σ_a, in
+        fibre radii as ours, roughness, tilt and IOR), whose texel is the radiance
+        averaged over view directions with the fibre's projected width: each query ray
+        comes from a direction with density cos θ / π² (a cosine direction about a
+        uniformly random radial normal) and meets the fibre at a uniform offset h across
+        it, so the mean of what the path integrator returns is the texel's value."""
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
     hair = space.hair
     color = hair.color[0]
-    if not np.allclose(hair.color, color):
+    if chiang is None and not np.allclose(hair.color, color):
         raise ValueError("mitsuba_fibre_indirect: the hair must have one colour")
     texels = np.asarray(texels, dtype=np.int64)
     rng = np.random.default_rng(seed)
@@ -82,23 +100,37 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
     phi = 2 * np.pi * rng.random(len(strand))
     normal = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * np.cross(tangent, u)
     radius = interp_points(hair, hair.thickness[:, None] / 2, strand, arc)[:, 0]
-    origin = axis + (START_RADII * radius)[:, None] * normal
+    if chiang is None:  # toward the axis along the normal: a Lambertian fibre's radiance
+        origin, direction = axis + (START_RADII * radius)[:, None] * normal, -normal
+    else:
+        origin, direction = _chiang_queries(axis, tangent, normal, radius, rng)
     out = np.zeros((n * 2 * half, len(lights), 3))
     with tempfile.TemporaryDirectory() as tmp:
         curves = Path(tmp) / "hair.txt"
-        _write_curves(space, curves)
-        bsdf = {"type": "diffuse", "reflectance": {"type": "rgb",
-                                                   "value": np.clip(color, 0, 0.99).tolist()}}
+        # Mitsuba's hair BSDF reads the fibre's direction from the shading frame, which
+        # its linearcurve leaves arbitrary (dp_du = 0): the polyline as a B-spline instead
+        shape = "linearcurve" if chiang is None else "bsplinecurve"
+        _write_curves(space, curves, 1 if chiang is None else 3)
+        if chiang is None:
+            bsdf = {"type": "diffuse", "reflectance": {
+                "type": "rgb", "value": np.clip(color, 0, 0.99).tolist()}}
+        else:
+            bsdf = {"type": "hair", "sigma_a": {"type": "rgb",
+                                                "value": list(chiang.sigma_a)},
+                    "longitudinal_roughness": chiang.beta_m,
+                    "azimuthal_roughness": chiang.beta_n,
+                    "scale_tilt": float(np.degrees(chiang.alpha)),
+                    "int_ior": chiang.eta, "ext_ior": 1.0}
         full_i = mi.load_dict({"type": "path", "max_depth": max_depth})
         direct_i = mi.load_dict({"type": "path", "max_depth": 2})
         sampler = mi.load_dict({"type": "independent"})
         for k, light in enumerate(lights):
-            scene = mi.load_dict({"type": "scene", "hair": {"type": "linearcurve",
+            scene = mi.load_dict({"type": "scene", "hair": {"type": shape,
                                                             "filename": str(curves),
                                                             "bsdf": bsdf},
                                   "light": _emitter(light)})
             for i in range(len(origin)):
-                ray = mi.Ray3f(mi.Point3f(*origin[i]), mi.Vector3f(*(-normal[i])))
+                ray = mi.Ray3f(mi.Point3f(*origin[i]), mi.Vector3f(*direction[i]))
                 sampler.seed(int(seed) * 1_000_003 + i)
                 full, _, _ = full_i.sample(scene, sampler, ray)
                 sampler.seed(int(seed) * 1_000_003 + i)
@@ -106,3 +138,26 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
                 out[i, k] = np.array(full) - np.array(direct)
     out = out.reshape(n, 2, half, len(lights), 3)
     return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
+
+
+def _chiang_queries(axis: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
+                    radius: np.ndarray, rng: np.random.Generator
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Query rays for the Chiang texel: a view direction ω with density cos θ / π² (cosine
+    about the radial ``normal``), an offset h uniform in [−1, 1] across the fibre; the ray
+    starts outside the fibre (START_RADII radii from the axis, across it) and travels −ω.
+    Returns origins and directions, (m, 3) float64 each."""
+    m = len(axis)
+    cos_t = np.sqrt(rng.random(m))
+    sin_t = np.sqrt(1 - cos_t ** 2)
+    a = 2 * np.pi * rng.random(m)
+    b1 = np.cross(tangent, normal)
+    view = (sin_t * np.cos(a))[:, None] * tangent + (sin_t * np.sin(a))[:, None] * b1 \
+        + cos_t[:, None] * normal
+    across = view - np.einsum("ij,ij->i", view, tangent)[:, None] * tangent
+    w = np.linalg.norm(across, axis=1)
+    side = np.cross(tangent, across / np.maximum(w, 1e-12)[:, None])
+    h = 2 * rng.random(m) - 1
+    dist = START_RADII * radius / np.maximum(w, 1e-6)
+    origin = axis + (h * radius)[:, None] * side + dist[:, None] * view
+    return origin, -view
