@@ -45,7 +45,8 @@ DOCS: dict[str, str] = {
     "measurement_points.seed": "seed of the placement",
     "lights.count": "K, training lighting configurations, 1–65536, or `auto`: start at "
                     "`sizing.lights_start` and double (tracing only the new lights) while "
-                    "the verdict's target is not met, within `sizing`'s budget",
+                    "the verdict's target is not met, within `sizing`'s budget (hair "
+                    "bakes: 128, or 512 with the Chiang fibre; docs/hair.md)",
     "lights.holdout": "held-out validation configurations, 0–65536",
     "lights.seed": "seed of the light draws (training and held-out streams are "
                    "independent)",
