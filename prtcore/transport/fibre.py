@@ -130,11 +130,11 @@ def fibre_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
     azimuths stratified), each shadowed by everything in ``tracer`` (other fibres, the
     mesh): the mean and ``harmonics`` (H) harmonics ``(2/J) Σ L_j (cos hφ_j, sin hφ_j)``
     (J > 2H keeps them unaliased by the stratified azimuths)."""
-    return _direct_of(space, tracer, lights, _direct_samples(space, samples, seed),
+    return direct_of_samples(space, tracer, lights, direct_samples(space, samples, seed),
                       harmonics, block, progress=True)
 
 
-def _direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
+def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
     """What :func:`fibre_direct` draws once for any lights: the surface samples' origin,
     normal (t, J, 3) and azimuth phi (t, J), and the texels' order (t,) int64 along the
     3-D Morton curve of their axis points. Blocks of texels in that order, not strand by
@@ -147,10 +147,10 @@ def _direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
     return origin, normal, phi, order
 
 
-def _direct_of(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
+def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                drawn: tuple, harmonics: int, block: int, progress: bool,
                weight: Callable | None = None) -> FibreDirect | np.ndarray:
-    """:func:`fibre_direct` for ``lights`` from :func:`_direct_samples`' ``drawn``,
+    """:func:`fibre_direct` for ``lights`` from :func:`direct_samples`' ``drawn``,
     ``block`` texels at a time (a progress bar over them with ``progress``).
     weight : another fibre's F weights per sample and light instead of the texel's ρ,
     ``weight(idx (n,) texels, origin (n, J, 3), lights)`` → (F, n, J, K, 3) float32
@@ -431,10 +431,10 @@ def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Seque
     rows = term.harmonics[0].shape[0] if term.harmonics else t  # (T_m + T) with a mesh
     mean = np.empty((t, k, 3), dtype=np.float32)
     val = np.empty((rows, k, 3), dtype=np.float32)
-    drawn = _direct_samples(space, samples, seed)  # once for every block of lights
+    drawn = direct_samples(space, samples, seed)  # once for every block of lights
     starts = range(0, k, block)
     for k0 in bar(starts, "direct fibres", total=len(starts)):
-        part = _direct_of(space, tracer, lights[k0:k0 + block], drawn, HARMONICS, 1 << 14,
+        part = direct_of_samples(space, tracer, lights[k0:k0 + block], drawn, HARMONICS, 1 << 14,
                           progress=False)
         mean[:, k0:k0 + block] = part.mean
         val[:, k0:k0 + block] = harmonic_first_bounce(term, part)[1]
