@@ -66,9 +66,9 @@ def fast_path(space, tracer, mesh, fibre, args) -> tuple[dict, dict]:
     for exitance in EXITANCE:
         t1 = time.perf_counter()
         direct = chiang_direct(space, tracer, LIGHTS, args.samples, 1, fibre, exitance)
-        shared, channels, rho = chiang_operator(space, term, fibre, args.rays, exitance)
-        x = solve_indirect(shared, rho, direct.reshape(-1, *direct.shape[2:]), 64, 1e-4,
-                           method="neumann", channel_matrices=channels)[0]
+        product, rho = chiang_operator(space, term, fibre, args.rays, exitance)
+        x = solve_indirect(None, rho, direct.reshape(-1, *direct.shape[2:]), 64, 1e-4,
+                           method="neumann", product=product)[0]
         out[exitance] = np.maximum(x[:space.count], 0).astype(np.float64)
         seconds[exitance] = gather + time.perf_counter() - t1
     return out, seconds

@@ -65,7 +65,7 @@ from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, 
 from prtcore.transport.fibre_chiang import (
     CHIANG_BYTES_PER_RAY,
     CHIANG_LIGHT_TYPES,
-    CHIANG_LINEAR_BYTES_PER_RAY,
+    EXITANCE_TERMS,
     chiang_fibre,
 )
 from prtcore.transport.hair import bake_hair_dataset
@@ -200,12 +200,12 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \
         + 2 * t * held * 12 + segments * MEM_PER_FIBRE_SEGMENT
-    if spec.hair.fibre == "chiang":  # each hit's direction and tangent, three operators
-        if spec.hair.chiang.exitance == "linear":  # 16 blocks each, built from COO
-            est += t * spec.transport.gather_rays * CHIANG_LINEAR_BYTES_PER_RAY \
-                + 6 * 4 * t * k * 12
-        else:
-            est += t * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY
+    if spec.hair.fibre == "chiang":  # each hit's data; with F > 1 coefficients the stacked
+        # (F T, K, 3) direct light the solve works in (its working arrays are bounded by
+        # SOLVE_BLOCK_BYTES) and the clamped result beside it, twice for the temporaries
+        f = EXITANCE_TERMS[spec.hair.chiang.exitance]
+        est += t * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
+            spec.hair.chiang.exitance] + (2 * f * t * k * 12 if f > 1 else 0)
     if everything:
         est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
     else:  # the indirect light overwrites the direct

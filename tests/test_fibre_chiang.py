@@ -74,11 +74,11 @@ def tangle_fast():
     out = {}
     for exitance in ("isotropic", "linear", "quadratic"):
         direct = chiang_direct(space, tracer, lights, 16, 1, fibre, exitance)
-        shared, channels, rho = chiang_operator(space, term, fibre, 256, exitance)
+        product, rho = chiang_operator(space, term, fibre, 256, exitance)
         stacked = direct.reshape(-1, *direct.shape[2:])
         for bounces in (1, 64):
-            x = solve_indirect(shared, rho, stacked, bounces, 1e-5, method="neumann",
-                               channel_matrices=channels)[0]
+            x = solve_indirect(None, rho, stacked, bounces, 1e-5, method="neumann",
+                               product=product)[0]
             out[exitance, bounces] = np.maximum(x[:space.count], 0)
     return space, tracer, mesh, fibre, lights, out
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from prtcore.core.sparse import csr_dense, row_chunks
+from prtcore.core.sparse import RayBlockProduct, csr_dense, row_chunks
 from prtcore.transport import kernels
 
 
@@ -106,3 +106,29 @@ def test_closing_steps_are_the_numpy_steps(monkeypatch, steps):
     x *= scale[:, None, :]
     got = solve._closing_steps(SparseProduct(g, 2), rho, xc, cell, b.copy(), scale)
     assert got.dtype == np.float32 and np.array_equal(got, x)
+
+
+@pytest.mark.parametrize("f", [1, 4])
+def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f):
+    """RayBlockProduct against the CSR built block by block from the same rays (with
+    repeated (row, column) pairs and texels no ray leaves from), per colour channel."""
+    rng = np.random.default_rng(0)
+    t, n, k = 50, 400, 5
+    rows = np.sort(rng.integers(5, t - 5, n))  # rows 0–4 and 45–49 idle
+    cols = rng.integers(0, t, n)
+    weight = rng.normal(size=(n, f, 3)).astype(np.float32)
+    read = rng.normal(size=(n, f)).astype(np.float32)
+    x = rng.normal(size=(f * t, 3 * k)).astype(np.float32)
+    got = RayBlockProduct(rows, cols, weight, read, t, threads=2)(x)
+    want = np.zeros_like(x, dtype=np.float64)
+    for c in range(3):
+        m = sp.csr_matrix(
+            (np.concatenate([weight[:, a, c] * read[:, b] for a in range(f)
+                             for b in range(f)]),
+             (np.concatenate([rows + a * t for a in range(f) for _ in range(f)]),
+              np.concatenate([cols + b * t for _ in range(f) for b in range(f)]))),
+            shape=(f * t, f * t))
+        want[:, c::3] = m @ x[:, c::3].astype(np.float64)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="sorted"):
+        RayBlockProduct(rows[::-1], cols, weight, read, t)

@@ -75,3 +75,84 @@ class SparseProduct:
         numba.set_num_threads(self.threads)
         csr_dense(self.indptr, self.indices, self.data, x, out, self.chunks)
         return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def ray_blocks(starts, row, col, weight, read, t, x, out):  # pragma: no cover - compiled
+    """out (F·T, c) ← Σ_r over rays: for row block a, ``weight[r, a, col % 3] ·
+    Σ_b read[r, b] · x[col[r] + b·T]`` added at row[r] + a·T (out zeroed here).
+
+    starts (n_chunks + 1,) int64 ray boundaries that never split one row's rays (rows
+    sorted); row, col (n,) int32; weight (n, F, 3) and read (n, F) float32; x (F·T, c)
+    float32 C-contiguous, c = 3·k columns with the colour channel fastest."""
+    f = read.shape[1]
+    c = x.shape[1]
+    for ci in numba.prange(len(starts) - 1):
+        acc = np.empty(c, dtype=x.dtype)
+        if starts[ci] < starts[ci + 1]:
+            first = row[starts[ci]]
+            last = row[starts[ci + 1] - 1]
+            for a in range(f):
+                for i in range(first, last + 1):
+                    out[i + a * t, :] = 0
+        for r in range(starts[ci], starts[ci + 1]):
+            acc[:] = 0
+            for b in range(f):
+                v = read[r, b]
+                xb = x[col[r] + b * t]
+                for k in range(c):
+                    acc[k] += v * xb[k]
+            i = row[r]
+            for a in range(f):
+                oa = out[i + a * t]
+                w0, w1, w2 = weight[r, a, 0], weight[r, a, 1], weight[r, a, 2]
+                for k in range(0, c, 3):
+                    oa[k] += w0 * acc[k]
+                    oa[k + 1] += w1 * acc[k + 1]
+                    oa[k + 2] += w2 * acc[k + 2]
+
+
+class RayBlockProduct:
+    """``W @ x`` for an operator given as the rays that build it: ray r from row texel i to
+    column texel j adds, per colour channel c, the rank-one block ``weight[r, :, c] ⊗
+    read[r, :]`` between i's and j's F coefficients (rows and columns ``texel + a·T``).
+    Matrix-free: 16 + 4F bytes a ray instead of F² CSR entries per channel (the Chiang
+    fibre's projected exitance, :mod:`prtcore.transport.fibre_chiang`). Rays must come
+    sorted by row (as the fibre gather makes them); chunks of rays that never split a row
+    go to the threads, so no two write the same row.
+
+    rows, cols (n,) int; weight (n, F, 3), read (n, F) float; texels T."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, weight: np.ndarray,
+                 read: np.ndarray, texels: int, threads: int = 2):
+        self.row = np.ascontiguousarray(rows, dtype=np.int32)
+        self.col = np.ascontiguousarray(cols, dtype=np.int32)
+        if len(self.row) > 1 and (np.diff(self.row) < 0).any():
+            raise ValueError("RayBlockProduct: rays must be sorted by row")
+        self.weight = np.ascontiguousarray(weight, dtype=np.float32)
+        self.read = np.ascontiguousarray(read, dtype=np.float32)
+        self.t = int(texels)
+        f = self.read.shape[1]
+        self.shape = (f * self.t, f * self.t)
+        self.threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
+        # ray chunks, each boundary moved to the first ray of a row
+        n = len(self.row)
+        cuts = row_chunks(n, self.threads)
+        cuts = np.searchsorted(self.row, self.row[np.minimum(cuts, max(n - 1, 0))],
+                               side="left") if n else cuts
+        cuts[0], cuts[-1] = 0, n
+        self.starts = np.unique(cuts).astype(np.int64)
+        # rows no ray starts from (texels with no fibre hits) stay zero: cleared per call
+        self.idle = np.setdiff1d(np.arange(self.t), self.row)
+
+    def __call__(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """x : (F·T, c) with c = 3·k; out : optional (F·T, c) float32 to fill."""
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        if out is None:
+            out = np.empty((self.shape[0], x.shape[1]), dtype=np.float32)
+        numba.set_num_threads(self.threads)
+        ray_blocks(self.starts, self.row, self.col, self.weight, self.read, self.t, x, out)
+        f = self.read.shape[1]
+        for a in range(f):
+            out[self.idle + a * self.t] = 0
+        return out

@@ -16,9 +16,9 @@ non-absorbing fibre Ā ≈ 1 (the white furnace holds).
   visibility over the fibre's surface.
 * **Multiple scattering** (:func:`chiang_gather`, :func:`chiang_operator`): the diffuse
   fibre's gather rays (density cos θ / π² over the sphere), each weighted by
-  ``Ā(t·d, σ_i)`` of its own direction and the receiving texel's σ, one operator per
-  colour channel, solved by :func:`prtcore.transport.solve.solve_indirect` with them as
-  its per-channel matrices.
+  ``Ā(t·d, σ_i)`` of its own direction and the receiving texel's σ per colour channel,
+  applied matrix-free from the rays (:class:`prtcore.core.sparse.RayBlockProduct`) by
+  :func:`prtcore.transport.solve.solve_indirect`.
 
 **Isotropic exitance** (``hair.chiang.exitance = "isotropic"``, the paper's "radially
 constant illumination at each point on the fiber"): a gather ray that hits fibre j
@@ -32,14 +32,14 @@ per texel on a light tangle (docs/hair.md).
 arriving from ωi adds ``Ā`` to c0 and ``g = 4 Ā_t t + (8/3) Ā_⊥ ω̂i⊥`` to c (the
 table's other two moments: forward scattering makes Ā_⊥ negative); a ray toward d
 reads ``c0 − c · d`` of the fibre it hits. The direct light's coefficients come from the
-same weights; every bounce goes through the (4T, 4T) operator (16 blocks per channel,
-Neumann series); the few texels whose truncated exitance dips below zero are clamped and
-counted. The stored texel is still c0 (the runtime is unchanged). Measured: 8.9 % on the
-same tangle; 16× the operator's memory.
+same weights; every bounce goes through the (4T, 4T) operator (a rank-one 4 × 4 block
+per ray and channel, Neumann series); the few texels whose truncated exitance dips below
+zero are clamped and counted. The stored texel is still c0 (the runtime is unchanged).
+Measured: 8.9 % on the same tangle.
 
 **Quadratic exitance** (``"quadratic"``): also ``cos² θ (cos 2φ, sin 2φ)`` in each
 texel's frame at the middle of its arc (:func:`texel_frames`), dual weight
-``(16/5) Ā_2``: a (6T, 6T) operator, 36× the memory; 6.5 % on the same tangle.
+``(16/5) Ā_2``: a (6T, 6T) operator; 6.5 % on the same tangle.
 """
 
 from __future__ import annotations
@@ -48,7 +48,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from prtcore.core.bcsdf import (
     ChiangParams,
@@ -60,6 +59,7 @@ from prtcore.core.bcsdf import (
 from prtcore.core.fibres import FibreMesh
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
+from prtcore.core.sparse import RayBlockProduct
 from prtcore.core.spec import ChiangSpec
 from prtcore.emitters.punctual import unshadowed_irradiance
 from prtcore.receivers.strands import StrandSpace, axis_frame
@@ -107,10 +107,9 @@ def check_lights(lights: Sequence[Light]) -> None:
 
 
 #: Memory per gather ray beyond the diffuse fibre's (bytes): each hit's direction and
-#: tangent (24) and row/column (8), the three channels' CSR (8 each) and their COO build
-#: (16); with "linear" exitance 16 blocks of those, plus the int64 block indices (256).
-CHIANG_BYTES_PER_RAY = 100
-CHIANG_LINEAR_BYTES_PER_RAY = 700
+#: tangent (24) and row/column (8) as gathered, the matrix-free operator's copy of those
+#: (8) with F × 3 weights and F reads (16 F), the weights' float64 temporaries (48 F)
+CHIANG_BYTES_PER_RAY = {"isotropic": 100, "linear": 300, "quadratic": 420}
 #: the fibre's outgoing radiance carried through transport (``hair.chiang.exitance``)
 EXITANCE = ("isotropic", "linear", "quadratic")
 #: coefficients per texel of each
@@ -217,33 +216,23 @@ def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_f
 
 
 def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, rays: int,
-                    exitance: str = "isotropic"
-                    ) -> tuple[sp.csr_matrix, tuple, np.ndarray]:
-    """``solve_indirect``'s (shared matrix, per-channel matrices, albedo) for the gather
-    on the exitance coefficients, W_c (FT, FT) per channel c: row block a of the
-    receiving texel takes each ray's weight a (:func:`_weights` of its direction, the
-    receiving texel's σ) times column block b of the texel hit, read toward the ray
-    (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its second-order terms
-    at −d, :func:`_reads`), over M. The solver computes
-    ``L = ρ ∘ (G + C_c)(L_d + L)``; with an empty G, ``C_c = 2 W_c`` and ρ = 1/2 (below
-    its albedo clamp) that is ``L = W_c (L_d + L)``."""
+                    exitance: str = "isotropic", threads: int = 2
+                    ) -> tuple[RayBlockProduct, np.ndarray]:
+    """``solve_indirect``'s (product, albedo) for the gather on the exitance coefficients,
+    W_c (FT, FT) per channel c, matrix-free (:class:`prtcore.core.sparse.RayBlockProduct`):
+    row block a of the receiving texel takes each ray's weight a (:func:`_weights` of its
+    direction, the receiving texel's σ) times column block b of the texel hit, read toward
+    the ray (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its second-order
+    terms at −d, :func:`_reads`), over M. The solver computes ``L = ρ ∘ W'(L_d + L)``;
+    with ``W' = 2 W`` and ρ = 1/2 (below its albedo clamp) that is ``L = W (L_d + L)``."""
     rows, cols, data = term.rays
-    t = term.matrix.shape[0]
+    t = space.count
     d, tangent = data[:, :3].astype(np.float64), data[:, 3:6].astype(np.float64)
     frames = texel_frames(space) if exitance == "quadratic" else None
     w = _weights(fibre.albedo, tangent, d, fibre.sigma_texels[rows], exitance,
                  None if frames is None else (frames[0][rows], frames[1][rows]))  # (F, n, 3)
     f = len(w)
     read = _reads(d, None if frames is None else (frames[0][cols], frames[1][cols]), f)
-    r = np.concatenate([rows.astype(np.int64) + a * t for a in range(f) for _ in range(f)])
-    c = np.concatenate([cols.astype(np.int64) + b * t for _ in range(f) for b in range(f)])
-    channels = []
-    for ch in range(3):
-        v = np.concatenate([(2 * w[a, :, ch] * read[b] / rays).astype(np.float32)
-                            for a in range(f) for b in range(f)])
-        m = sp.csr_matrix((v, (r, c)), shape=(f * t, f * t))
-        m.sum_duplicates()
-        m.sort_indices()
-        channels.append(m)
-    shared = sp.csr_matrix((f * t, f * t), dtype=np.float32)
-    return shared, tuple(channels), np.full((f * t, 3), 0.5)
+    weight = np.moveaxis(w, 0, 1) * (2.0 / rays)  # (n, F, 3)
+    product = RayBlockProduct(rows, cols, weight, np.stack(read, axis=1), t, threads)
+    return product, np.full((f * t, 3), 0.5)

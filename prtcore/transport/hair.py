@@ -132,23 +132,23 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
         direct = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
                                spec.seed + 1, fibre, exitance)
     rays3 = tracer.rays_traced
-    shared, channels, rho = chiang_operator(space, term, fibre, spec.gather_rays, exitance)
+    product, rho = chiang_operator(space, term, fibre, spec.gather_rays, exitance,
+                                   tracer.threads)
     del term
     t = space.count
     if exitance == "isotropic":
         direct_mean = direct[0]
         indirect, bounces, resid, solve_stats = solve_indirect(
-            shared, rho, direct_mean, spec.max_bounces, spec.tolerance, timer,
-            threads=tracer.threads, channel_matrices=channels,
+            None, rho, direct_mean, spec.max_bounces, spec.tolerance, timer,
+            threads=tracer.threads, product=product,
             out=None if keep_direct_texels else direct_mean)
     else:  # every texel's exitance coefficients, stacked: (FT, K, 3)
         direct_mean = direct[0].copy() if keep_direct_texels else None
         stacked = direct.reshape(-1, *direct.shape[2:])
         del direct
         indirect, bounces, resid, solve_stats = solve_indirect(
-            shared, rho, stacked, spec.max_bounces, spec.tolerance, timer,
-            method="neumann", threads=tracer.threads, channel_matrices=channels,
-            out=stacked)
+            None, rho, stacked, spec.max_bounces, spec.tolerance, timer,
+            method="neumann", threads=tracer.threads, product=product, out=stacked)
         # the truncated exitance can dip below zero at a few texels; light cannot
         solve_stats["negative_clamped"] = int((indirect[:t] < 0).sum())
         indirect = np.maximum(indirect[:t], np.float32(0))

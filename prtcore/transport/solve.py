@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from contextlib import nullcontext
 
 import numba
@@ -144,8 +145,8 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
                    method: str = "chebyshev", threads: int = 2,
                    first_bounce: tuple[np.ndarray, np.ndarray] | None = None,
                    channel_matrices: tuple | None = None,
-                   coarse: Coarsening | None = None, out: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, int, float, dict]:
+                   coarse: Coarsening | None = None, out: np.ndarray | None = None,
+                   product: Callable | None = None) -> tuple[np.ndarray, int, float, dict]:
     """All bounces of indirect light for every configuration and channel at once.
 
     matrix : (T, T) gather operator G (CSR, used as float32); albedo : (T, 3) raw texel
@@ -189,6 +190,11 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     written, which saves the memory of one (T, K, 3) array when the caller no longer needs
     the direct light.
 
+    product : the operator as a ready product (``product(x (T, 3K)) → (T, 3K)`` float32,
+    with ``.shape``; e.g. :class:`prtcore.core.sparse.RayBlockProduct`) instead of
+    ``matrix`` and ``channel_matrices`` (then None); no coarse grid, and the Neumann series
+    whatever ``method`` says (the fused Chebyshev step reads CSR arrays).
+
     Returns the indirect outgoing radiance ρ/π·E_ind (T, K, 3) float32, the number of
     products (bounces), the residual (the largest last relative change; 1.0 after a single
     bounce) and stats.
@@ -199,15 +205,16 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     ctx = timer.stage("indirect solve") if timer is not None else nullcontext()
     with ctx:
         return _solve(matrix, albedo, direct, int(max_bounces), float(tolerance), method,
-                      threads, first_bounce, channel_matrices, coarse, out)
+                      threads, first_bounce, channel_matrices, coarse, out, product)
 
 
 def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extra=None,
-           channel_matrices=None, coarse=None, out=None):
+           channel_matrices=None, coarse=None, out=None, given=None):
     t, k = direct.shape[:2]
     rho, _ = clamp_albedo(np.asarray(albedo, dtype=np.float64))
     rho32 = rho.astype(np.float32)
-    g = matrix if matrix.dtype == np.float32 else matrix.astype(np.float32)
+    g = None if given is not None else \
+        matrix if matrix.dtype == np.float32 else matrix.astype(np.float32)
     if out is None:
         out = np.zeros((t, k, 3), dtype=np.float32)
     elif out.shape != (t, k, 3) or out.dtype != np.float32 or not out.flags.c_contiguous:
@@ -217,8 +224,12 @@ def _solve(matrix, albedo, direct, max_bounces, tolerance, method, threads, extr
     if max_bounces < 1 or t == 0 or k == 0:
         out[...] = 0
         return out, 0, 0.0, stats
-    product = SparseProduct(g, threads) if channel_matrices is None else \
-        ChannelProduct(g, channel_matrices, threads)
+    if given is not None:  # the fused Chebyshev step reads CSR arrays: Neumann series
+        product, coarse, method = given, None, "neumann"
+        stats["method"] = method
+    else:
+        product = SparseProduct(g, threads) if channel_matrices is None else \
+            ChannelProduct(g, channel_matrices, threads)
     t0 = time.perf_counter()
     if coarse is not None and (max_bounces < 2 or channel_matrices is not None):
         coarse = None  # one bounce needs no grid; the walks' per-channel matrices stay exact
