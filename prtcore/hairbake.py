@@ -64,8 +64,8 @@ from prtcore.transport.dataset import Dataset, estimate_bake_bytes
 from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, hair_tracer
 from prtcore.transport.fibre_chiang import (
     CHIANG_BYTES_PER_RAY,
-    CHIANG_LIGHT_TYPES,
     EXITANCE_TERMS,
+    check_lights,
     chiang_fibre,
 )
 from prtcore.transport.hair import bake_hair_dataset
@@ -256,11 +256,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                                             scene.lights if scene is not None else ())
     fibre = None
     if spec.hair.fibre == "chiang":
-        bad = sorted({li.type for li in (*train, *hold)} - set(CHIANG_LIGHT_TYPES))
-        if bad:
-            raise SpecError("lights.families", f"the 'chiang' fibre shades "
-                            f"{', '.join(CHIANG_LIGHT_TYPES)} lights, not {', '.join(bad)} "
-                            "(use hair.fibre 'diffuse')")
+        check_lights((*train, *hold))  # before any ray is traced
         fibre = chiang_fibre(spec.hair.chiang, space)
     tracer, fibres = hair_tracer(space, scene)
     if scene is None:

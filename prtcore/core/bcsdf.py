@@ -124,10 +124,12 @@ def _frame(t: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     return sin_t, np.sqrt(1 - sin_t ** 2), phi
 
 
-def attenuation(cos_theta_o: np.ndarray, h: np.ndarray, params: ChiangParams
+def attenuation(cos_theta_o: np.ndarray, h: np.ndarray, params: ChiangParams,
+                sigma: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A_p (P_MAX + 1, n, 3) for rays at longitudinal cosine cos θo and offsets h (n,), with
-    γo and γt (n,) for the azimuthal lobes."""
+    γo and γt (n,) for the azimuthal lobes. ``sigma`` (n, 3): a σ_a per ray instead of
+    ``params.sigma_a``."""
     eta = params.eta
     sin_o = np.sqrt(np.clip(1 - cos_theta_o ** 2, 0.0, None))
     sin_t = sin_o / eta
@@ -137,8 +139,8 @@ def attenuation(cos_theta_o: np.ndarray, h: np.ndarray, params: ChiangParams
     cos_gt = np.sqrt(1 - sin_gt ** 2)
     gamma_o = np.arcsin(np.clip(h, -1.0, 1.0))
     gamma_t = np.arcsin(sin_gt)
-    trans = np.exp(-np.asarray(params.sigma_a)[None, :] * (2 * cos_gt / np.maximum(
-        cos_t, 1e-12))[:, None])
+    sa = np.asarray(params.sigma_a)[None, :] if sigma is None else np.asarray(sigma)
+    trans = np.exp(-sa * (2 * cos_gt / np.maximum(cos_t, 1e-12))[:, None])
     f = _fresnel(cos_theta_o * np.cos(gamma_o), eta)[:, None]
     a = np.empty((P_MAX + 1, len(h), 3))
     a[0] = f
@@ -158,12 +160,13 @@ def _tilted(sin_o: np.ndarray, cos_o: np.ndarray, alpha: float) -> list:
 
 
 def scattering(tangent: np.ndarray, wo: np.ndarray, wi: np.ndarray, h: np.ndarray,
-               params: ChiangParams) -> np.ndarray:
+               params: ChiangParams, sigma: np.ndarray | None = None) -> np.ndarray:
     """S(wo, wi) (n, 3) for fibres of unit tangents (n, 3), unit directions wo (toward the
-    viewer) and wi (toward the light), each (n, 3), at offsets h (n,)."""
+    viewer) and wi (toward the light), each (n, 3), at offsets h (n,); ``sigma`` (n, 3): a
+    σ_a per fibre instead of ``params.sigma_a``."""
     sin_o, cos_o, phi_o = _frame(tangent, wo)
     sin_i, cos_i, phi_i = _frame(tangent, wi)
-    a, gamma_o, gamma_t = attenuation(cos_o, h, params)
+    a, gamma_o, gamma_t = attenuation(cos_o, h, params, sigma)
     v = params.variances
     s = params.logistic_scale
     phi = phi_i - phi_o
@@ -280,18 +283,19 @@ def fibre_albedo(params: ChiangParams) -> FibreAlbedo:
 
 
 def sample_scattering(tangent: np.ndarray, wo: np.ndarray, h: np.ndarray,
-                      params: ChiangParams, rng: np.random.Generator
-                      ) -> tuple[np.ndarray, np.ndarray]:
+                      params: ChiangParams, rng: np.random.Generator,
+                      sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Importance-sample wi of :func:`scattering` as pbrt-v3's HairBSDF::Sample_f does: a
     lobe p with probability A_p / Σ A (at wo and h), θi from the longitudinal lobe about
     the tilted −θo (d'Eon's lobe is the marginal of a von Mises–Fisher distribution, sampled
     exactly), φi = φo + Φ(p, h) + a trimmed logistic sample (uniform for the rest). The
     density is then ``Σ_p (A_p/ΣA) M_p N_p`` and the weight ``S / pdf = Σ_p A_p`` exactly.
 
-    tangent, wo : (n, 3) unit; h : (n,). Returns wi (n, 3) unit and the weight (n, 3)."""
+    tangent, wo : (n, 3) unit; h : (n,); sigma : (n, 3) σ_a per fibre, or None for
+    ``params.sigma_a``. Returns wi (n, 3) unit and the weight (n, 3)."""
     n = len(h)
     sin_o, cos_o, phi_o = _frame(tangent, wo)
-    a, gamma_o, gamma_t = attenuation(cos_o, h, params)
+    a, gamma_o, gamma_t = attenuation(cos_o, h, params, sigma)
     lum = a.mean(axis=2)  # (P + 1, n): the lobe picked by its mean over channels
     cdf = np.cumsum(lum, axis=0) / np.maximum(lum.sum(axis=0), 1e-300)
     p = (rng.random(n)[None, :] > cdf).sum(axis=0).clip(0, P_MAX)
@@ -319,13 +323,13 @@ def sample_scattering(tangent: np.ndarray, wo: np.ndarray, h: np.ndarray,
         + (cos_i * np.sin(phi_i))[:, None] * vv
     # S/pdf = Σ A_p only when the lobe is picked with A_p/ΣA per channel; with one pick
     # for all channels by their mean, it is S_c / Σ_p (mean A_p / mean ΣA) M_p N_p
-    return wi, _sampled_weight(tangent, wo, wi, h, params, lum)
+    return wi, _sampled_weight(tangent, wo, wi, h, params, lum, sigma)
 
 
-def _sampled_weight(tangent, wo, wi, h, params, lum) -> np.ndarray:
+def _sampled_weight(tangent, wo, wi, h, params, lum, sigma) -> np.ndarray:
     """S(wo, wi) / pdf(wi) (n, 3) for :func:`sample_scattering`'s density with the lobe
     probabilities ``lum`` (P + 1, n)."""
-    s = scattering(tangent, wo, wi, h, params)
+    s = scattering(tangent, wo, wi, h, params, sigma)
     sin_o, cos_o, phi_o = _frame(tangent, wo)
     sin_i, cos_i, phi_i = _frame(tangent, wi)
     _, gamma_o, gamma_t = attenuation(cos_o, h, params)

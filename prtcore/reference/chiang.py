@@ -30,7 +30,6 @@ path (the mesh only occludes). Two independent halves, for the noise to be remov
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -47,7 +46,7 @@ from prtcore.reference.fibres import cosine_about, roulette, two_halves
 #: the fibre's outgoing radiance at a hit, by name (:func:`chiang_reference`): the
 #: azimuthal orders its projection keeps (None: the BCSDF's own, toward the path)
 EXITANCE_ORDERS = {"exact": None, "isotropic": 0, "linear": 1, "quadratic": 2,
-                   "second_order": 3, "linear_first": 1, "quadratic_first": 2}
+                   "second_order": 3}
 
 
 def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
@@ -112,10 +111,9 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
     exitance : "exact" (the reference) or a diagnostic model of the fast path's: at every
     hit, shade toward a fresh ωo drawn as at the texel (density cos θo / π²) and weight
     it by :func:`projection_kernel` toward where the path came from — "isotropic" (no
-    weight: the texel's average), "linear" or "quadratic" (its projection on those
-    orders, in expectation); "linear_first" / "quadratic_first" project the first hit's
-    direct light only and leave later hits isotropic. The difference from "exact" is the
-    error of that model alone. Beyond one bounce the kernels' weights multiply and the
+    weight: the texel's average), "linear", "quadratic" or "second_order" (its projection
+    on those orders, in expectation). The difference from "exact" is the error of that
+    model alone. Beyond one bounce the kernels' weights multiply and the
     projected variants' variance explodes: use them at ``max_depth = 1``."""
     texels = np.asarray(texels, dtype=np.int64)
     hair = space.hair
@@ -132,7 +130,7 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             side = _lit_side(tangent, to_light, rng)
             p = centre + radius[:, None] * side
             e = irradiance(light, p, to_light, tracer)  # E⊥ · V: the normal faces the light
-            s = _scatter(tangent, wo, to_light, h, sigma)
+            s = scattering(tangent, wo, to_light, h, params, sigma)
             out[:, li] = beta * s * e
         return out
 
@@ -141,13 +139,11 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
         n = len(owner)
         strand = space.strand[tex]
         arc = space.arc[tex, 0] + rng.random(n) * (space.arc[tex, 1] - space.arc[tex, 0])
-        centre, tangent, u = axis_frame(hair, strand, arc)
+        centre, tangent, _ = axis_frame(hair, strand, arc)
         radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
         sigma = interp_points(hair, sig_pt, strand, arc)
-        del u
         wo = cosine_about(_radial(tangent, rng), rng)  # density cos θo / π² over the sphere
         beta = np.ones((n, 3))
-        first = np.ones(n)  # the first hit's kernel on its direct light (``*_first``)
         alive = np.arange(n)
         for depth in range(max_depth + 1):  # the texel, then up to max_depth fibre hits
             if not len(alive):
@@ -155,13 +151,11 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             h = 2 * rng.random(len(alive)) - 1
             tg, c, r, sg = tangent[alive], centre[alive], radius[alive], sigma[alive]
             if depth > 0:
-                b_nee = beta[alive] if depth > 1 else beta[alive] * first[alive, None]
-                np.add.at(acc, owner[alive], shade(b_nee, c, tg, r, wo[alive], sg, h, rng))
+                np.add.at(acc, owner[alive], shade(beta[alive], c, tg, r, wo[alive], sg, h,
+                                                   rng))
             if depth == max_depth:
                 break
-            wo_a = wo[alive]
-            wi, weight = _by_sigma(sg, lambda sel, par, tg=tg, wo_a=wo_a, h=h:
-                                   sample_scattering(tg[sel], wo_a[sel], h[sel], par, rng), 2)
+            wi, weight = sample_scattering(tg, wo[alive], h, params, rng, sg)
             beta[alive] *= weight
             hits = tracer.intersect(c + r[:, None] * facing(tg, wi), wi)
             fib = hits.triangle >= mesh_faces
@@ -180,33 +174,10 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             wo[alive] = -wi
             if exitance != "exact":  # shade toward a fresh ωo, weighted by the kernel
                 fresh = cosine_about(_radial(tangent[alive], rng), rng)
-                kern = projection_kernel(tangent[alive], fresh, -wi,
-                                         EXITANCE_ORDERS[exitance.removesuffix("_first")])
-                if exitance.endswith("_first"):
-                    if depth == 0:
-                        first[alive] = kern
-                else:
-                    beta[alive] *= kern[:, None]
+                beta[alive] *= projection_kernel(tangent[alive], fresh, -wi,
+                                                 EXITANCE_ORDERS[exitance])[:, None]
                 wo[alive] = fresh
             if depth + 1 >= rr_depth:
                 alive = roulette(beta, alive, rng)
-
-    def _by_sigma(sigma, fn, outputs):
-        """``fn(sel, params)`` per distinct σ_a row (one call for hair of one colour, one
-        per vertex at worst), its ``outputs`` (m, 3) results gathered."""
-        out = [np.empty((len(sigma), 3)) for _ in range(outputs)]
-        uniq, inv = np.unique(sigma, axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
-        for g, sa in enumerate(uniq):
-            sel = np.flatnonzero(inv == g)
-            res = fn(sel, dataclasses.replace(params, sigma_a=tuple(sa)))
-            for o, r in zip(out, res if outputs > 1 else (res,), strict=True):
-                o[sel] = r
-        return out if outputs > 1 else out[0]
-
-    def _scatter(tg, wo, wi, h, sigma):
-        """S (m, 3) with a per-vertex σ_a."""
-        return _by_sigma(sigma, lambda sel, par: scattering(tg[sel], wo[sel], wi[sel],
-                                                            h[sel], par), 1)
 
     return two_halves(len(texels), k, paths, seed, trace)

@@ -131,7 +131,7 @@ def fibre_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
     mesh): the mean and ``harmonics`` (H) harmonics ``(2/J) Σ L_j (cos hφ_j, sin hφ_j)``
     (J > 2H keeps them unaliased by the stratified azimuths)."""
     return direct_of_samples(space, tracer, lights, direct_samples(space, samples, seed),
-                      harmonics, block, progress=True)
+                             harmonics, block, progress=True)
 
 
 def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
@@ -148,8 +148,8 @@ def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
 
 
 def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
-               drawn: tuple, harmonics: int, block: int, progress: bool,
-               weight: Callable | None = None) -> FibreDirect | np.ndarray:
+                      drawn: tuple, harmonics: int, block: int, progress: bool,
+                      weight: Callable | None = None) -> FibreDirect | np.ndarray:
     """:func:`fibre_direct` for ``lights`` from :func:`direct_samples`' ``drawn``,
     ``block`` texels at a time (a progress bar over them with ``progress``).
     weight : another fibre's F weights per sample and light instead of the texel's ρ,
@@ -158,9 +158,10 @@ def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Li
     (F, T, K, 3) float32 (no harmonics)."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
-    mean = np.empty((t, k, 3), dtype=np.float32)
-    harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
-    weighted = None
+    if weight is None:
+        mean = np.empty((t, k, 3), dtype=np.float32)
+        harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
+    weighted = None  # (F, T, K, 3), allocated when the weight's F is known
     blocks = range(0, t, block)
     for a in bar(blocks, "direct fibres", total=len(blocks)) if progress else blocks:
         idx = order[a:a + block]
@@ -434,8 +435,8 @@ def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Seque
     drawn = direct_samples(space, samples, seed)  # once for every block of lights
     starts = range(0, k, block)
     for k0 in bar(starts, "direct fibres", total=len(starts)):
-        part = direct_of_samples(space, tracer, lights[k0:k0 + block], drawn, HARMONICS, 1 << 14,
-                          progress=False)
+        part = direct_of_samples(space, tracer, lights[k0:k0 + block], drawn, HARMONICS,
+                                 1 << 14, progress=False)
         mean[:, k0:k0 + block] = part.mean
         val[:, k0:k0 + block] = harmonic_first_bounce(term, part)[1]
         del part

@@ -56,6 +56,7 @@ from prtcore.core.bcsdf import (
     sigma_a_from_color,
     sigma_a_from_melanin,
 )
+from prtcore.core.errors import SpecError
 from prtcore.core.fibres import FibreMesh
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
@@ -99,11 +100,13 @@ def chiang_fibre(spec: ChiangSpec, space: StrandSpace) -> ChiangFibre:
 
 
 def check_lights(lights: Sequence[Light]) -> None:
-    """Refuse lights the Chiang fibre cannot shade yet (environment lights), by name."""
+    """Refuse lights the Chiang fibre cannot shade yet (environment lights): a
+    :class:`~prtcore.core.errors.SpecError` naming ``lights.families``."""
     bad = sorted({li.type for li in lights if li.type not in CHIANG_LIGHT_TYPES})
     if bad:
-        raise ValueError(f"hair.fibre 'chiang' shades {', '.join(CHIANG_LIGHT_TYPES)} lights; "
-                         f"this bake has {', '.join(bad)} lights (use hair.fibre 'diffuse')")
+        raise SpecError("lights.families", f"the 'chiang' fibre shades "
+                        f"{', '.join(CHIANG_LIGHT_TYPES)} lights, not {', '.join(bad)} "
+                        "(use hair.fibre 'diffuse')")
 
 
 #: Memory per gather ray beyond the diffuse fibre's (bytes): each hit's direction and
@@ -198,7 +201,7 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
         return out.reshape(len(out), n, j, len(lights_), 3)
 
     return direct_of_samples(space, tracer, lights, drawn, 0, 1 << 14, progress=True,
-                      weight=weight)
+                             weight=weight)
 
 
 def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,

@@ -60,7 +60,7 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     fibre : the Chiang fibre (``hair.fibre = "chiang"``,
     :mod:`prtcore.transport.fibre_chiang`; ``harmonics`` is then ignored), or None for the
     diffuse fibre; ``chiang_exitance`` (``hair.chiang.exitance``): what its transport
-    carries of each texel's outgoing radiance, "isotropic" or "linear"."""
+    carries of each texel's outgoing radiance, "isotropic", "linear" or "quadratic"."""
     if fibre is not None:
         return _chiang_dataset(space, points, tracer, lights_train, lights_holdout,
                                spec or TransportSpec(), timer or StageTimer(quiet=True),
@@ -120,21 +120,21 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
     channels' operators solved together."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     rays0 = tracer.rays_traced
-    with timer.stage("fibre gather"):
+    with timer.stage("fibre gather"):  # the operator made from the rays, which then go
         term = chiang_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
                              scene.triangle_count if scene is not None else 0,
                              spec.gather_rays, spec.seed, fibre)
+        fibre_stats = term.stats
+        product, rho = chiang_operator(space, term, fibre, spec.gather_rays, exitance,
+                                       tracer.threads)
+        del term
     rays1 = tracer.rays_traced
-    fibre_stats = term.stats
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
     with timer.stage("direct fibres"):
         direct = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
                                spec.seed + 1, fibre, exitance)
     rays3 = tracer.rays_traced
-    product, rho = chiang_operator(space, term, fibre, spec.gather_rays, exitance,
-                                   tracer.threads)
-    del term
     t = space.count
     if exitance == "isotropic":
         direct_mean = direct[0]
