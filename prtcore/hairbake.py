@@ -70,6 +70,7 @@ from prtcore.transport.fibre_chiang import (
 )
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
+from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset
 
 METHOD = "data_driven"
 #: writes a run's report files: (directory, method, result, report, seconds, t_start)
@@ -126,10 +127,11 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
-    if spec.hair.fibre == "chiang" and with_mesh:
-        raise SpecError("hair.fibre", "the 'chiang' fibre is baked for hair alone; with a "
-                        "--mesh use the 'diffuse' fibre (the hair + mesh operator carries "
-                        "the diffuse fibre's azimuthal harmonics)")
+    if spec.hair.fibre == "chiang" and with_mesh and spec.hair.chiang.exitance != "isotropic":
+        raise SpecError("hair.chiang.exitance", f"{spec.hair.chiang.exitance!r} exitance is "
+                        "baked for hair alone; with a --mesh the Chiang fibre carries the "
+                        "isotropic exitance (the mesh's rays would have to read every "
+                        "fibre's exitance toward them)")
     if spec.hair.fibre == "chiang" and spec.lights.count == "auto":
         spec = dataclasses.replace(spec, lights=dataclasses.replace(
             spec.lights, count=CHIANG_FIXED_LIGHTS))
@@ -213,6 +215,9 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if mesh_texels:
         est += estimate_bake_bytes(mesh_texels, k, spec.transport, ("surface",)) \
             + (mesh_texels + (3 if everything else 1) * t) * k * 12
+        if spec.hair.fibre == "chiang":  # the mesh rows again, as rays of the product
+            est += mesh_texels * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
+                "isotropic"]
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels"
                             + (f", {mesh_texels} atlas texels" if mesh_texels else "")
@@ -265,6 +270,10 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                                           harmonics=spec.hair.harmonics,
                                           keep_direct_texels=False, fibre=fibre,
                                           chiang_exitance=spec.hair.chiang.exitance)
+    elif fibre is not None:
+        data = bake_chiang_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres,
+                                             intake.points, tracer, train, hold,
+                                             spec.transport, timer, fibre)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,
@@ -294,16 +303,19 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                 "strands": space.layout(),
                 "fibre": {"model": spec.hair.fibre, "geometry": fibre_section["geometry"]},
             }
-            if spec.hair.fibre == "chiang":
-                common["fibre"]["chiang"] = spec_to_dict(spec.hair.chiang)
-                common["units"]["radiance"] = (
-                    "linear RGB outgoing radiance averaged over every direction with the "
-                    "fibre's projected width (1/pi^2 * integral of L_o cos theta), over "
-                    "the texel's arc interval")
         else:
             common = _mesh_sections(tmp, scene, intake.texels, result, spec, asset, mesh,
                                     source_name, hair)
             common["fibre"] = fibre_section
+        if spec.hair.fibre == "chiang":
+            common["fibre"].pop("harmonics", None)
+            common["fibre"]["chiang"] = spec_to_dict(spec.hair.chiang)
+            common["units"]["radiance"] = (
+                "linear RGB outgoing radiance" + (" (albedo/pi * E on the mesh)" if scene
+                                                  is not None else "")
+                + ("; on strands" if scene is not None else "")
+                + " averaged over every direction with the fibre's projected width "
+                "(1/pi^2 * integral of L_o cos theta), over the texel's arc interval")
         run_files(tmp, m, result, report, dict(timer.seconds), t_start)
         run = {"spec": spec_to_dict(spec), "spec_sha256": spec_hash(spec),
                "timings": dict(timer.seconds)}

@@ -246,19 +246,15 @@ def test_a_chiang_fibre_bake_states_its_fibre_and_validates_with_its_own_path_tr
     assert not np.allclose(a.planes[cov][:, :3], b.planes[cov][:, :3], rtol=0.05)
 
 
-def test_a_chiang_bake_refuses_a_mesh_and_environment_lights_by_key(tmp_path):
-    from prtcore.scenes.hair import write_head
+def test_a_chiang_bake_refuses_environment_lights_by_key(tmp_path):
     asset = write_hair(tmp_path / "t.hair", tangle(20))
-    with pytest.raises(SpecError, match=r"hair\.fibre"):
-        bake(asset, parse_spec(CHIANG), tmp_path / "a", quiet=True,
-             mesh=write_head(tmp_path / "head.glb"))
     sky = {**CHIANG, "lights": {"count": 8, "holdout": 2,
                                 "families": [{"type": "environment"}]}}
     with pytest.raises(SpecError, match=r"lights\.families"):
         bake(asset, parse_spec(sky), tmp_path / "b", quiet=True)
     with pytest.raises(SpecError, match=r"hair\.harmonics"):
         parse_spec({"hair": {"fibre": "chiang", "harmonics": "all_bounces"}})
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert not (tmp_path / "b").exists()
 
 
 def test_a_chiang_bake_with_linear_exitance_reports_what_it_clamped(tmp_path):

@@ -69,7 +69,7 @@ def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
     return k
 
 
-def _radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def random_radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(n, 3) unit radial directions of uniformly random azimuth about ``tangent``."""
     u, v = orthonormal_frame(tangent)
     phi = 2 * np.pi * rng.random(len(tangent))
@@ -98,6 +98,25 @@ def _lit_side(tangent: np.ndarray, toward: np.ndarray, rng: np.random.Generator
     return np.cos(psi)[:, None] * n + np.sin(psi)[:, None] * b
 
 
+def fibre_nee(lights: Sequence[Light], tracer: RayTracer, params: ChiangParams,
+              beta: np.ndarray, centre: np.ndarray, tangent: np.ndarray, radius: np.ndarray,
+              wo: np.ndarray, sigma: np.ndarray, h: np.ndarray, rng: np.random.Generator
+              ) -> np.ndarray:
+    """Next-event estimation at m fibre vertices (the module docstring's first bullet):
+    ``β · S(ωo, ωl, h) · E⊥_l · V`` per light, (m, K, 3). beta, sigma (m, 3); centre,
+    tangent, wo (m, 3); radius, h (m,)."""
+    out = np.zeros((len(centre), len(lights), 3))
+    for li, light in enumerate(lights):
+        _, to_light, _ = unshadowed_irradiance(light, centre, np.tile(
+            [0.0, 0.0, 1.0], (len(centre), 1)))
+        side = _lit_side(tangent, to_light, rng)
+        p = centre + radius[:, None] * side
+        e = irradiance(light, p, to_light, tracer)  # E⊥ · V: the normal faces the light
+        s = scattering(tangent, wo, to_light, h, params, sigma)
+        out[:, li] = beta * s * e
+    return out
+
+
 def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
                      mesh_faces: int, lights: Sequence[Light], texels: np.ndarray,
                      paths: int, seed: int, params: ChiangParams,
@@ -122,17 +141,8 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
     sig_pt = np.asarray(sigma_points, dtype=np.float64)
 
     def shade(beta, centre, tangent, radius, wo, sigma, h, rng):
-        """NEE at the vertices: (m, K, 3) contributions."""
-        out = np.zeros((len(centre), k, 3))
-        for li, light in enumerate(lights):
-            _, to_light, _ = unshadowed_irradiance(light, centre, np.tile(
-                [0.0, 0.0, 1.0], (len(centre), 1)))
-            side = _lit_side(tangent, to_light, rng)
-            p = centre + radius[:, None] * side
-            e = irradiance(light, p, to_light, tracer)  # E⊥ · V: the normal faces the light
-            s = scattering(tangent, wo, to_light, h, params, sigma)
-            out[:, li] = beta * s * e
-        return out
+        return fibre_nee(lights, tracer, params, beta, centre, tangent, radius, wo, sigma,
+                         h, rng)
 
     def trace(owner: np.ndarray, rng: np.random.Generator, acc: np.ndarray) -> None:
         tex = texels[owner]
@@ -142,7 +152,7 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
         centre, tangent, _ = axis_frame(hair, strand, arc)
         radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
         sigma = interp_points(hair, sig_pt, strand, arc)
-        wo = cosine_about(_radial(tangent, rng), rng)  # density cos θo / π² over the sphere
+        wo = cosine_about(random_radial(tangent, rng), rng)  # density cos θo / π² over the sphere
         beta = np.ones((n, 3))
         alive = np.arange(n)
         for depth in range(max_depth + 1):  # the texel, then up to max_depth fibre hits
@@ -173,7 +183,7 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             sigma[alive] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
             wo[alive] = -wi
             if exitance != "exact":  # shade toward a fresh ωo, weighted by the kernel
-                fresh = cosine_about(_radial(tangent[alive], rng), rng)
+                fresh = cosine_about(random_radial(tangent[alive], rng), rng)
                 beta[alive] *= projection_kernel(tangent[alive], fresh, -wi,
                                                  EXITANCE_ORDERS[exitance])[:, None]
                 wo[alive] = fresh

@@ -28,13 +28,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from prtcore.core.fibres import FibreMesh, outside_offset
+from prtcore.core.bcsdf import ChiangParams, sample_scattering
+from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
-from prtcore.receivers.strands import StrandSpace
+from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
+from prtcore.reference.chiang import facing, fibre_nee, random_radial
 from prtcore.reference.fibres import (
     cosine_about,
     fibre_vertices,
@@ -131,3 +133,114 @@ def hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSpace,
                 alive = roulette(beta, alive, rng)
 
     return two_halves(len(rows), k, paths, seed, trace)
+
+
+def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSpace,
+                               tracer: RayTracer, fibres: FibreMesh,
+                               lights: Sequence[Light], rows: np.ndarray, paths: int,
+                               seed: int, params: ChiangParams, sigma_points: np.ndarray,
+                               max_depth: int = 64, rr_depth: int = 3,
+                               exitance: str = "exact") -> tuple[np.ndarray, np.ndarray]:
+    """:func:`hair_mesh_reference` with Chiang fibres: every fibre vertex is that of
+    :func:`prtcore.reference.chiang.chiang_reference` (next-event estimation with the
+    BCSDF toward where the path came from, :func:`~prtcore.core.bcsdf.sample_scattering`
+    to continue), every mesh vertex this module's Lambertian one. A strand texel's value
+    is its direction-averaged exitance L̄ (a view direction with density cos θo / π²), a
+    mesh texel's ρ/π · E_ind. ``params``, ``sigma_points`` (p, 3): the fibre, as for
+    ``chiang_reference``; ``exitance = "isotropic"`` shades every fibre hit toward a
+    fresh view direction instead (the fast path's model, for one-bounce checks).
+    Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
+    rows = np.asarray(rows, dtype=np.int64)
+    hair = space.hair
+    f, t_m = scene.triangle_count, texels.count
+    rho_mesh, _ = clamp_albedo(np.asarray(texels.albedo, np.float64))
+    sig_pt = np.asarray(sigma_points, dtype=np.float64)
+    off = outside_offset(hair, fibres.sides)
+    mesh_rows = rows[rows < t_m]
+    regions = texel_regions(scene, texels, mesh_rows) if len(mesh_rows) else None
+
+    def trace(owner: np.ndarray, rng: np.random.Generator, acc: np.ndarray) -> None:
+        row = rows[owner]
+        n = len(owner)
+        fib = row >= t_m  # the vertex is on a fibre (else on the mesh)
+        pos, vec, geo = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        tangent, wo = np.zeros((n, 3)), np.zeros((n, 3))  # fibre vertices
+        radius, sigma = np.zeros(n), np.zeros((n, 3))
+        beta = np.ones((n, 3))
+        mi = np.flatnonzero(~fib)
+        if len(mi):  # mesh: origin above a point uniform over the texel, shading normal
+            tri0 = texels.triangle[row[mi]]
+            bary0 = sample_texel_regions(regions, np.searchsorted(mesh_rows, row[mi]), rng)
+            geo[mi] = tracer.face_normals[tri0]
+            vec[mi] = shading_normals(scene, tri0, bary0, geo[mi])
+            pos[mi] = tracer.surface_point(tri0, bary0) + geo[mi] * tracer.offset
+            beta[mi] = rho_mesh[row[mi]]
+        hi = np.flatnonzero(fib)
+        if len(hi):  # fibre: a point uniform over the arc, a view direction cos θo / π²
+            tex = row[hi] - t_m
+            strand = space.strand[tex]
+            arc = space.arc[tex, 0] + rng.random(len(hi)) * (space.arc[tex, 1]
+                                                             - space.arc[tex, 0])
+            pos[hi], tangent[hi], _ = axis_frame(hair, strand, arc)
+            radius[hi] = interp_points(hair, off[:, None], strand, arc)[:, 0]
+            sigma[hi] = interp_points(hair, sig_pt, strand, arc)
+            wo[hi] = cosine_about(random_radial(tangent[hi], rng), rng)
+        alive = np.arange(n)
+        for depth in range(1, max_depth + 1):
+            if not len(alive):
+                break
+            on = fib[alive]
+            d = np.empty((len(alive), 3))
+            origin = np.empty((len(alive), 3))
+            a_m, a_f = alive[~on], alive[on]
+            if len(a_m):  # mesh: a cosine direction; below the face ends the path
+                d[~on] = cosine_about(vec[a_m], rng)
+                origin[~on] = pos[a_m]
+            if len(a_f):  # fibre: the BCSDF's importance sampling
+                h = 2 * rng.random(len(a_f)) - 1
+                wi, w = sample_scattering(tangent[a_f], wo[a_f], h, params, rng, sigma[a_f])
+                beta[a_f] *= w
+                d[on] = wi
+                origin[on] = pos[a_f] + radius[a_f, None] * facing(tangent[a_f], wi)
+            up = np.einsum("ij,ij->i", d, geo[alive]) >= 0  # 0 on fibres: always up
+            alive, d, origin = alive[up], d[up], origin[up]
+            hits = tracer.intersect(origin, d)
+            to_fibre = hits.triangle >= f
+            keep = to_fibre | (hits.hit & ~to_fibre & hits.front)
+            alive, d, to_fibre = alive[keep], d[keep], to_fibre[keep]
+            tri, bary = hits.triangle[keep], hits.barycentric[keep]
+            if not len(alive):
+                break
+            fi, si = np.flatnonzero(to_fibre), np.flatnonzero(~to_fibre)
+            if len(fi):
+                seg, t = segment_hits(fibres, tri[fi] - f, bary[fi])
+                p0 = hair.segment_start[seg]
+                a0, b0 = hair.points[p0], hair.points[p0 + 1]
+                ax = b0 - a0
+                v = alive[fi]
+                fib[v] = True
+                tangent[v] = ax / np.linalg.norm(ax, axis=1, keepdims=True)
+                pos[v] = a0 + t[:, None] * ax
+                radius[v] = (1 - t) * off[p0] + t * off[p0 + 1]
+                sigma[v] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
+                wo[v] = -d[fi] if exitance == "exact" else cosine_about(
+                    random_radial(tangent[v], rng), rng)
+                geo[v] = 0.0
+                np.add.at(acc, owner[v], fibre_nee(
+                    lights, tracer, params, beta[v], pos[v], tangent[v], radius[v], wo[v],
+                    sigma[v], 2 * rng.random(len(v)) - 1, rng))
+            if len(si):
+                v = alive[si]
+                fn = tracer.face_normals[tri[si]]
+                p = tracer.surface_point(tri[si], bary[si])
+                nrm = shading_normals(scene, tri[si], bary[si], fn)
+                rho = clamp_albedo(albedo_at(scene, tri[si], bary[si]))[0]
+                e = irradiance_per_light(lights, tracer, p, nrm)  # (m, K, 3)
+                np.add.at(acc, owner[v], (beta[v] * rho / math.pi)[:, None, :] * e)
+                beta[v] *= rho
+                fib[v] = False
+                pos[v], vec[v], geo[v] = p + fn * tracer.offset, nrm, fn
+            if depth >= rr_depth:
+                alive = roulette(beta, alive, rng)
+
+    return two_halves(len(rows), len(lights), paths, seed, trace)

@@ -144,7 +144,8 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
         normal = shading_normals(scene, tri, bary, tracer.face_normals[tri])
         ld = direct_radiance(scene, tracer, lights, point, normal, albedo_at(scene, tri, bary))
         ld -= direct_texels[near.col[sl]]
-        ld *= near.weight[sl, None, None]
+        w = near.weight[sl]
+        ld *= w[:, None, None] if w.ndim == 1 else w[:, None, :]
         # rows are sorted: sum each run of equal rows, then add the runs (unique slots)
         sk = slot[sl]
         run = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])

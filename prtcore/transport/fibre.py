@@ -191,13 +191,15 @@ class MeshHits:
     """The fibre gather's rays whose first hit is the front of the mesh (a hair + mesh
     bake), in the order traced: ``row`` (n,) int64 strand texel, ``col`` (n,) int64 atlas
     texel, ``triangle`` (n,) int64 and ``barycentric`` (n, 3) float64 the hit, ``t`` (n,)
-    float64 its distance."""
+    float64 its distance; with :func:`fibre_gather`'s ``ray_data``, ``data`` (n, F)
+    float32 its values for these rays (else None)."""
 
     row: np.ndarray
     col: np.ndarray
     triangle: np.ndarray
     barycentric: np.ndarray
     t: np.ndarray
+    data: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -253,6 +255,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     frame_u = transported_frames(hair)[1]  # once, not per batch
     rows_all, cols_all, cs_all, po_all, rw_all = [], [], [], [], []
     mesh_rows, mesh_cols, mesh_po, mesh_tri, mesh_bary, mesh_t = [], [], [], [], [], []
+    mesh_rw = []
     n_fibre = n_mesh = 0
     total = t * rays
     starts = range(0, total, FIBRE_BATCH)
@@ -277,6 +280,9 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
             mesh_tri.append(hits.triangle[on])
             mesh_bary.append(hits.barycentric[on])
             mesh_t.append(hits.t[on])
+            if ray_data is not None:
+                mesh_rw.append(ray_data(np.arange(a, b)[on] // rays, sample_arc[a:b][on],
+                                        d[on]).astype(np.float32))
         del origin
         texel, cs = fibre_hits(space, mesh, hits.triangle[fib] - mesh_faces,
                                hits.barycentric[fib], d[fib], rng, frame_u)
@@ -327,7 +333,8 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                              np.zeros(0, np.int64),
                              barycentric=np.concatenate(mesh_bary) if mesh_bary else
                              np.zeros((0, 3)),
-                             t=np.concatenate(mesh_t) if mesh_t else np.zeros(0))
+                             t=np.concatenate(mesh_t) if mesh_t else np.zeros(0),
+                             data=np.concatenate(mesh_rw) if mesh_rw else None)
     kept = None
     if ray_data is not None:
         kept = (rows, cols, np.concatenate(rw_all) if rw_all else np.zeros((0, 1),

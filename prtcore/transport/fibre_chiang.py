@@ -205,17 +205,30 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
 
 
 def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
-                  rays: int, seed: int, fibre: ChiangFibre) -> FibreTerm:
+                  rays: int, seed: int, fibre: ChiangFibre, mesh_texels=None,
+                  mesh_columns: int = 0) -> FibreTerm:
     """:func:`prtcore.transport.fibre.fibre_gather` (the same rays as the diffuse fibre's)
     keeping every fibre hit's direction and tangent at its origin
-    (``FibreTerm.rays``, data (n, 6): d, t) for :func:`chiang_operator`."""
+    (``FibreTerm.rays``, data (n, 6): d, t) for :func:`chiang_operator`; with
+    ``mesh_texels`` (a hair + mesh bake) the rays to the mesh too
+    (``FibreTerm.mesh_hits.data``)."""
     hair = space.hair
 
     def ray_data(texel: np.ndarray, arc: np.ndarray, d: np.ndarray) -> np.ndarray:
         return np.concatenate([d, axis_frame(hair, space.strand[texel], arc)[1]], axis=1)
 
     return fibre_gather(space, tracer, mesh, mesh_faces, rays, seed, harmonics=0,
-                        ray_data=ray_data)
+                        ray_data=ray_data, mesh_texels=mesh_texels,
+                        mesh_columns=mesh_columns)
+
+
+def ray_albedo(fibre: ChiangFibre, rows: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """The directional albedo Ā(t·d, σ) (n, 3) float64 of gather rays from strand texels
+    ``rows`` (n,) with :func:`chiang_gather`'s ``data`` (n, 6): the isotropic exitance's
+    weight of each ray (:func:`_weights`)."""
+    data = np.asarray(data, dtype=np.float64)
+    return _weights(fibre.albedo, data[:, 3:6], data[:, :3], fibre.sigma_texels[rows],
+                    "isotropic")[0]
 
 
 def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, rays: int,

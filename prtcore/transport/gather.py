@@ -84,7 +84,8 @@ class NearField:
 
     row : (n,) int64 receiving texel, sorted; col : (n,) int64 the texel the hit maps to;
     triangle : (n,) int64 and barycentric : (n, 3) float64, the hit point;
-    weight : (n,) float32 the ray's weight in the matrix row (1/M_valid).
+    weight : (n,) float32 the ray's weight in the matrix row (1/M_valid), or (n, 3) one per
+    colour channel (the Chiang fibre's rays, weighted by its directional albedo).
     """
 
     row: np.ndarray

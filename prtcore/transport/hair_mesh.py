@@ -141,6 +141,24 @@ def hair_near_field(hits: MeshHits, texels: TexelSpace, t_m: int, reach: float,
                      weight=np.full(len(close), 1 / rays, np.float32))
 
 
+def hair_mesh_stats(lights_train: Sequence[Light], lights_holdout: Sequence[Light],
+                    t_m: int, t_h: int, points: int, gather: dict, fibre: dict,
+                    marks: tuple[int, ...], solve: dict, **extra) -> dict:
+    """The ``Dataset.stats`` of a hair + mesh bake: counts, both gathers' stats, the rays of
+    each stage from the tracer's ray counter read before and after every stage (``marks``:
+    7 readings: gather, fibre gather, direct points, direct texels, near field, direct
+    fibres), the solve's, and ``extra`` keys."""
+    r = marks
+    return {"train": len(lights_train), "holdout": len(lights_holdout),
+            "texels": {"mesh": t_m, "strands": t_h}, "points": points, "gather": gather,
+            "fibre": fibre, **extra,
+            "rays": {"gather": r[1] - r[0], "fibre_gather": r[2] - r[1],
+                     "direct_points": r[3] - r[2], "direct_texels": r[4] - r[3],
+                     "near_field": r[5] - r[4], "direct_fibres": r[6] - r[5],
+                     "total": r[6] - r[0]},
+            "solve": solve}
+
+
 def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            fibres: FibreMesh, points: MeasurementPoints, tracer: RayTracer,
                            lights_train: Sequence[Light],
@@ -238,12 +256,8 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
         indirect = indirect[:t_m + t_h]
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
         np.maximum(indirect, np.float32(0), out=indirect)
-    stats = {"train": len(lights_train), "holdout": len(lights_holdout),
-             "texels": {"mesh": t_m, "strands": t_h}, "points": points.count,
-             "gather": gather.stats, "fibre": fibre_stats, "harmonics": harmonics,
-             "rays": {"gather": r1 - r0, "fibre_gather": r2 - r1, "direct_points": r3 - r2,
-                      "direct_texels": r4 - r3, "near_field": r5 - r4,
-                      "direct_fibres": r6 - r5, "total": r6 - r0},
-             "solve": solve_stats}
+    stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,
+                            gather.stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
+                            solve_stats, harmonics=harmonics)
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
