@@ -145,3 +145,45 @@ def test_the_isotropic_texel_is_what_separates_fast_path_and_reference(tangle_fa
                            fibre.sigma_points, max_depth=1, exitance="isotropic")
     e = noise_corrected_error(iso, *true)
     assert e["bias"] < -3 * e["bias_se"], e
+
+
+def _ambient(intensity: float = 2.0) -> Light:
+    return Light(type="environment", color=np.ones(3), intensity=intensity,
+                 environment="ambient")
+
+
+def test_a_clear_fibre_under_uniform_light_sends_it_all_back():
+    """White furnace of the environment estimator: a fibre that absorbs nothing under
+    uniform radiance L stores L̄ = (1/π²) ∫ L Ā cos θ dω = L."""
+    hair = make_hair([np.array([[0, 0, -1], [0, 0, 0], [0, 0, 1.0]])], 0.01)
+    space = build_strand_space(hair, 5)
+    tracer, _ = hair_tracer(space)
+    fibre = chiang_fibre(ChiangSpec(eumelanin=0.0, pheomelanin=0.0), space)
+    got = chiang_direct(space, tracer, [_ambient(2.0)], 8, 1, fibre)[0, :, 0]
+    np.testing.assert_allclose(got, 2.0, rtol=0.01)
+
+
+def test_under_a_sky_the_fast_path_is_its_model_path_traced():
+    """Environment lights (a sky and an ambient term) on a 400-strand tangle: the first
+    bounce against the path tracer that makes the fast path's isotropic assumption, whose
+    environment next-event estimate samples the BCSDF (prtcore.reference.chiang.fibre_nee).
+    Measured on 600 strands: +0.3 ± 0.7 % (one bounce, same model); all bounces against the
+    exact reference −3.4 ± 0.6 %, rRMSE 7.7 % (docs/hair.md)."""
+    hair = tangle(400)
+    hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
+    space = build_strand_space(hair, 8)
+    tracer, mesh = hair_tracer(space)
+    fibre = chiang_fibre(ChiangSpec(), space)
+    to_sun = np.array([0.3, 0.8, 0.5]) / np.linalg.norm([0.3, 0.8, 0.5])
+    lights = [Light(type="environment", color=np.ones(3), intensity=1.0,
+                    environment="sky", direction=-to_sun), _ambient(0.5)]
+    term = chiang_gather(space, tracer, mesh, 0, 256, 2, fibre)
+    direct = chiang_direct(space, tracer, lights, 8, 1, fibre)
+    product, rho = chiang_operator(space, term, fibre, 256)
+    fast = solve_indirect(None, rho, direct[0], 1, 1e-5, method="neumann",
+                          product=product)[0]
+    tex = np.random.default_rng(5).choice(space.count, 150, replace=False)
+    a, b = chiang_reference(space, tracer, mesh, 0, lights, tex, 2048, 8, fibre.params,
+                            fibre.sigma_points, max_depth=1, exitance="isotropic")
+    e = noise_corrected_error(fast[tex].astype(np.float64), a, b)
+    assert abs(e["bias"]) < 0.02 + 3 * e["bias_se"] and e["rrmse"] < 0.15, e

@@ -246,15 +246,17 @@ def test_a_chiang_fibre_bake_states_its_fibre_and_validates_with_its_own_path_tr
     assert not np.allclose(a.planes[cov][:, :3], b.planes[cov][:, :3], rtol=0.05)
 
 
-def test_a_chiang_bake_refuses_environment_lights_by_key(tmp_path):
-    asset = write_hair(tmp_path / "t.hair", tangle(20))
-    sky = {**CHIANG, "lights": {"count": 8, "holdout": 2,
+def test_a_chiang_bake_takes_environment_lights_and_refuses_harmonics_by_key(tmp_path):
+    asset = write_hair(tmp_path / "t.hair", tangle(60))
+    sky = {**CHIANG, "lights": {"count": 16, "holdout": 4,
                                 "families": [{"type": "environment"}]}}
-    with pytest.raises(SpecError, match=r"lights\.families"):
-        bake(asset, parse_spec(sky), tmp_path / "b", quiet=True)
+    out = bake(asset, parse_spec(sky), tmp_path / "b", quiet=True)
+    report = json.loads((out / "report.json").read_text())
+    assert report["transport"]["model"] == "chiang"
+    planes = load_runtime(out).planes
+    assert np.isfinite(planes).all() and planes[load_runtime(out).coverage][:, :3].max() > 0
     with pytest.raises(SpecError, match=r"hair\.harmonics"):
         parse_spec({"hair": {"fibre": "chiang", "harmonics": "all_bounces"}})
-    assert not (tmp_path / "b").exists()
 
 
 def test_a_chiang_bake_with_linear_exitance_reports_what_it_clamped(tmp_path):

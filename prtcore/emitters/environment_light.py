@@ -137,6 +137,15 @@ class EnvironmentEmitter(Emitter):
     def __init__(self):
         self._directions = _Directions()
 
+    def directions(self, points: np.ndarray, normals: np.ndarray, tracer: RayTracer | None
+                   ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The estimator's S cosine directions about each normal, (n, S, 3) float64, and
+        their visibility from each point, (n, S) bool (None without ``tracer``): the same
+        for every environment light (see the module docstring). For receivers that weight
+        each direction (the Chiang fibre's directional albedo)."""
+        return self._directions.get(np.asarray(points, np.float64),
+                                    np.asarray(normals, np.float64), tracer)
+
     def irradiance(self, light, points, normals, tracer):
         points = np.asarray(points, np.float64)
         normals = np.asarray(normals, np.float64)

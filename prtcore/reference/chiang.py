@@ -39,6 +39,7 @@ from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
 from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
+from prtcore.emitters.environment_light import environment_radiance
 from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 from prtcore.reference.fibres import cosine_about, roulette, two_halves
@@ -103,10 +104,17 @@ def fibre_nee(lights: Sequence[Light], tracer: RayTracer, params: ChiangParams,
               wo: np.ndarray, sigma: np.ndarray, h: np.ndarray, rng: np.random.Generator
               ) -> np.ndarray:
     """Next-event estimation at m fibre vertices (the module docstring's first bullet):
-    ``β · S(ωo, ωl, h) · E⊥_l · V`` per light, (m, K, 3). beta, sigma (m, 3); centre,
-    tangent, wo (m, 3); radius, h (m,)."""
+    ``β · S(ωo, ωl, h) · E⊥_l · V`` per light, (m, K, 3); for an environment light one
+    direction ωi drawn by :func:`~prtcore.core.bcsdf.sample_scattering`, ``β · (S/pdf) ·
+    L(ωi) · V(ωi)``. beta, sigma (m, 3); centre, tangent, wo (m, 3); radius, h (m,)."""
     out = np.zeros((len(centre), len(lights), 3))
     for li, light in enumerate(lights):
+        if light.type == "environment":  # one direction from the BCSDF's own sampling
+            wi, w = sample_scattering(tangent, wo, h, params, rng, sigma)
+            seen = ~tracer.occluded(centre + radius[:, None] * facing(tangent, wi), wi,
+                                    tracer.tfar)
+            out[:, li] = beta * w * environment_radiance(light, wi) * seen[:, None]
+            continue
         _, to_light, _ = unshadowed_irradiance(light, centre, np.tile(
             [0.0, 0.0, 1.0], (len(centre), 1)))
         side = _lit_side(tangent, to_light, rng)

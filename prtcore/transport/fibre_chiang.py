@@ -58,16 +58,20 @@ from prtcore.core.bcsdf import (
 )
 from prtcore.core.errors import SpecError
 from prtcore.core.fibres import FibreMesh
+from prtcore.core.progress import bar
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
 from prtcore.core.sparse import RayBlockProduct
 from prtcore.core.spec import ChiangSpec
+from prtcore.emitters.base import emitter_for
+from prtcore.emitters.environment_light import environment_radiance
 from prtcore.emitters.punctual import unshadowed_irradiance
 from prtcore.receivers.strands import StrandSpace, axis_frame
 from prtcore.transport.fibre import FibreTerm, direct_of_samples, direct_samples, fibre_gather
 
-#: light types whose direct light the Chiang fibre evaluates (one direction per point)
-CHIANG_LIGHT_TYPES = ("point", "spot", "directional")
+#: light types whose direct light the Chiang fibre evaluates: one direction per point, or
+#: the environment estimator's cosine directions, each weighted (:func:`chiang_direct`)
+CHIANG_LIGHT_TYPES = ("point", "spot", "directional", "environment")
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,7 @@ def chiang_fibre(spec: ChiangSpec, space: StrandSpace) -> ChiangFibre:
 
 
 def check_lights(lights: Sequence[Light]) -> None:
-    """Refuse lights the Chiang fibre cannot shade yet (environment lights): a
+    """Refuse lights the Chiang fibre cannot shade (none of :data:`CHIANG_LIGHT_TYPES`): a
     :class:`~prtcore.core.errors.SpecError` naming ``lights.families``."""
     bad = sorted({li.type for li in lights if li.type not in CHIANG_LIGHT_TYPES})
     if bad:
@@ -176,7 +180,14 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
                   ) -> np.ndarray:
     """Direct exitance coefficients of every strand texel for every light, (F, T, K, 3)
     float32 (F = 1 isotropic: L̄_d; F = 4 linear: L̄_d then the world vector c), from the
-    same surface samples as :func:`prtcore.transport.fibre.fibre_direct`."""
+    same surface samples as :func:`prtcore.transport.fibre.fibre_direct`.
+
+    Punctual lights: each sample's ``E/π · max(0, n·ωl) · V`` weighted by the coefficients'
+    weights of ωl. Environment lights: the environment estimator's S cosine directions about
+    each sample's normal and their visibility (shared by every environment light,
+    :meth:`prtcore.emitters.environment_light.EnvironmentEmitter.directions`), each
+    direction's ``L · V`` weighted by its own weights: ``(1/(J S)) Σ_j Σ_s L V w(ω_s)``, the
+    same estimate with the cosine sampled instead of a single direction."""
     check_lights(lights)
     drawn = direct_samples(space, samples, seed)
     arc, _ = space.surface_sample_params(samples, seed)  # the samples' arcs, as drawn
@@ -200,8 +211,46 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
             out[:, :, k] = w
         return out.reshape(len(out), n, j, len(lights_), 3)
 
-    return direct_of_samples(space, tracer, lights, drawn, 0, 1 << 14, progress=True,
-                             weight=weight)
+    env = [k for k, light in enumerate(lights) if light.type == "environment"]
+    punctual = [k for k in range(len(lights)) if k not in set(env)]
+    if not env:
+        return direct_of_samples(space, tracer, lights, drawn, 0, 1 << 14, progress=True,
+                                 weight=weight)
+    out = np.empty((EXITANCE_TERMS[exitance], space.count, len(lights), 3), np.float32)
+    if punctual:
+        out[:, :, punctual] = direct_of_samples(space, tracer, [lights[k] for k in punctual],
+                                                drawn, 0, 1 << 14, progress=True,
+                                                weight=weight)
+    out[:, :, env] = _environment_direct(space, tracer, [lights[k] for k in env], drawn,
+                                         tangent, fibre, exitance, frames)
+    return out
+
+
+def _environment_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
+                        drawn, tangent: np.ndarray, fibre: ChiangFibre, exitance: str,
+                        frames: tuple | None, block: int = 1 << 11) -> np.ndarray:
+    """:func:`chiang_direct` for environment ``lights``: (F, T, K_env, 3) float32."""
+    emitter = emitter_for(lights[0])
+    origin, normal, _, order = drawn  # direct_samples: origin, normal, phi, order
+    t, j = origin.shape[:2]
+    out = np.empty((EXITANCE_TERMS[exitance], t, len(lights), 3), np.float32)
+    for a in bar(range(0, t, block), "direct fibres (environment)",
+                 total=-(-t // block)):
+        idx = order[a:a + block]
+        d, vis = emitter.directions(origin[idx].reshape(-1, 3), normal[idx].reshape(-1, 3),
+                                    tracer)  # (n J, S, 3), (n J, S)
+        s = d.shape[1]
+        frame = None if frames is None else tuple(np.repeat(f[idx], j * s, axis=0)
+                                                  for f in frames)
+        w = _weights(fibre.albedo, np.repeat(tangent[idx].reshape(-1, 3), s, axis=0),
+                     d.reshape(-1, 3), np.repeat(fibre.sigma_texels[idx], j * s, axis=0),
+                     exitance, frame)  # (F, n J S, 3)
+        w = (w.reshape(len(w), len(idx), j * s, 3)
+             * vis.reshape(len(idx), j * s)[None, :, :, None])
+        for k, light in enumerate(lights):
+            rad = environment_radiance(light, d.reshape(-1, 3)).reshape(len(idx), j * s, 3)
+            out[:, idx, k] = np.einsum("fnsc,nsc->fnc", w, rad) / (j * s)
+    return out
 
 
 def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
