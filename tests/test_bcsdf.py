@@ -111,3 +111,24 @@ def test_importance_sampling_has_the_density_its_weight_assumes():
         y = 4 * np.pi * scattering(t, wo, wu, h, params) * ((1 + wu @ a) ** 2)[:, None]
         se = np.sqrt(x.var(axis=0) / n + y.var(axis=0) / n)
         assert (np.abs(x.mean(axis=0) - y.mean(axis=0)) < 4 * se).all()
+
+
+@pytest.mark.parametrize("phi_o, phi_n", [(0.0, 0.5), (0.3, -0.4), (1.0, 1.6)])
+def test_the_offset_a_camera_sees_puts_the_highlight_at_the_mirror_direction(phi_o, phi_n):
+    """impact_offset: a dark, smooth, untilted fibre (only the R lobe is left) seen from ωo
+    at the point of normal n reflects most toward the mirror of ωo about n (azimuth
+    2φn − φo); a flipped sign of h would put the peak at φo + 2(φo − φn) instead."""
+    from prtcore.core.bcsdf import impact_offset
+    from prtcore.core.geometry import orthonormal_frame
+
+    t = np.array([[0.0, 0.0, 1.0]])
+    u, v = orthonormal_frame(t)
+    params = ChiangParams(sigma_a=(20.0, 20.0, 20.0), beta_m=0.2, beta_n=0.1, alpha=0.0)
+    wo = np.cos(phi_o) * u + np.sin(phi_o) * v
+    h = impact_offset(t, np.cos(phi_n) * u + np.sin(phi_n) * v, wo)
+    phis = np.linspace(-np.pi, np.pi, 3601)
+    wi = np.cos(phis)[:, None] * u + np.sin(phis)[:, None] * v
+    s = scattering(np.repeat(t, len(phis), 0), np.repeat(wo, len(phis), 0), wi,
+                   np.repeat(h, len(phis)), params)[:, 0]
+    mirror = (2 * phi_n - phi_o + np.pi) % (2 * np.pi) - np.pi
+    assert abs(phis[np.argmax(s)] - mirror) < 0.01

@@ -159,6 +159,19 @@ def _tilted(sin_o: np.ndarray, cos_o: np.ndarray, alpha: float) -> list:
             (sin_o * c2a[2] + cos_o * s2a[2], cos_o * c2a[2] - sin_o * s2a[2])]
 
 
+def impact_offset(tangent: np.ndarray, normal: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """The offset h (n,) in [−1, 1] at which a ray toward −``wo`` meets a round fibre at
+    the point of radial ``normal`` (tangents, normals, wo (n, 3) unit): ``h = sin γo``, γo
+    the azimuth from ωo's projection across the fibre to the normal, with the sign of
+    :func:`scattering`'s exit azimuths (the R lobe leaves at φi − φo = −2γo, the mirror of
+    ωo about the normal; checked in tests/test_bcsdf.py). A camera drawing the fibre
+    shades each pixel with it."""
+    w = wo - np.einsum("ij,ij->i", wo, tangent)[:, None] * tangent
+    n = np.linalg.norm(w, axis=1)
+    h = np.einsum("ij,ij->i", np.cross(normal, w), tangent) / np.maximum(n, 1e-300)
+    return np.clip(np.where(n > 1e-12, h, 0.0), -1.0, 1.0)
+
+
 def scattering(tangent: np.ndarray, wo: np.ndarray, wi: np.ndarray, h: np.ndarray,
                params: ChiangParams, sigma: np.ndarray | None = None) -> np.ndarray:
     """S(wo, wi) (n, 3) for fibres of unit tangents (n, 3), unit directions wo (toward the

@@ -101,23 +101,27 @@ def _lit_side(tangent: np.ndarray, toward: np.ndarray, rng: np.random.Generator
 
 def fibre_nee(lights: Sequence[Light], tracer: RayTracer, params: ChiangParams,
               beta: np.ndarray, centre: np.ndarray, tangent: np.ndarray, radius: np.ndarray,
-              wo: np.ndarray, sigma: np.ndarray, h: np.ndarray, rng: np.random.Generator
-              ) -> np.ndarray:
+              wo: np.ndarray, sigma: np.ndarray, h: np.ndarray,
+              rng: np.random.Generator | None) -> np.ndarray:
     """Next-event estimation at m fibre vertices (the module docstring's first bullet):
     ``β · S(ωo, ωl, h) · E⊥_l · V`` per light, (m, K, 3); for an environment light one
     direction ωi drawn by :func:`~prtcore.core.bcsdf.sample_scattering`, ``β · (S/pdf) ·
-    L(ωi) · V(ωi)``. beta, sigma (m, 3); centre, tangent, wo (m, 3); radius, h (m,)."""
+    L(ωi) · V(ωi)``. beta, sigma (m, 3); centre, tangent, wo (m, 3); radius, h (m,).
+    ``rng`` None (a camera's drawing): V of a punctual light from the point of the fibre
+    that faces the light, not from a random point of its lit half (an environment's
+    direction is then drawn from a fixed seed)."""
     out = np.zeros((len(centre), len(lights), 3))
     for li, light in enumerate(lights):
         if light.type == "environment":  # one direction from the BCSDF's own sampling
-            wi, w = sample_scattering(tangent, wo, h, params, rng, sigma)
+            wi, w = sample_scattering(tangent, wo, h, params,
+                                      np.random.default_rng(0) if rng is None else rng, sigma)
             seen = ~tracer.occluded(centre + radius[:, None] * facing(tangent, wi), wi,
                                     tracer.tfar)
             out[:, li] = beta * w * environment_radiance(light, wi) * seen[:, None]
             continue
         _, to_light, _ = unshadowed_irradiance(light, centre, np.tile(
             [0.0, 0.0, 1.0], (len(centre), 1)))
-        side = _lit_side(tangent, to_light, rng)
+        side = facing(tangent, to_light) if rng is None else _lit_side(tangent, to_light, rng)
         p = centre + radius[:, None] * side
         e = irradiance(light, p, to_light, tracer)  # E⊥ · V: the normal faces the light
         s = scattering(tangent, wo, to_light, h, params, sigma)

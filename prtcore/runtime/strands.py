@@ -7,7 +7,11 @@ shadow rays, plus the indirect light read from the relit strand texture
 (:func:`prtcore.runtime.cpu.relight`) by the manifest's sampling rule
 (:func:`sample_strands`: bilinear, the arc position clamped between the strand's first and
 last texel centres, the row's centre line — never mixing strands). The paper's runtime
-reconstructs the texture the same way; only the rasterisation differs.
+reconstructs the texture the same way; only the rasterisation differs. A Chiang fibre's
+bundle (``manifest["fibre"]["chiang"]``) is shaded with the BCSDF instead:
+``Σ_l S(ωo, ωl, h) E⊥_l V_l`` toward the camera at the offset h the pixel sees
+(:func:`prtcore.core.bcsdf.impact_offset`), V from the side of the fibre facing the light
+(:func:`prtcore.reference.chiang.fibre_nee`).
 
 A hair + mesh bundle (docs/hair.md) is drawn the same way with the mesh in the tracer: a
 pixel that sees the mesh gets ``ρ/π · E`` at the hit (shading normal, albedo at the hit,
@@ -22,18 +26,27 @@ from pathlib import Path
 
 import numpy as np
 
+from prtcore.core.bcsdf import impact_offset
 from prtcore.core.fibres import outside_offset, segment_hits
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import CLAMP_TO_EDGE, albedo_at, clamp_albedo, sample_texture
 from prtcore.core.scene import Light, Texture
+from prtcore.core.spec import ChiangSpec
 from prtcore.emitters.punctual import irradiance
 from prtcore.io.bundle import is_hair_mesh, load_runtime, read_manifest, strand_runtime
 from prtcore.io.gltf.loader import load_asset
 from prtcore.io.hair import read_hair
-from prtcore.receivers.strands import azimuth_frame, build_strand_space, interp_points
+from prtcore.receivers.strands import (
+    axis_frame,
+    azimuth_frame,
+    build_strand_space,
+    interp_points,
+)
 from prtcore.reference.camera import Camera
+from prtcore.reference.chiang import fibre_nee
 from prtcore.runtime.cpu import blend_at, plane_weights, shade_points
 from prtcore.transport.fibre import hair_tracer
+from prtcore.transport.fibre_chiang import chiang_fibre
 
 
 def sample_strands(image: np.ndarray, layout: dict, strand: np.ndarray,
@@ -86,10 +99,20 @@ def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
         axis, normal, _ = azimuth_frame(hair, strand, arc, point)
         extra = interp_points(hair, np.concatenate([outside_offset(hair)[:, None],
                                                     hair.color], axis=1), strand, arc)
-        origin = axis + extra[:, :1] * normal
-        rho, _ = clamp_albedo(extra[:, 1:])
-        e = sum(irradiance(li, origin, normal, tracer) for li in lights)
-        out[hit] += rho / np.pi * e
+        chiang = (manifest.get("fibre") or {}).get("chiang")
+        if chiang is not None:  # the BCSDF toward the camera at the offset seen
+            fibre = chiang_fibre(ChiangSpec(**chiang), space)
+            tangent = axis_frame(hair, strand, arc)[1]
+            wo = -d[hit]
+            out[hit] += fibre_nee(lights, tracer, fibre.params, np.ones((len(hit), 3)), axis,
+                                  tangent, extra[:, 0], wo,
+                                  interp_points(hair, fibre.sigma_points, strand, arc),
+                                  impact_offset(tangent, normal, wo), None).sum(axis=1)
+        else:
+            origin = axis + extra[:, :1] * normal
+            rho, _ = clamp_albedo(extra[:, 1:])
+            e = sum(irradiance(li, origin, normal, tracer) for li in lights)
+            out[hit] += rho / np.pi * e
     seen = hits.hit & (hits.triangle >= first)
     if both:  # the mesh's pixels: its relit lightmap and its direct light
         mh = np.flatnonzero(hits.hit & hits.front & (hits.triangle < first))

@@ -14,7 +14,10 @@ CPU drawing (:mod:`prtcore.runtime.strands`) ray traces, so both cover the same 
 3. **camera pass** (``strand_vs.glsl``, ``strand_fs.glsl``): at each fragment the round
    fibre's radial normal (from the axis point of its ring, the segment's tangent as a flat
    attribute), direct light ``ρ/π · E`` at the point on the circumscribed cylinder with
-   shadow-map visibility (``lights.glsl``), plus the indirect light — the basis planes
+   shadow-map visibility (``lights.glsl``) — for a Chiang fibre's bundle the BCSDF
+   (``chiang.glsl``, :func:`prtcore.core.bcsdf.scattering` in float32) toward the eye at
+   the offset the fragment sees, times E⊥ V from the side facing the light, as the CPU
+   drawing —, plus the indirect light — the basis planes
    blended in the fragment shader (``blend.glsl``) at the manifest's sampling rule
    (strand index and arc fraction interpolated along the tube; docs/hair.md).
 
@@ -66,10 +69,12 @@ STRAND_SHADOW_FORMAT = "3f 12x4"
 MAX_GL_STRANDS = 1 << 24
 
 
-def tube_vertices(hair, sides: int = DEFAULT_SIDES) -> tuple[np.ndarray, np.ndarray]:
+def tube_vertices(hair, sides: int = DEFAULT_SIDES, sigma: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The tube mesh of ``hair`` as the camera pass reads it: vertices (v, 15) float32 in
     :data:`STRAND_VERTEX_FORMAT` and faces (f, 3) uint32. A vertex of ring p carries point
-    p's axis point, arc fraction, strand, outside offset and clamped albedo, and the unit
+    p's axis point, arc fraction, strand, outside offset and clamped albedo (or, for the
+    Chiang fibre, ``sigma`` (p, 3): its absorption per unit radius), and the unit
     direction of the segment ending at p (the start ring of a strand: the one leaving it;
     never read — a tube triangle's provoking, last, vertex is on its segment's end ring)."""
     mesh = fibre_tubes(hair, sides)
@@ -82,7 +87,7 @@ def tube_vertices(hair, sides: int = DEFAULT_SIDES) -> tuple[np.ndarray, np.ndar
     ln = np.linalg.norm(seg, axis=1, keepdims=True)
     tan = np.divide(seg, ln, out=np.tile([0.0, 1.0, 0.0], (len(p), 1)), where=ln > 0)
     frac = hair.arc_length / np.maximum(hair.strand_length[strand], 1e-300)
-    rho, _ = clamp_albedo(hair.color)
+    rho = clamp_albedo(hair.color)[0] if sigma is None else np.asarray(sigma, np.float64)
     per_point = np.concatenate([p, tan, frac[:, None], strand[:, None].astype(np.float64),
                                 outside_offset(hair, sides)[:, None], rho], axis=1)
     verts = np.concatenate([mesh.positions, np.repeat(per_point, sides, axis=0)], axis=1)
@@ -119,12 +124,22 @@ class StrandRenderer(GLRenderer):
         if self.hair.strand_count > MAX_GL_STRANDS:
             raise PrtError(f"{self.bundle}: {self.hair.strand_count} strands; the GL "
                            f"renderer draws at most {MAX_GL_STRANDS}")
+        self.fibre = None  # the Chiang fibre of the bundle, or None (diffuse)
+        chiang = (self.manifest.get("fibre") or {}).get("chiang")
+        if chiang is not None:
+            from prtcore.core.spec import ChiangSpec
+            from prtcore.receivers.strands import build_strand_space
+            from prtcore.transport.fibre_chiang import chiang_fibre
+
+            self.fibre = chiang_fibre(ChiangSpec(**chiang), build_strand_space(
+                self.hair, int(self.layout["texels_per_strand"])))
         self._mgl = moderngl
         self._open(ctx, lambda: self._setup(int(shadow_resolution)))
 
     def _setup(self, shadow_resolution: int) -> None:
         ctx = self.ctx
-        verts, faces = tube_vertices(self.hair)
+        verts, faces = tube_vertices(
+            self.hair, sigma=None if self.fibre is None else self.fibre.sigma_points)
         lo, hi = verts[:, :3].min(axis=0), verts[:, :3].max(axis=0)
         self.center = ((lo + hi) / 2).astype(np.float64)
         self.radius = float(max(np.linalg.norm(hi - lo) / 2, 1e-30))
@@ -200,6 +215,14 @@ class StrandRenderer(GLRenderer):
         set_uniform(prog, "strands_per_row", int(self.layout["strands_per_row"]))
         set_uniform(prog, "texture_size", (float(self.layout["width"]),
                                            float(self.layout["height"])))
+        set_uniform(prog, "eye", tuple(float(x) for x in camera.position))
+        set_uniform(prog, "fibre_model", 0 if self.fibre is None else 1)
+        if self.fibre is not None:
+            p = self.fibre.params
+            set_uniform(prog, "chiang_v", tuple(float(x) for x in p.variances))
+            set_uniform(prog, "chiang_s", float(p.logistic_scale))
+            set_uniform(prog, "chiang_alpha", float(p.alpha))
+            set_uniform(prog, "chiang_eta", float(p.eta))
 
         def draw() -> None:
             self._vao.render(self._mgl.TRIANGLES)
