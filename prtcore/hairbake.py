@@ -18,10 +18,12 @@ and mesh) and the bundle holds both textures: the atlas's basis (``basis_XX.exr`
 surface bundle) and the strand texture's (``strand_basis_XX.exr``), driven by one transfer
 matrix.
 
-Not yet: keyframes, the path-traced validation
-inside the bake (``validate.reference_spp``; ``prtcore report BUNDLE --reference-spp N``
-validates a hair bundle against :mod:`prtcore.reference.fibres`),
-``measurement_points.placement`` other than the hull, and
+``validate.reference_spp`` > 0 validates the bundle inside the bake against the fibre's
+path tracer, as ``prtcore report BUNDLE --reference-spp N`` does (hair alone:
+:mod:`prtcore.reference.fibres` or :mod:`prtcore.reference.chiang`; with a mesh:
+:mod:`prtcore.reference.hair_mesh`), and the verdict is judged on it.
+
+Not yet: keyframes, ``measurement_points.placement`` other than the hull, and
 ``fit.denoise`` (the seam-aware filter is for surfaces; strand texels are fitted as
 traced).
 """
@@ -120,10 +122,6 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     keys a hair bake cannot honour yet are refused by name."""
     if spec.keyframes.animation is not None:
         raise SpecError("keyframes.animation", "hair bakes are static (no keyframes yet)")
-    if spec.validate.reference_spp > 0:
-        raise SpecError("validate.reference_spp", "a hair bake does not validate itself "
-                        "against the path tracer yet; run `prtcore report BUNDLE "
-                        "--reference-spp N` on its bundle")
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
@@ -236,8 +234,10 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     ``run_files(directory, method, result, report, seconds, t_start)`` writes the run's
     report files (the pipeline's), ``exclude`` names them (left out of the checksums).
     ``mesh_intake``: the surface intake the mesh goes through (the pipeline's
-    ``run_intake``). Returns (out, the method, its result, the stage seconds) for the
-    caller's summary."""
+    ``run_intake``). With ``validate.reference_spp`` > 0 the bundle is validated against
+    the fibre's path tracer (:func:`prtcore.validate.validate_bundle`: the hair, or hair +
+    mesh, reference) and the verdict judged on it. Returns (out, the method, its result,
+    the stage seconds, the validation or None) for the caller's summary."""
     inputs_files = (asset,) if mesh is None else (asset, mesh)
     check_output(out, force, inputs=inputs_files)
     if mesh is not None and not Path(mesh).is_file():  # before the hair's intake
@@ -324,7 +324,15 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
 
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=exclude, inputs=inputs_files)
-    return out, m, result, dict(timer.seconds)
+    validation = None
+    if spec.validate.reference_spp > 0 and len(hold):
+        from prtcore.validate import validate_bundle
+
+        with timer.stage("validate"):  # the verdict against the fibre path tracer
+            validation = validate_bundle(out, spec.validate.reference_spp,
+                                         count=spec.validate.reference_lights, timer=timer)
+        result = m.revalidate(result, inputs, validation)
+    return out, m, result, dict(timer.seconds), validation
 
 
 def _mesh_sections(tmp: Path, scene, texels: CombinedSpace, result, spec: BakeSpec,

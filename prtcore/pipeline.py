@@ -144,11 +144,11 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
     if is_hair_file(asset):  # strands instead of a lightmap (docs/hair.md)
         from prtcore.hairbake import bake_hair
 
-        out, m, result, seconds = bake_hair(
+        out, m, result, seconds, validation = bake_hair(
             asset, spec, out, run_files=_write_run_files, exclude=RUN_FILES, quiet=quiet,
             force=force, limits=limits, callback=callback, source_name=source_name,
             mesh=mesh, mesh_intake=run_intake)
-        _finish_run_files(out, m, result, seconds)
+        _finish_run_files(out, m, result, seconds, validation)
         if not quiet:
             print(m.summary(result, seconds, with_verdict=False))
         return out

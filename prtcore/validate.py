@@ -47,13 +47,27 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
     source = Path(light_file) if light_file else bundle / m["validation"]["holdout_lights"]
     lights = load_light_file(source)[:count]
     kf = m.get("keyframes")
+
+    def reconstruct(data_h: RuntimeData, weights: np.ndarray) -> np.ndarray:
+        return image_to_texels(texels, blend(data_h, weights))[:, :3]
+
     if (m.get("strands") or {}).get("basis_files"):  # hair baked with a mesh
-        from prtcore.core.errors import PrtError
-        raise PrtError(f"{bundle}: a hair + mesh bundle is not validated against the path "
-                       "tracer by `report --reference-spp` yet; "
-                       "benchmarks/hair_mesh_accuracy.py checks its transport against "
-                       "prtcore.reference.hair_mesh (docs/hair.md)")
-    if "strands" in m:  # a hair bundle: the fibre path tracer over the strand texels
+        if time is not None:
+            from prtcore.core.errors import PrtError
+            raise PrtError(f"{bundle}: time {time:g}: the bundle was baked without keyframes")
+        from prtcore.io.bundle import strand_runtime
+
+        texels, space, tracer, ref, err = _hair_mesh_references(bundle, m, lights, spp,
+                                                                seed, timer)
+        strand_data = strand_runtime(bundle, m, data)
+
+        def reconstruct(data_h: RuntimeData, weights: np.ndarray) -> np.ndarray:
+            # the atlas texels, then the strand texels: the bake's receiver order
+            return np.concatenate([image_to_texels(texels, blend(data_h, weights))[:, :3],
+                                   image_to_texels(space, blend(strand_data, weights))[:, :3]])
+
+        posed = [(data, tracer, None)] * len(lights)
+    elif "strands" in m:  # a hair bundle: the fibre path tracer over the strand texels
         if time is not None:
             from prtcore.core.errors import PrtError
             raise PrtError(f"{bundle}: time {time:g}: the bundle was baked without keyframes")
@@ -79,8 +93,13 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
             spp, seed)
         posed = [(data, tracer, None)] * len(lights)
     ns = sorted({n for n in TABLE_N if n <= data.n_basis} | {data.n_basis})
-    # the bound against the reference itself: surface bundles with one transfer
-    basis = None if ("strands" in m or kf) else BasisAtTexels.for_bundle(data, texels)
+    # the bound against the reference itself: bundles with one transfer
+    basis = None if kf else BasisAtTexels.for_bundle(data, texels)
+    if basis is not None and (m.get("strands") or {}).get("basis_files"):
+        # both textures' planes at their receivers, atlas texels then strand texels
+        basis = BasisAtTexels(data, np.concatenate([
+            image_to_texels(texels, data.planes), image_to_texels(space, strand_data.planes)
+        ]).astype(np.float64))
     per_light = []
     for h, light in enumerate(lights):
         data_h, tracer_h, key = posed[h]
@@ -94,7 +113,7 @@ def validate_bundle(bundle: str | Path, spp: int, count: int | None = None, seed
         row["projection_bound_noise_corrected"] = {}
         noise2 = float((err[h] ** 2).mean())
         for n in ns:
-            rec = image_to_texels(texels, blend(data_h, plane_weights(data_h, x, n)))[:, :3]
+            rec = reconstruct(data_h, plane_weights(data_h, x, n))
             row["rmse"][str(n)] = relative_rmse(rec, ref[h]) if norm > 0 else None
             # E‖rec − ref‖² = ‖rec − truth‖² + Σ stderr²: the reference's own variance
             # removed gives an estimate of the error against the noiseless truth.
@@ -220,6 +239,45 @@ def _hair_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
                                        seed=seed + h)
             ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
     return space, tracer, ref, err
+
+
+def _hair_mesh_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
+                          timer: StageTimer):
+    """References of a hair + mesh bundle: the indirect light of every atlas texel, then
+    every strand texel, for each light, by the hair + mesh path tracer of its fibre
+    (:func:`prtcore.reference.hair_mesh.hair_mesh_reference`, or
+    :func:`~prtcore.reference.hair_mesh.chiang_hair_mesh_reference` for the Chiang fibre),
+    ``spp`` paths per receiver in two independent halves. Returns the mesh's texel space,
+    the strand space, the tracer of both, ``ref`` (L, T_m + T_h, 3) and ``err``."""
+    from prtcore.io.hair import read_hair
+    from prtcore.receivers.strands import build_strand_space
+    from prtcore.reference.hair_mesh import chiang_hair_mesh_reference, hair_mesh_reference
+    from prtcore.reference.lightmap import texel_space_for
+    from prtcore.transport.fibre import hair_tracer
+
+    scene, texels = texel_space_for(bundle, timer=timer)
+    with timer.stage("reference"):
+        hair = read_hair(bundle / manifest["asset"]["hair"]["file"])
+        space = build_strand_space(hair, int(manifest["strands"]["texels_per_strand"]))
+        tracer, fibres = hair_tracer(space, scene)
+        every = np.arange(texels.count + space.count)
+        ref = np.zeros((len(lights), len(every), 3))
+        err = np.zeros_like(ref)
+        chiang = (manifest.get("fibre") or {}).get("chiang")
+        if chiang is not None:
+            from prtcore.core.spec import ChiangSpec
+            from prtcore.transport.fibre_chiang import chiang_fibre
+            fib = chiang_fibre(ChiangSpec(**chiang), space)
+        for h, light in enumerate(lights):
+            if chiang is not None:
+                a, b = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres,
+                                                  [light], every, spp, seed + h, fib.params,
+                                                  fib.sigma_points)
+            else:
+                a, b = hair_mesh_reference(scene, texels, space, tracer, fibres, [light],
+                                           every, spp, seed + h)
+            ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
+    return texels, space, tracer, ref, err
 
 
 def _posed_references(bundle: Path, manifest: dict, data, scene, texels, lights, keys,

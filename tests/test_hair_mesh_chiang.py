@@ -141,6 +141,9 @@ def test_a_chiang_bake_with_a_head_through_the_cli(tmp_path):
     assert "every direction" in m["units"]["radiance"]
     report = json.loads((out / "report.json").read_text())
     assert report["transport"]["model"] == "chiang"
+    from prtcore.validate import validate_bundle  # the Chiang hair + mesh path tracer
+    row = next(r for r in validate_bundle(out, spp=16, count=1)["rows"] if r["n"] == 8)
+    assert 0 < row["rmse_noise_corrected_mean"] <= row["rmse_mean"] < 1
     linear = {**spec, "hair": {**spec["hair"], "chiang": {"exitance": "linear"}}}
     with pytest.raises(SpecError, match=r"hair\.chiang\.exitance"):
         bake(hair, parse_spec(linear), tmp_path / "linear", quiet=True, mesh=mesh)

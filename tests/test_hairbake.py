@@ -80,8 +80,7 @@ def test_relight_writes_the_strand_texture(bundle, light, tmp_path):
 
 
 @pytest.mark.parametrize("key, value", [
-    ("keyframes", {"animation": 0}), ("validate", {"reference_spp": 16}),
-    ("measurement_points", {"placement": "qdeim"})])
+    ("keyframes", {"animation": 0}), ("measurement_points", {"placement": "qdeim"})])
 def test_hair_bake_refuses_what_it_cannot_do_by_key(tmp_path, key, value):
     asset = write_hair(tmp_path / "t.hair", tangle(20))
     with pytest.raises(SpecError, match=key):
@@ -163,6 +162,24 @@ def test_report_validates_a_hair_bundle_against_the_fibre_path_tracer(bundle):
     assert v["reference"] == "path tracer, 16 spp" and v["lights"] == 1
     row = next(r for r in v["rows"] if r["n"] == 8)
     assert 0 < row["rmse_mean"] < 1 and row["rmse_noise_corrected_mean"] <= row["rmse_mean"]
+
+
+def test_a_hair_bake_validates_itself_against_the_fibre_path_tracer(tmp_path):
+    """validate.reference_spp > 0: the bake path-traces its held-out lights through the
+    fibres and judges the verdict on that, noise removed, against the basis's projection
+    bound on the same references (report.json "validation", the verdict's "against")."""
+    asset = write_hair(tmp_path / "t.hair", tangle(200))
+    spec = {**SPEC, "validate": {"reference_spp": 32, "reference_lights": 2}}
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    report = json.loads((out / "report.json").read_text())
+    v = report["validation"]
+    assert v["spp"] == 32 and v["lights"] == 2
+    row = next(r for r in v["rows"] if r["n"] == report["verdict"]["n"])
+    assert 0 < row["projection_bound_noise_corrected_mean"] <= \
+        row["rmse_noise_corrected_mean"] * 1.05
+    assert "noise removed" in report["verdict"]["against"]
+    assert report["verdict"]["error"] == pytest.approx(row["rmse_noise_corrected_mean"])
+    assert "validate" in report["stage_seconds"]
 
 
 def test_all_bounce_harmonics_bake_and_agree_with_the_first_bounce_variant(tmp_path):
