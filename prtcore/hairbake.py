@@ -229,14 +229,16 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
               exclude: tuple[str, ...] = (), quiet: bool = False, force: bool = False,
               limits: IntakeLimits | None = None, callback: ProgressCallback | None = None,
               source_name: str | None = None, mesh: str | Path | None = None,
-              mesh_intake: Callable | None = None) -> tuple[Path, Method, Any, dict]:
+              mesh_intake: Callable | None = None, validate: Callable | None = None
+              ) -> tuple[Path, Method, Any, dict, dict | None]:
     """hair asset (+ a glTF ``mesh`` baked with it) + spec → bundle ``out``.
     ``run_files(directory, method, result, report, seconds, t_start)`` writes the run's
     report files (the pipeline's), ``exclude`` names them (left out of the checksums).
     ``mesh_intake``: the surface intake the mesh goes through (the pipeline's
     ``run_intake``). With ``validate.reference_spp`` > 0 the bundle is validated against
-    the fibre's path tracer (:func:`prtcore.validate.validate_bundle`: the hair, or hair +
-    mesh, reference) and the verdict judged on it. Returns (out, the method, its result,
+    the fibre's path tracer by ``validate(out, timer)`` (the pipeline's
+    :func:`prtcore.validate.validate_bundle`: the hair, or hair + mesh, reference) and the
+    verdict judged on it. Returns (out, the method, its result,
     the stage seconds, the validation or None) for the caller's summary."""
     inputs_files = (asset,) if mesh is None else (asset, mesh)
     check_output(out, force, inputs=inputs_files)
@@ -325,12 +327,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     with timer.stage("export"):
         out = write_bundle(out, write, force=force, exclude=exclude, inputs=inputs_files)
     validation = None
-    if spec.validate.reference_spp > 0 and len(hold):
-        from prtcore.validate import validate_bundle
-
+    if spec.validate.reference_spp > 0 and len(hold) and validate is not None:
         with timer.stage("validate"):  # the verdict against the fibre path tracer
-            validation = validate_bundle(out, spec.validate.reference_spp,
-                                         count=spec.validate.reference_lights, timer=timer)
+            validation = validate(out, timer)
         result = m.revalidate(result, inputs, validation)
     return out, m, result, dict(timer.seconds), validation
 

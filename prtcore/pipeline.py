@@ -147,7 +147,7 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         out, m, result, seconds, validation = bake_hair(
             asset, spec, out, run_files=_write_run_files, exclude=RUN_FILES, quiet=quiet,
             force=force, limits=limits, callback=callback, source_name=source_name,
-            mesh=mesh, mesh_intake=run_intake)
+            mesh=mesh, mesh_intake=run_intake, validate=_validate(spec))
         _finish_run_files(out, m, result, seconds, validation)
         if not quiet:
             print(m.summary(result, seconds, with_verdict=False))
@@ -247,17 +247,25 @@ def bake(asset: str | Path, spec: BakeSpec, out: Path, *, quiet: bool = False,
         out = write_bundle(out, write, force=force, exclude=RUN_FILES, inputs=(asset,))
     validation = None
     if spec.validate.reference_spp > 0 and len(hold) and m.path_traced_validation:
-        from prtcore.validate import validate_bundle
-
         with timer.stage("validate"):  # the verdict against the path tracer, noise removed
-            validation = validate_bundle(out, spec.validate.reference_spp,
-                                         count=spec.validate.reference_lights, timer=timer)
+            validation = _validate(spec)(out, timer)
         result = m.revalidate(result, inputs, validation)
     seconds = dict(timer.seconds)
     _finish_run_files(out, m, result, seconds, validation)  # export's time, once it ended
     if not quiet:
         print(m.summary(result, seconds, with_verdict=False))
     return out
+
+
+def _validate(spec: BakeSpec):
+    """``validate(bundle, timer)`` → :func:`prtcore.validate.validate_bundle` of the spec's
+    ``validate`` section (the bake's held-out lights against the path tracer)."""
+    def run(bundle: Path, timer) -> dict:
+        from prtcore.validate import validate_bundle
+
+        return validate_bundle(bundle, spec.validate.reference_spp,
+                               count=spec.validate.reference_lights, timer=timer)
+    return run
 
 
 def _write_run_files(directory: Path, m, result, report: dict, seconds: dict[str, float],
