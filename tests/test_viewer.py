@@ -555,6 +555,78 @@ def test_hair_strand_texture_matches_relight(hair_page, tmp_path):
     assert np.abs(lines - ref).max() <= 1e-3 * np.abs(ref).max()
 
 
+def _line_direct(page, bundle: Path, chiang: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(the page's direct light at every line vertex, unshadowed; the same computed here
+    from asset.hair): a diffuse fibre's side facing the eye, albedo/π · E; a Chiang fibre's
+    BCSDF toward the eye averaged over the offset h (8 Gauss–Legendre nodes), times E⊥."""
+    from prtcore.core.bcsdf import scattering
+    from prtcore.core.materials import clamp_albedo
+    from prtcore.core.spec import ChiangSpec
+    from prtcore.io.hair import load_hair
+    from prtcore.receivers.strands import build_strand_space
+    from prtcore.transport.fibre_chiang import chiang_fibre
+
+    eye = np.array([0.0, 0.03, 0.15])
+    page.evaluate("v => prt.setView(v)", {"position": eye.tolist(), "target": [0, 0, 0]})
+    _set_light(page, HAIR_LIGHT)
+    got = np.asarray(page.evaluate("prt.strands()")["direct"]).reshape(-1, 3)
+    hair = load_hair(bundle / "asset.hair")
+    point = np.stack([hair.segment_start, hair.segment_start + 1], axis=1).ravel()
+    seg = np.repeat(hair.segment_start, 2)
+    t = hair.points[seg + 1] - hair.points[seg]
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    p = hair.points[point]
+    to_light = np.asarray(HAIR_LIGHT["position"]) - p
+    dist2 = (to_light ** 2).sum(axis=1)
+    wl = to_light / np.sqrt(dist2)[:, None]
+    e_perp = HAIR_LIGHT["intensity"] * np.asarray(HAIR_LIGHT["color"])[None] / dist2[:, None]
+    wo = (eye - p) / np.linalg.norm(eye - p, axis=1, keepdims=True)
+    if not chiang:
+        n = wo - np.einsum("ij,ij->i", wo, t)[:, None] * t
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        rho = clamp_albedo(hair.color[point])[0]
+        return got, rho / np.pi * e_perp * np.maximum(np.einsum("ij,ij->i", n, wl), 0)[:, None]
+    m = read_manifest(bundle)
+    fibre = chiang_fibre(ChiangSpec(**m["fibre"]["chiang"]),
+                         build_strand_space(hair, m["strands"]["texels_per_strand"]))
+    x, w = np.polynomial.legendre.leggauss(8)
+    s = sum(wk * scattering(t, wo, wl, np.full(len(t), xk), fibre.params,
+                            fibre.sigma_points[point]) for xk, wk in zip(x, w, strict=True))
+    return got, 0.5 * s * e_perp
+
+
+def test_hair_lines_take_the_diffuse_fibre_s_direct_light(hair_page):
+    page, bundle, log = hair_page
+    got, want = _line_direct(page, bundle, chiang=False)
+    assert want.max() > 0 and np.abs(got - want).max() <= 1e-3 * want.max()
+    assert log == []
+
+
+@pytest.fixture(scope="module")
+def chiang_hair_page(browser, tmp_path_factory):
+    """(page, bundle, log): the hair bundle of hair_page baked with the Chiang fibre."""
+    from prtcore.io.hair import write_hair
+    from prtcore.scenes.hair import tangle
+
+    d = tmp_path_factory.mktemp("chiang_hair")
+    spec = {**HAIR_SPEC, "hair": {**HAIR_SPEC["hair"], "fibre": "chiang"}}
+    bundle = pipeline.bake(write_hair(d / "tangle.hair", tangle(200)), parse_spec(spec),
+                           d / "bundle", quiet=True)
+    with served_page(browser, bundle) as (page, log):
+        yield page, bundle, log
+
+
+def test_chiang_hair_lines_take_the_bcsdf_averaged_over_the_fibre_width(chiang_hair_page):
+    """A Chiang fibre's bundle: every line vertex's direct light is the BCSDF toward the eye
+    averaged over h (the GL runtime's chiang.glsl, served to the page) times E⊥, with σ_a
+    per point from the manifest's fibre (the page's copy of sigma_a_from_color), to 1e-3 of
+    prtcore.core.bcsdf.scattering."""
+    page, bundle, log = chiang_hair_page
+    got, want = _line_direct(page, bundle, chiang=True)
+    assert want.max() > 0 and np.abs(got - want).max() <= 1e-3 * want.max()
+    assert log == []
+
+
 def test_hair_is_drawn_as_lines(hair_page):
     """The camera pass draws the strands (lines) in every mode the page offers for hair, the
     measurement points as dots, and full = direct + indirect pixel for pixel; UV layout and

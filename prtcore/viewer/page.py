@@ -14,11 +14,16 @@ from pathlib import Path
 from prtcore.core.errors import PrtError
 
 STATIC = Path(__file__).resolve().parent / "static"
+#: Files of the GL runtime the page also loads, under these static paths: one source for
+#: a shader both renderers run (``shaders/chiang.glsl``: the Chiang fibre's BCSDF).
+SHARED = {"shaders/chiang.glsl":
+          Path(__file__).resolve().parents[1] / "runtime" / "shaders" / "chiang.glsl"}
 
 #: Content types of the static files (module scripts need a JavaScript type).
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                  ".css": "text/css; charset=utf-8", ".json": "application/json",
-                 ".exr": "image/x-exr", ".glb": "model/gltf-binary", ".png": "image/png"}
+                 ".exr": "image/x-exr", ".glb": "model/gltf-binary", ".png": "image/png",
+                 ".glsl": "text/plain; charset=utf-8"}
 
 
 def viewer_content_type(name: str) -> str:
@@ -49,9 +54,11 @@ def static_files() -> frozenset[str]:
     """Relative paths (``/``-separated) of every file the viewer may serve from static/;
     nothing else under that name is served."""
     return frozenset(p.relative_to(STATIC).as_posix() for p in STATIC.rglob("*")
-                     if p.is_file() and p.name != "index.html")
+                     if p.is_file() and p.name != "index.html") | frozenset(SHARED)
 
 
 def viewer_static_path(relative: str) -> Path | None:
     """The file of a static path, or None when it is not one of :func:`static_files`."""
+    if relative in SHARED:
+        return SHARED[relative]
     return STATIC / relative if relative in static_files() else None

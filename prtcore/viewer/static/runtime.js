@@ -12,7 +12,7 @@
 import * as THREE from 'three';
 import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
-import { hairSphere, parseHair, strandGeometry } from './strands.js';
+import { chiangFibre, hairSphere, parseHair, strandGeometry } from './strands.js';
 
 // prtcore/runtime/shadows.py: normal offset and depth bias, in shadow texels at the point.
 export const SHADOW_NORMAL_OFFSET = 1.5;
@@ -136,11 +136,14 @@ export async function loadBundle(base) {
     }
   }
   const hair = hairAsset;
+  const chiang = hair && manifest.fibre && manifest.fibre.chiang
+    ? chiangFibre(manifest.fibre.chiang, hair) : null;
   const { center, radius } = !hair ? boundingSphere(meshes)
     : withMesh ? unionSphere(boundingSphere(meshes), hairSphere(hair)) : hairSphere(hair);
   return {
     manifest, meshes, hair, strands, withMesh, strandBasis,
-    strandGeometry: hair ? strandGeometry(hair) : null, basis, coverage, W, H, flipV: rowOrder === 'top_down',
+    strandGeometry: hair ? strandGeometry(hair, chiang ? chiang.sigma : null) : null,
+    fibreUniforms: chiang ? chiang.uniforms : { u_fibreModel: { value: 0 } }, basis, coverage, W, H, flipV: rowOrder === 'top_down',
     layers: layers.length, planes: manifest.basis.planes,
     planeElement: manifest.basis.plane_element, planeChannel: manifest.basis.plane_channel,
     nBasis: manifest.basis.count, M, b, nB, P, perKeyframe, keyframes, gamma: manifest.fit.gamma,

@@ -153,6 +153,36 @@ vec2 strand_uv(int s, float a) {
 }
 `;
 
+// The Chiang fibre's BCSDF: the GL runtime's own shader (prtcore/runtime/shaders/chiang.glsl,
+// served as static/shaders/chiang.glsl by prtcore/viewer/page.py), not a copy.
+export const CHIANG_GLSL = await (await fetch(new URL('./shaders/chiang.glsl',
+                                                      import.meta.url))).text();
+
+// The direct light on a fibre seen as a line at p (tangent t, eye e): the diffuse cylinder's
+// side facing the eye, albedo/π · E with the radial normal towards the eye
+// (prtcore/runtime/strands.py takes the normal of the tube's hit point; a one-pixel line
+// sees the fibre's middle); for the Chiang fibre (u_fibreModel 1, s the fibre's σ_a) the
+// BCSDF toward the eye averaged over the offset h (a line's pixel covers the fibre's
+// width: 8 Gauss–Legendre nodes), times E⊥ V from the side facing the light.
+export const STRAND_DIRECT_GLSL = `
+uniform int u_fibreModel;
+const float GL_X[8] = float[8](-0.9602898565, -0.7966664774, -0.5255324099, -0.1834346425,
+                               0.1834346425, 0.5255324099, 0.7966664774, 0.9602898565);
+const float GL_W[8] = float[8](0.1012285363, 0.2223810345, 0.3137066459, 0.3626837834,
+                               0.3626837834, 0.3137066459, 0.2223810345, 0.1012285363);
+vec3 strand_direct(vec3 p, vec3 t, vec3 e, vec3 s) {
+  vec3 n = e - dot(e, t) * t;
+  n = dot(n, n) > 0.0 ? normalize(n) : vec3(0.0);
+  if (u_fibreModel != 1) return s / PI * irradiance(p, n, n);
+  vec3 wo = normalize(e), wl = u_lightType == 2 ? -u_lightDir : normalize(u_lightPos - p);
+  vec3 side = wl - dot(wl, t) * t;
+  side = dot(side, side) > 1e-12 ? normalize(side) : n;
+  vec3 bsdf = vec3(0.0);
+  for (int k = 0; k < 8; ++k) bsdf += GL_W[k] * chiang_scattering(t, wo, wl, GL_X[k], s);
+  return 0.5 * bsdf * irradiance(p, wl, side);
+}
+`;
+
 // Strands drawn as lines (THREE.LineSegments of strands.js strandGeometry).
 export const STRAND_VS = `${HEADER}
 uniform mat4 modelMatrix; uniform mat4 viewMatrix; uniform mat4 projectionMatrix;
@@ -165,11 +195,10 @@ void main() {
   gl_Position = projectionMatrix * viewMatrix * wp;
 }`;
 
-// The fibre seen at a line's pixel is the diffuse cylinder's side facing the eye: direct light
-// albedo/π · E with the radial normal towards the eye (prtcore/runtime/strands.py takes the
-// normal of the tube's hit point; a one-pixel line sees the fibre's middle), shadowed by the
-// line shadow maps; indirect from the blended strand texture by the sampling rule.
-export const STRAND_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}${STRAND_GLSL}
+// The fibre seen at a line's pixel: direct light by strand_direct, shadowed by the line
+// shadow maps; indirect from the blended strand texture by the sampling rule.
+export const STRAND_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}${STRAND_GLSL}${CHIANG_GLSL}
+${STRAND_DIRECT_GLSL}
 uniform vec3 u_eye;
 uniform int u_mode;          // MODES of viewer.js (no UV layout or heat map for hair)
 uniform float u_elementScale;
@@ -190,28 +219,36 @@ void main() {
                             : vec4(srgb(max(v, 0.0) + vec3(0.0, 0.0, neg)), 1.0);
     return;
   }
-  vec3 t = normalize(v_tan), e = u_eye - v_pos;
-  vec3 n = e - dot(e, t) * t;
-  n = dot(n, n) > 0.0 ? normalize(n) : vec3(0.0);
   vec3 col = vec3(0.0);
-  if (u_mode != 2) col += v_albedo / PI * irradiance(v_pos, n, n);
+  if (u_mode != 2) col += strand_direct(v_pos, normalize(v_tan), u_eye - v_pos, v_albedo);
   if (u_mode != 1) col += indirect_at(uv);
   f_color = display(col);
 }`;
 
-// Test hook: every strand vertex's indirect (by its strand-texture coordinate) into one
-// pixel of a float target, row by row from the bottom (as the cluster pass).
+// Test hook: every strand vertex's indirect (by its strand-texture coordinate), or with
+// u_probe 1 its direct light as a line pixel there shades it (strand_direct, unshadowed),
+// into one pixel of a float target, row by row from the bottom (as the cluster pass).
 export const STRAND_PROBE_VS = `${HEADER}
+uniform mat4 modelMatrix;
 uniform vec2 u_size;
-in vec3 position; in float s_strand; in float s_arc;
-flat out int v_strand; out float v_arc;
+in vec3 position; in vec3 s_tangent; in vec3 s_albedo; in float s_strand; in float s_arc;
+flat out int v_strand; out float v_arc; out vec3 v_pos; out vec3 v_tan; out vec3 v_albedo;
 void main() {
   v_strand = int(s_strand + 0.5); v_arc = s_arc;
+  v_pos = (modelMatrix * vec4(position, 1.0)).xyz; v_tan = mat3(modelMatrix) * s_tangent;
+  v_albedo = s_albedo;
   int row = gl_VertexID / int(u_size.x);
   vec2 px = vec2(float(gl_VertexID - row * int(u_size.x)), float(row)) + 0.5;
   gl_Position = vec4(px / u_size * 2.0 - 1.0, 0.0, 1.0);
   gl_PointSize = 1.0;
 }`;
-export const STRAND_PROBE_FS = `${HEADER}${BLEND_GLSL}${STRAND_GLSL}
-flat in int v_strand; in float v_arc; out vec4 f_color;
-void main() { f_color = vec4(indirect_at(strand_uv(v_strand, v_arc)), 1.0); }`;
+export const STRAND_PROBE_FS = `${HEADER}${LIGHTS_GLSL}${BLEND_GLSL}${STRAND_GLSL}${CHIANG_GLSL}
+${STRAND_DIRECT_GLSL}
+uniform vec3 u_eye;
+uniform int u_probe;
+flat in int v_strand; in float v_arc; in vec3 v_pos; in vec3 v_tan; in vec3 v_albedo;
+out vec4 f_color;
+void main() {
+  f_color = vec4(u_probe == 1 ? strand_direct(v_pos, normalize(v_tan), u_eye - v_pos, v_albedo)
+                              : indirect_at(strand_uv(v_strand, v_arc)), 1.0);
+}`;

@@ -46,11 +46,38 @@ export function parseHair(buf, name = 'asset.hair') {
   return { strands, count, points, offsets, color };
 }
 
+// The Chiang fibre of a bundle (manifest.fibre.chiang, docs/hair.md) as the viewer's
+// shader needs it: σ_a per point (prtcore.core.bcsdf sigma_a_from_melanin, or
+// sigma_a_from_color of the point's colour read as the hair volume's) and the uniforms of
+// chiang.glsl (ChiangParams.variances, logistic_scale, the tilt in radians, the IOR).
+const EUMELANIN = [0.419, 0.697, 1.37], PHEOMELANIN = [0.187, 0.4, 1.05];
+export function chiangFibre(chiang, hair) {
+  const bm = chiang.beta_m, bn = chiang.beta_n;
+  const v0 = (0.726 * bm + 0.812 * bm * bm + 3.7 * bm ** 20) ** 2;
+  const s = Math.sqrt(Math.PI / 8) * (0.265 * bn + 1.194 * bn * bn + 5.372 * bn ** 22);
+  const sigma = new Float32Array(3 * hair.count);
+  const d = 5.969 - 0.215 * bn + 2.532 * bn ** 2 - 10.73 * bn ** 3 + 5.574 * bn ** 4
+    + 0.245 * bn ** 5;
+  for (let i = 0; i < hair.count; i++) {
+    for (let c = 0; c < 3; c++) {
+      sigma[3 * i + c] = chiang.eumelanin === null || chiang.eumelanin === undefined
+        ? (Math.log(Math.min(Math.max(hair.color[3 * i + c], 1e-4), 1)) / d) ** 2
+        : chiang.eumelanin * EUMELANIN[c] + (chiang.pheomelanin ?? 0) * PHEOMELANIN[c];
+    }
+  }
+  return { sigma, uniforms: {
+    u_fibreModel: { value: 1 },
+    chiang_v: { value: new THREE.Vector4(v0, 0.25 * v0, 4 * v0, 4 * v0) },
+    chiang_s: { value: s }, chiang_alpha: { value: chiang.alpha_deg * Math.PI / 180 },
+    chiang_eta: { value: chiang.eta } } };
+}
+
 // The strands as THREE.LineSegments geometry (two vertices per segment): position, s_strand
 // (strand index), s_arc (arc length from the root / the strand's length, float64 sums as
 // prtcore.core.hair), s_tangent (the segment's unit direction), s_albedo (the fibre colour
-// clamped to [0, 0.99] as prtcore.core.materials.clamp_albedo).
-export function strandGeometry(hair) {
+// clamped to [0, 0.99] as prtcore.core.materials.clamp_albedo, or for the Chiang fibre
+// ``sigma`` (3 per point): its σ_a).
+export function strandGeometry(hair, sigma = null) {
   const { strands, points, offsets, color } = hair;
   const segs = offsets[strands] - strands;
   const pos = new Float32Array(6 * segs), tan = new Float32Array(6 * segs);
@@ -74,7 +101,8 @@ export function strandGeometry(hair) {
         for (let c = 0; c < 3; c++) {
           pos[3 * o + c] = points[3 * p + c];
           tan[3 * o + c] = ln > 0 ? d[c] / ln : (c === 1 ? 1 : 0);
-          alb[3 * o + c] = Math.min(Math.max(color[3 * p + c], 0), 0.99);
+          alb[3 * o + c] = sigma ? sigma[3 * p + c]
+            : Math.min(Math.max(color[3 * p + c], 0), 0.99);
         }
         sid[o] = s;
         arc[o] = length > 0 ? cum[p - a] / length : 0;

@@ -104,7 +104,8 @@ async function main() {
   } : view;
   if (bundle.hair) {  // hair: the strands as lines sampling the strand texture
     const lines = new THREE.LineSegments(bundle.strandGeometry, new THREE.RawShaderMaterial({
-      glslVersion: THREE.GLSL3, defines, uniforms: { ...pass.uniforms, ...strandView },
+      glslVersion: THREE.GLSL3, defines,
+      uniforms: { ...pass.uniforms, ...strandView, ...bundle.fibreUniforms },
       vertexShader: STRAND_VS, fragmentShader: STRAND_FS }));
     lines.frustumCulled = false;
     scene.add(lines);
@@ -115,17 +116,20 @@ async function main() {
   function makeStrandProbe() {
     const n = bundle.strandGeometry.attributes.position.count, cols = 256;
     const rows = Math.ceil(n / cols);
+    const probe = { value: 0 };
     const target = new THREE.WebGLRenderTarget(cols, rows, {
       type: THREE.FloatType, format: THREE.RGBAFormat, depthBuffer: false,
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter });
     const points = new THREE.Points(bundle.strandGeometry, new THREE.RawShaderMaterial({
       glslVersion: THREE.GLSL3, defines, depthTest: false, depthWrite: false,
-      uniforms: { ...strandView, u_output: { value: 0 },
+      uniforms: { ...pass.uniforms, ...strandView, ...bundle.fibreUniforms,
+                  u_output: { value: 0 }, u_probe: probe, u_useShadows: { value: 0 },
                   u_size: { value: new THREE.Vector2(cols, rows) } },
       vertexShader: STRAND_PROBE_VS, fragmentShader: STRAND_PROBE_FS }));
     points.frustumCulled = false;
     const probeScene = new THREE.Scene().add(points), raw = new Float32Array(4 * cols * rows);
-    return () => {
+    return (what = 0) => {
+      probe.value = what;
       renderer.setRenderTarget(target);
       renderer.setClearColor(0x000000, 0);
       renderer.clear(true, false, false);
@@ -469,12 +473,15 @@ async function main() {
     // the indirect lightmap (H, W, 4) float, row 0 at the top, A = coverage
     atlas() { return Array.from(readAtlas()); },
     // hair bundles: the indirect (v, 3) that the lines read at their vertices (two per
-    // segment, strands in file order), and those vertices' (strand, arc fraction) (v, 2)
+    // segment, strands in file order), the direct light a line pixel would take there
+    // (v, 3; unshadowed), and those vertices' (strand, arc
+    // fraction) (v, 2)
     strands() {
       if (!strandProbe) return null;
       const a = bundle.strandGeometry.attributes, n = a.s_strand.count, coord = new Float64Array(2 * n);
       for (let i = 0; i < n; i++) { coord[2 * i] = a.s_strand.array[i]; coord[2 * i + 1] = a.s_arc.array[i]; }
-      return { indirect: Array.from(strandProbe()), coord: Array.from(coord) };
+      return { indirect: Array.from(strandProbe(0)), direct: Array.from(strandProbe(1)),
+               coord: Array.from(coord) };
     },
   });
 
