@@ -76,7 +76,7 @@ DOCS: dict[str, str] = {
                    "colour for every strand",
     "hair.fibre": "`diffuse` (Lambertian fibre, radially averaged) · `chiang` (the "
                   "Chiang et al. 2016 hair BCSDF, parameters in `hair.chiang`; point, "
-                  "spot and directional lights)",
+                  "spot, directional and environment lights)",
     "hair.chiang": "the Chiang fibre's parameters (`hair.chiang` below)",
     "chiang.eumelanin": "eumelanin concentration (0 blond … 8 black), 0–50, or null: "
                         "σ_a from the fibre colour read as the hair volume's colour",
@@ -87,7 +87,9 @@ DOCS: dict[str, str] = {
     "chiang.eta": "index of refraction of the fibre, 1–3",
     "chiang.exitance": "`isotropic` (transport carries each texel's direction-averaged "
                        "outgoing radiance, the paper's) · `linear` (plus a linear function "
-                       "of direction: 16× the operator, docs/hair.md)",
+                       "of direction: 16× the operator, docs/hair.md) · `quadratic` (plus "
+                       "cos² θ (cos 2φ, sin 2φ)); `linear` and `quadratic` are for hair "
+                       "alone, a bake with a `--mesh` refuses them",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `all_bounces` for hair baked "
                       "with a mesh) · `first_bounce` (the direct light's first azimuthal "
                       "harmonic in the first bounce) · `all_bounces` (every texel's mean, "
