@@ -15,12 +15,15 @@ colour) and dark hair (eumelanin 1.3):
   error;
 * ``exact_1``: the first bounce alone against the exact reference;
 * ``model_1``: the first bounce against the reference that makes the same isotropic
-  assumption at every fibre hit (``exitance="isotropic"``) — the transport's own error.
+  assumption at every fibre hit (``exitance="isotropic"``) — the transport's own error;
+* with ``--exitance linear quadratic``: the same rows for those exitances (``linear:exact``
+  …), whose ``model_1`` reference weights each fibre hit by the projection's kernel.
 
 Printed and written to benchmarks/results/hair_mesh_chiang_accuracy.json.
 
 Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 256]
        [--paths 4096] [--texels 300] [--resolution 32] [--texels-per-strand 8]
+       [--exitance isotropic linear quadratic]
 """
 
 from __future__ import annotations
@@ -63,6 +66,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--texels-per-strand", type=int, default=8)
     ap.add_argument("--samples", type=int, default=8, help="direct samples J")
+    ap.add_argument("--exitance", nargs="+", default=["isotropic"],
+                    choices=["isotropic", "linear", "quadratic"],
+                    help="hair.chiang.exitance variants (each row prefixed by its name "
+                         "when not isotropic)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_accuracy.json"))
     args = ap.parse_args(argv)
@@ -80,15 +87,18 @@ def main(argv: list[str] | None = None) -> dict:
                            np.sort(t_m + rng.choice(space.count, n_h, replace=False))])
     out: dict = {"args": vars(args), "texels": {"mesh": t_m, "strands": space.count},
                  "results": {}}
-    for name, chiang in HAIRS.items():
+    for (name, chiang), model in ((h, e) for h in HAIRS.items() for e in args.exitance):
         fibre = chiang_fibre(chiang, space)
+        prefix = "" if model == "isotropic" else f"{model}:"
         for row, bounces, exitance in (("exact", 64, "exact"), ("exact_1", 1, "exact"),
-                                       ("model_1", 1, "isotropic")):
+                                       ("model_1", 1, model)):
+            row = prefix + row
             t0 = time.perf_counter()
             data = bake_chiang_hair_mesh_dataset(
                 scene, texels, space, fibres, points, tracer, LIGHTS, (),
                 TransportSpec(gather_rays=args.rays, direct_samples=args.samples, seed=0,
-                              max_bounces=bounces), StageTimer(quiet=True), fibre)
+                              max_bounces=bounces), StageTimer(quiet=True), fibre,
+                exitance=model)
             t1 = time.perf_counter()
             a, b = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS,
                                               rows, args.paths, 101, fibre.params,
@@ -100,7 +110,7 @@ def main(argv: list[str] | None = None) -> dict:
             for part, sl in (("mesh", slice(0, n_m)), ("hair", slice(n_m, None))):
                 res[part] = noise_corrected_error(fast[sl], a[sl], b[sl])
                 e = res[part]
-                print(f"{name:5s} {row:8s} {part}: rRMSE {e['rrmse']:.3f}  bias "
+                print(f"{name:5s} {row:18s} {part}: rRMSE {e['rrmse']:.3f}  bias "
                       f"{e['bias']:+.3f} ± {e['bias_se']:.3f}")
             out["results"][f"{name}/{row}"] = res
     path = Path(args.out)

@@ -125,11 +125,6 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.measurement_points.placement == "qdeim":
         raise SpecError("measurement_points.placement", "hair bakes place their points "
                         "on the hull of the hair ('surface' and 'hull' both mean that)")
-    if spec.hair.fibre == "chiang" and with_mesh and spec.hair.chiang.exitance != "isotropic":
-        raise SpecError("hair.chiang.exitance", f"{spec.hair.chiang.exitance!r} exitance is "
-                        "baked for hair alone; with a --mesh the Chiang fibre carries the "
-                        "isotropic exitance (the mesh's rays would have to read every "
-                        "fibre's exitance toward them)")
     if spec.hair.fibre == "chiang" and spec.lights.count == "auto":
         spec = dataclasses.replace(spec, lights=dataclasses.replace(
             spec.lights, count=CHIANG_FIXED_LIGHTS))
@@ -213,9 +208,11 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if mesh_texels:
         est += estimate_bake_bytes(mesh_texels, k, spec.transport, ("surface",)) \
             + (mesh_texels + (3 if everything else 1) * t) * k * 12
-        if spec.hair.fibre == "chiang":  # the mesh rows again, as rays of the product
+        if spec.hair.fibre == "chiang":  # the mesh rows again, as rays of the product,
+            # and with F > 1 coefficients their stacked rows in the solve
+            f = EXITANCE_TERMS[spec.hair.chiang.exitance]
             est += mesh_texels * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
-                "isotropic"]
+                spec.hair.chiang.exitance] + (2 * f * mesh_texels * k * 12 if f > 1 else 0)
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels"
                             + (f", {mesh_texels} atlas texels" if mesh_texels else "")
@@ -275,7 +272,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     elif fibre is not None:
         data = bake_chiang_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres,
                                              intake.points, tracer, train, hold,
-                                             spec.transport, timer, fibre)
+                                             spec.transport, timer, fibre,
+                                             exitance=spec.hair.chiang.exitance)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,

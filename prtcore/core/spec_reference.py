@@ -88,8 +88,7 @@ DOCS: dict[str, str] = {
     "chiang.exitance": "`isotropic` (transport carries each texel's direction-averaged "
                        "outgoing radiance, the paper's) · `linear` (plus a linear function "
                        "of direction: 16× the operator, docs/hair.md) · `quadratic` (plus "
-                       "cos² θ (cos 2φ, sin 2φ)); `linear` and `quadratic` are for hair "
-                       "alone, a bake with a `--mesh` refuses them",
+                       "cos² θ (cos 2φ, sin 2φ)); with a `--mesh` too",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `all_bounces` for hair baked "
                       "with a mesh) · `first_bounce` (the direct light's first azimuthal "
                       "harmonic in the first bounce) · `all_bounces` (every texel's mean, "

@@ -36,7 +36,13 @@ from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
-from prtcore.reference.chiang import facing, fibre_nee, random_radial
+from prtcore.reference.chiang import (
+    EXITANCE_ORDERS,
+    facing,
+    fibre_nee,
+    projection_kernel,
+    random_radial,
+)
 from prtcore.reference.fibres import (
     cosine_about,
     fibre_vertices,
@@ -147,8 +153,10 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     to continue), every mesh vertex this module's Lambertian one. A strand texel's value
     is its direction-averaged exitance L̄ (a view direction with density cos θo / π²), a
     mesh texel's ρ/π · E_ind. ``params``, ``sigma_points`` (p, 3): the fibre, as for
-    ``chiang_reference``; ``exitance = "isotropic"`` shades every fibre hit toward a
-    fresh view direction instead (the fast path's model, for one-bounce checks).
+    ``chiang_reference``; ``exitance`` "isotropic", "linear" or "quadratic" shades every
+    fibre hit toward a fresh view direction weighted by that model's projection kernel
+    instead (:func:`prtcore.reference.chiang.projection_kernel`: the fast path's model,
+    for one-bounce checks).
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
     rows = np.asarray(rows, dtype=np.int64)
     hair = space.hair
@@ -223,8 +231,12 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                 pos[v] = a0 + t[:, None] * ax
                 radius[v] = (1 - t) * off[p0] + t * off[p0 + 1]
                 sigma[v] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
-                wo[v] = -d[fi] if exitance == "exact" else cosine_about(
-                    random_radial(tangent[v], rng), rng)
+                if exitance == "exact":
+                    wo[v] = -d[fi]
+                else:  # the fast path's model: a fresh view, weighted by its kernel
+                    wo[v] = cosine_about(random_radial(tangent[v], rng), rng)
+                    beta[v] *= projection_kernel(tangent[v], wo[v], -d[fi],
+                                                 EXITANCE_ORDERS[exitance])[:, None]
                 geo[v] = 0.0
                 np.add.at(acc, owner[v], fibre_nee(
                     lights, tracer, params, beta[v], pos[v], tangent[v], radius[v], wo[v],

@@ -138,8 +138,9 @@ def _second_order(w: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarr
     return a * a - b * b, 2 * a * b
 
 
-def _weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray, sigma: np.ndarray,
-             exitance: str, frame: tuple | None = None) -> np.ndarray:
+def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
+                     sigma: np.ndarray, exitance: str, frame: tuple | None = None
+                     ) -> np.ndarray:
     """Per incident direction w (n, 3) at fibres of tangents (n, 3) and absorption σ
     (n, 3): the weights that turn light arriving from w (with density cos θ / π²) into the
     exitance coefficients, (F, n, 3): F = 1, Ā (isotropic); F = 4, Ā then the world
@@ -163,7 +164,7 @@ def _weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray, sigma: np.
     return np.concatenate(out)
 
 
-def _reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
+def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
     """What a ray toward d (n, 3) reads of each coefficient of the fibre it hits (frames
     (u, v) (n, 3) of the texels hit, for the second-order terms): 1, −d, then
     cos² θ (cos 2φ, sin 2φ) of −d."""
@@ -205,7 +206,7 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
         out = None
         for k, light in enumerate(lights_):
             _, to_light, _ = unshadowed_irradiance(light, pts, tg)
-            w = _weights(fibre.albedo, tg, to_light, sig, exitance, frame)
+            w = exitance_weights(fibre.albedo, tg, to_light, sig, exitance, frame)
             if out is None:
                 out = np.empty((len(w), n * j, len(lights_), 3), dtype=np.float32)
             out[:, :, k] = w
@@ -242,7 +243,7 @@ def _environment_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[
         s = d.shape[1]
         frame = None if frames is None else tuple(np.repeat(f[idx], j * s, axis=0)
                                                   for f in frames)
-        w = _weights(fibre.albedo, np.repeat(tangent[idx].reshape(-1, 3), s, axis=0),
+        w = exitance_weights(fibre.albedo, np.repeat(tangent[idx].reshape(-1, 3), s, axis=0),
                      d.reshape(-1, 3), np.repeat(fibre.sigma_texels[idx], j * s, axis=0),
                      exitance, frame)  # (F, n J S, 3)
         w = (w.reshape(len(w), len(idx), j * s, 3)
@@ -271,13 +272,16 @@ def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_f
                         mesh_columns=mesh_columns)
 
 
-def ray_albedo(fibre: ChiangFibre, rows: np.ndarray, data: np.ndarray) -> np.ndarray:
-    """The directional albedo Ā(t·d, σ) (n, 3) float64 of gather rays from strand texels
-    ``rows`` (n,) with :func:`chiang_gather`'s ``data`` (n, 6): the isotropic exitance's
-    weight of each ray (:func:`_weights`)."""
+def ray_weights(fibre: ChiangFibre, rows: np.ndarray, data: np.ndarray,
+                exitance: str = "isotropic", frames: tuple | None = None) -> np.ndarray:
+    """The exitance weights (F, n, 3) float64 (:func:`exitance_weights`; F = 1: the
+    directional albedo Ā(t·d, σ)) of gather rays from strand texels ``rows`` (n,) with
+    :func:`chiang_gather`'s ``data`` (n, 6); ``frames``: :func:`texel_frames` of the
+    texels, for quadratic exitance."""
     data = np.asarray(data, dtype=np.float64)
-    return _weights(fibre.albedo, data[:, 3:6], data[:, :3], fibre.sigma_texels[rows],
-                    "isotropic")[0]
+    frame = None if frames is None else (frames[0][rows], frames[1][rows])
+    return exitance_weights(fibre.albedo, data[:, 3:6], data[:, :3],
+                            fibre.sigma_texels[rows], exitance, frame)
 
 
 def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, rays: int,
@@ -285,19 +289,19 @@ def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, ray
                     ) -> tuple[RayBlockProduct, np.ndarray]:
     """``solve_indirect``'s (product, albedo) for the gather on the exitance coefficients,
     W_c (FT, FT) per channel c, matrix-free (:class:`prtcore.core.sparse.RayBlockProduct`):
-    row block a of the receiving texel takes each ray's weight a (:func:`_weights` of its
+    row block a of the receiving texel takes each ray's weight a (:func:`exitance_weights` of its
     direction, the receiving texel's σ) times column block b of the texel hit, read toward
     the ray (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its second-order
-    terms at −d, :func:`_reads`), over M. The solver computes ``L = ρ ∘ W'(L_d + L)``;
+    terms at −d, :func:`exitance_reads`), over M. The solver computes ``L = ρ ∘ W'(L_d + L)``;
     with ``W' = 2 W`` and ρ = 1/2 (below its albedo clamp) that is ``L = W (L_d + L)``."""
     rows, cols, data = term.rays
     t = space.count
     d, tangent = data[:, :3].astype(np.float64), data[:, 3:6].astype(np.float64)
     frames = texel_frames(space) if exitance == "quadratic" else None
-    w = _weights(fibre.albedo, tangent, d, fibre.sigma_texels[rows], exitance,
+    w = exitance_weights(fibre.albedo, tangent, d, fibre.sigma_texels[rows], exitance,
                  None if frames is None else (frames[0][rows], frames[1][rows]))  # (F, n, 3)
     f = len(w)
-    read = _reads(d, None if frames is None else (frames[0][cols], frames[1][cols]), f)
+    read = exitance_reads(d, None if frames is None else (frames[0][cols], frames[1][cols]), f)
     weight = np.moveaxis(w, 0, 1) * (2.0 / rays)  # (n, F, 3)
     product = RayBlockProduct(rows, cols, weight, np.stack(read, axis=1), t, threads)
     return product, np.full((f * t, 3), 0.5)

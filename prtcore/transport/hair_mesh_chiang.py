@@ -1,24 +1,25 @@
-"""The transport of a hair + mesh bake with the Chiang fibre (``hair.fibre = "chiang"``,
-isotropic exitance): :mod:`prtcore.transport.hair_mesh`'s four blocks with the fibre rows
-of :mod:`prtcore.transport.fibre_chiang`.
+"""The transport of a hair + mesh bake with the Chiang fibre (``hair.fibre = "chiang"``):
+:mod:`prtcore.transport.hair_mesh`'s four blocks with the fibre rows of
+:mod:`prtcore.transport.fibre_chiang`.
 
 Receivers are numbered mesh first, as in :mod:`prtcore.transport.hair_mesh`: rows
 [0, T_m) the atlas texels, rows [T_m, T_m + T_h) the strand texels, which store the
 fibre's direction-averaged exitance L̄ (:mod:`prtcore.core.bcsdf`). The operator::
 
     W = | G_mm  G_mh |   mesh rows: the surface gather's rays; a ray that hits a fibre reads
-        | W_hm  W_hh |   its texel's L̄ (the isotropic exitance, as fibre → fibre)
+        | W_hm  W_hh |   its exitance toward the ray (isotropic: the texel's L̄; linear:
+                         c0 − c·d; quadratic: plus its second-order terms)
                          strand rows: the fibre gather's rays, each weighted by the fibre's
-                         directional albedo Ā(t·d, σ) per channel — toward another fibre
-                         (W_hh, as for hair alone) or toward the front of the mesh (W_hm:
-                         the mesh is Lambertian, so its texel's value is exact for any
-                         direction)
+                         exitance weights of its direction per channel (isotropic: the
+                         directional albedo Ā(t·d, σ)) — toward another fibre (W_hh, as for
+                         hair alone) or toward the front of the mesh (W_hm: the mesh is
+                         Lambertian, so its texel's value is exact for any direction)
 
+over the F exitance coefficients of every receiver (an atlas texel uses the first),
 applied matrix-free from the rays (one :class:`~prtcore.core.sparse.RayBlockProduct` over
-T_m + T_h rows, F = 1) and solved by :func:`prtcore.transport.solve.solve_indirect`'s
-Neumann series. The near field of both gathers is corrected in the first bounce (the fibre
-rays' corrections weighted by their Ā). Linear and quadratic exitance are for hair alone:
-the mesh rows would have to read every fibre's exitance toward the ray.
+T_m + T_h texels) and solved by :func:`prtcore.transport.solve.solve_indirect`'s Neumann
+series. The near field of both gathers is corrected in the first bounce (the fibre rays'
+corrections weighted by their exitance weights).
 """
 
 from __future__ import annotations
@@ -40,51 +41,112 @@ from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_point
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import MeshHits
 from prtcore.transport.fibre_chiang import (
+    EXITANCE_TERMS,
     ChiangFibre,
     chiang_direct,
     chiang_gather,
-    ray_albedo,
+    exitance_reads,
+    ray_weights,
+    texel_frames,
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
 from prtcore.transport.solve import solve_indirect
 
 
-def chiang_mesh_product(mesh_rows, term_rays: tuple, hits: MeshHits, fibre: ChiangFibre,
-                        t_m: int, t_h: int, rays: int, threads: int) -> RayBlockProduct:
-    """The operator W (see the module docstring) over the T_m + T_h receivers. mesh_rows:
-    the surface gather's (T_m, T_m + T_h) CSR; term_rays: the fibre gather's rays to
-    fibres (rows, cols, data (n, 6): direction, tangent at the origin); hits: its rays to
-    the mesh, with the same data. Strand rows take weight 2 Ā / M per channel (the solver's
-    albedo is 1/2 there, as in :func:`prtcore.transport.fibre_chiang.chiang_operator`)."""
-    coo = mesh_rows.tocoo()
-    order = np.lexsort((coo.col, coo.row))
-    m_rows, m_cols = coo.row[order].astype(np.int64), coo.col[order].astype(np.int64)
-    m_w = np.repeat(coo.data[order].astype(np.float32)[:, None], 3, axis=1)
+class StrandRays(StrandHits):
+    """:class:`~prtcore.transport.hair_mesh.StrandHits` that also keeps every ray's
+    direction: the mesh rows read a hit fibre's exitance toward the ray."""
+
+    def __init__(self, space: StrandSpace, fibres: FibreMesh, first: int, seed: int):
+        super().__init__(space, fibres, first, seed)
+        self._directions: dict[int, np.ndarray] = {}
+
+    def __call__(self, batch, rows, triangle, barycentric, direction):
+        texel = super().__call__(batch, rows, triangle, barycentric, direction)
+        with self._lock:
+            self._directions[batch] = np.asarray(direction, np.float32)
+        return texel
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every ray that hit a fibre, in batch order: receiving atlas texel (n,) int64,
+        strand texel hit (n,) int64, direction (n, 3) float64."""
+        keys = sorted(self._parts)
+        if not keys:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+        return (np.concatenate([self._parts[k][0] for k in keys]).astype(np.int64),
+                np.concatenate([self._parts[k][1] for k in keys]).astype(np.int64),
+                np.concatenate([self._directions[k] for k in keys]).astype(np.float64))
+
+
+def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
+                        term_rays: tuple, hits: MeshHits, fibre: ChiangFibre, t_m: int,
+                        t_h: int, rays: int, threads: int, exitance: str = "isotropic",
+                        frames: tuple | None = None) -> RayBlockProduct:
+    """The operator W (see the module docstring) over the F coefficients of the T_m + T_h
+    receivers (row ``r + a (T_m + T_h)``; an atlas texel uses coefficient 0 only).
+
+    mesh_rows: the surface gather's (T_m, T_m + T_h) CSR, whose atlas columns are kept;
+    strand_rays: its rays to fibres (:meth:`StrandRays.rays`), each weighing 1/M_valid of
+    its row (``valid_rays`` (T_m,)) and reading the fibre's exitance toward it
+    (:func:`~prtcore.transport.fibre_chiang.exitance_reads`); term_rays: the fibre gather's
+    rays to fibres (rows, cols, data (n, 6): direction, tangent at the origin); hits: its
+    rays to the mesh, with the same data. Strand rows take the exitance weights × 2 / M
+    per channel (the solver's albedo is 1/2 there, as in
+    :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
+    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (quadratic)."""
+    f = EXITANCE_TERMS[exitance]
+    t = t_m + t_h
+    coo = mesh_rows.tocsc()[:, :t_m].tocoo()  # atlas → atlas: one value each way
+    mm = (coo.row.astype(np.int64), coo.col.astype(np.int64),
+          np.repeat(coo.data.astype(np.float64)[:, None], 3, axis=1))
+    s_rows, s_texel, s_dir = strand_rays
+    s_frames = None if frames is None else (frames[0][s_texel], frames[1][s_texel])
+    mh_read = np.stack(exitance_reads(s_dir, s_frames, f), axis=1)
+    mh_w = np.repeat((1.0 / np.maximum(valid_rays[s_rows], 1))[:, None], 3, axis=1)
     f_rows, f_cols, f_data = term_rays
-    h_rows = np.concatenate([np.asarray(f_rows, np.int64), hits.row])
-    h_cols = np.concatenate([np.asarray(f_cols, np.int64) + t_m, hits.col])
-    h_data = np.concatenate([f_data, hits.data if hits.data is not None
-                             else np.zeros((0, f_data.shape[1]), np.float32)])
-    h_w = ray_albedo(fibre, h_rows, h_data) * np.float32(2.0 / rays)
-    by_row = np.argsort(h_rows, kind="stable")
-    rows = np.concatenate([m_rows, h_rows[by_row] + t_m])
-    cols = np.concatenate([m_cols, h_cols[by_row]])
-    weight = np.concatenate([m_w, h_w[by_row].astype(np.float32)])[:, None, :]
-    return RayBlockProduct(rows, cols, weight, np.ones((len(rows), 1), np.float32),
-                           t_m + t_h, threads)
+    f_rows = np.asarray(f_rows, np.int64)
+    hh_read = np.stack(exitance_reads(f_data[:, :3].astype(np.float64), None if frames is None
+                                      else (frames[0][f_cols], frames[1][f_cols]), f), axis=1)
+    m_data = hits.data if hits.data is not None else np.zeros((0, 6), np.float32)
+    parts = []  # (rows, cols, weight (n, F, 3), read (n, F))
+
+    def first_only(w3: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(w3), f, 3))
+        out[:, 0] = w3
+        return out
+
+    unit = np.zeros((1, f))
+    unit[0, 0] = 1.0
+    parts.append((mm[0], mm[1], first_only(mm[2]), np.repeat(unit, len(mm[0]), axis=0)))
+    parts.append((s_rows, s_texel + t_m, first_only(mh_w), mh_read))
+    scale = 2.0 / rays
+    parts.append((f_rows + t_m, np.asarray(f_cols, np.int64) + t_m,
+                  np.moveaxis(ray_weights(fibre, f_rows, f_data, exitance, frames), 0, 1)
+                  * scale, hh_read))
+    parts.append((hits.row + t_m, hits.col,
+                  np.moveaxis(ray_weights(fibre, hits.row, m_data, exitance, frames), 0, 1)
+                  * scale, np.repeat(unit, len(hits.row), axis=0)))
+    rows = np.concatenate([p[0] for p in parts])
+    order = np.argsort(rows, kind="stable")
+    return RayBlockProduct(rows[order], np.concatenate([p[1] for p in parts])[order],
+                           np.concatenate([p[2] for p in parts])[order],
+                           np.concatenate([p[3] for p in parts])[order], t, threads)
 
 
 def chiang_hair_near_field(hits: MeshHits, texels: TexelSpace, fibre: ChiangFibre,
-                           t_m: int, reach: float, rays: int) -> NearField:
-    """:func:`prtcore.transport.hair_mesh.hair_near_field` for the Chiang fibre: the fibre
-    gather's mesh hits within ``reach`` footprints, each weighted per channel by its ray's
-    2 Ā / M (the strand rows' weights in :func:`chiang_mesh_product`)."""
+                           t_m: int, t_h: int, reach: float, rays: int,
+                           exitance: str = "isotropic", frames: tuple | None = None
+                           ) -> list[NearField]:
+    """:func:`prtcore.transport.hair_mesh.hair_near_field` for the Chiang fibre, one per
+    exitance coefficient a: the fibre gather's mesh hits within ``reach`` footprints at
+    rows ``T_m + i + a (T_m + T_h)``, each weighted per channel by its ray's coefficient-a
+    weight × 2 / M (the strand rows' weights in :func:`chiang_mesh_product`)."""
     close = np.flatnonzero(hits.t < near_field_reach(texels, reach)[hits.col])
-    w = ray_albedo(fibre, hits.row[close], hits.data[close]) * np.float32(2.0 / rays)
-    return NearField(row=t_m + hits.row[close], col=hits.col[close],
-                     triangle=hits.triangle[close], barycentric=hits.barycentric[close],
-                     weight=w.astype(np.float32))
+    w = ray_weights(fibre, hits.row[close], hits.data[close], exitance, frames) * (2.0 / rays)
+    return [NearField(row=t_m + hits.row[close] + a * (t_m + t_h), col=hits.col[close],
+                      triangle=hits.triangle[close], barycentric=hits.barycentric[close],
+                      weight=w[a].astype(np.float32)) for a in range(len(w))]
 
 
 def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
@@ -92,29 +154,40 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   tracer: RayTracer, lights_train: Sequence[Light],
                                   lights_holdout: Sequence[Light], spec: TransportSpec,
                                   timer: StageTimer, fibre: ChiangFibre,
-                                  hair_near: float | None = None) -> Dataset:
+                                  hair_near: float | None = None,
+                                  exitance: str = "isotropic") -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
-    fibre's bake; the hair's direct light is :func:`chiang_direct`'s."""
+    fibre's bake; the hair's direct light is :func:`chiang_direct`'s. ``exitance``
+    (``hair.chiang.exitance``): what transport carries of every strand texel's outgoing
+    radiance; with "linear" or "quadratic" the solve runs over F (T_m + T_h) rows, the
+    atlas texels' extra coefficients zero, and the few texels whose truncated exitance
+    dips below zero are clamped and counted."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
+    strands = StrandRays(space, fibres, f, spec.seed)
     gather = gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
                              near_field=spec.near_field, direct_samples=spec.direct_samples,
-                             foreign=StrandHits(space, fibres, f, spec.seed))
+                             foreign=strands)
+    n_f = EXITANCE_TERMS[exitance]
+    frames = texel_frames(space) if exitance == "quadratic" else None
+    t = t_m + t_h
     r1 = tracer.rays_traced
     with timer.stage("fibre gather"):
         term = chiang_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed, fibre,
                              mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
-        product = chiang_mesh_product(gather.matrix, term.rays, term.mesh_hits, fibre, t_m,
-                                      t_h, spec.gather_rays, tracer.threads)
+        product = chiang_mesh_product(gather.matrix, strands.rays(), gather.valid_rays,
+                                      term.rays, term.mesh_hits, fibre, t_m, t_h,
+                                      spec.gather_rays, tracer.threads, exitance, frames)
+        del strands
     r2 = tracer.rays_traced
     fibre_stats, hits = term.stats, term.mesh_hits
     del term
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     r3 = tracer.rays_traced
-    direct = np.empty((t_m + t_h, len(lights), 3), dtype=np.float32)
+    direct = np.zeros((n_f * t, len(lights), 3), dtype=np.float32)
     with timer.stage("direct texels"):
         direct[:t_m] = direct_radiance(scene, tracer, lights, gather.direct_position,
                                        texels.normal, texels.albedo, timer, "direct texels")
@@ -126,21 +199,31 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                           timer)
         reach = spec.near_field if hair_near is None else hair_near
         if reach > 0 and hits.row.size:
-            nf = chiang_hair_near_field(hits, texels, fibre, t_m, reach, spec.gather_rays)
-            if nf.count:
-                first = add_first_bounce(first, near_field_correction(
-                    scene, tracer, nf, lights, direct[:t_m], timer))
+            for nf in chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach,
+                                             spec.gather_rays, exitance, frames):
+                if nf.count:
+                    first = add_first_bounce(first, near_field_correction(
+                        scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
     with timer.stage("direct fibres"):
-        direct[t_m:] = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
-                                     spec.seed + 1, fibre)[0]
+        d = chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
+                          fibre, exitance)
+        for a in range(n_f):
+            direct[a * t + t_m:(a + 1) * t] = d[a]
+        del d
     r6 = tracer.rays_traced
-    albedo = np.concatenate([np.asarray(texels.albedo, np.float64), np.full((t_h, 3), 0.5)])
+    albedo = np.full((n_f * t, 3), 0.5)
+    albedo[:t_m] = texels.albedo
     indirect, bounces, resid, solve_stats = solve_indirect(
         None, albedo, direct, spec.max_bounces, spec.tolerance, timer,
-        threads=tracer.threads, first_bounce=first, out=direct, product=product)
+        method="neumann", threads=tracer.threads, first_bounce=first, out=direct,
+        product=product)
+    if n_f > 1:  # the truncated exitance can dip below zero at a few texels; light cannot
+        indirect = indirect[:t]
+        solve_stats["negative_clamped"] = int((indirect < 0).sum())
+        indirect = np.maximum(indirect, np.float32(0))
     stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,
                             gather.stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
-                            solve_stats, model="chiang", exitance="isotropic")
+                            solve_stats, model="chiang", exitance=exitance)
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
