@@ -60,6 +60,16 @@ def _bake(scalp, chiang: ChiangSpec, bounces: int = 64, rays: int = 256):
     return data, fibre
 
 
+def _receivers(texels, space, seed: int) -> tuple[int, np.ndarray]:
+    """Up to 200 random atlas texels, then 300 strand texels, in the combined numbering:
+    (how many atlas texels, rows (n,) int64)."""
+    t_m = texels.count
+    rng = np.random.default_rng(seed)
+    n_m = min(200, t_m)
+    return n_m, np.concatenate([np.sort(rng.choice(t_m, n_m, replace=False)),
+                                np.sort(t_m + rng.choice(space.count, 300, replace=False))])
+
+
 def test_the_operator_is_the_surface_gather_above_and_albedo_weighted_rays_below(scalp):
     scene, texels, space, tracer, fibres, _ = scalp
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
@@ -90,11 +100,7 @@ def test_first_bounce_agrees_with_the_path_tracer_of_the_same_model(scalp):
     strand texels −0.9 ± 1.4 % (300 texels × 2048 paths; docs/hair.md)."""
     scene, texels, space, tracer, fibres, _ = scalp
     data, fibre = _bake(scalp, LIGHT_HAIR, bounces=1)
-    t_m = texels.count
-    rng = np.random.default_rng(11)
-    n_m = min(200, t_m)
-    rows = np.concatenate([np.sort(rng.choice(t_m, n_m, replace=False)),
-                           np.sort(t_m + rng.choice(space.count, 300, replace=False))])
+    n_m, rows = _receivers(texels, space, 11)
     a, b = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, rows,
                                       2048, 101, fibre.params, fibre.sigma_points,
                                       max_depth=1, exitance="isotropic")
@@ -120,11 +126,7 @@ def test_projected_exitance_s_first_bounce_is_its_model_path_traced(scalp, exita
         scene, texels, space, fibres, points, tracer, LIGHTS, (),
         TransportSpec(gather_rays=256, direct_samples=8, seed=0, max_bounces=1),
         StageTimer(quiet=True), fibre, exitance=exitance)
-    t_m = texels.count
-    rng = np.random.default_rng(12)
-    n_m = min(200, t_m)
-    rows = np.concatenate([np.sort(rng.choice(t_m, n_m, replace=False)),
-                           np.sort(t_m + rng.choice(space.count, 300, replace=False))])
+    n_m, rows = _receivers(texels, space, 12)
     a, b = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, rows,
                                       4096, 102, fibre.params, fibre.sigma_points,
                                       max_depth=1, exitance=exitance)
