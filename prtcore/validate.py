@@ -214,31 +214,38 @@ def _hair_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
     ``err`` (L, T, 3) (|a − b| / 2: its square is an unbiased estimate of the variance)."""
     from prtcore.io.hair import read_hair
     from prtcore.receivers.strands import build_strand_space
+    from prtcore.reference.chiang import chiang_reference
     from prtcore.reference.fibres import fibre_reference
     from prtcore.transport.fibre import hair_tracer
+    from prtcore.transport.fibre_chiang import bundle_fibre
 
     with timer.stage("reference"):
         hair = read_hair(bundle / manifest["asset"]["file"])
         space = build_strand_space(hair, int(manifest["strands"]["texels_per_strand"]))
         tracer, mesh = hair_tracer(space)
-        ref = np.zeros((len(lights), space.count, 3))
-        err = np.zeros((len(lights), space.count, 3))
         every = np.arange(space.count)
-        fibre = (manifest.get("fibre") or {}).get("chiang")
-        if fibre is not None:  # the Chiang fibre's own path tracer
-            from prtcore.core.spec import ChiangSpec
-            from prtcore.reference.chiang import chiang_reference
-            from prtcore.transport.fibre_chiang import chiang_fibre
-            fib = chiang_fibre(ChiangSpec(**fibre), space)
-        for h, light in enumerate(lights):
-            if fibre is not None:
-                a, b = chiang_reference(space, tracer, mesh, 0, [light], every, spp,
-                                        seed + h, fib.params, fib.sigma_points)
-            else:
-                a, b = fibre_reference(space, tracer, mesh, 0, [light], every, spp,
-                                       seed=seed + h)
-            ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
+        fibre = bundle_fibre(manifest, space)
+
+        def trace(light, seed_h):
+            if fibre is not None:  # the Chiang fibre's own path tracer
+                return chiang_reference(space, tracer, mesh, 0, [light], every, spp, seed_h,
+                                        fibre.params, fibre.sigma_points)
+            return fibre_reference(space, tracer, mesh, 0, [light], every, spp,
+                                   seed=seed_h)
+
+        ref, err = _per_light(lights, seed, len(every), trace)
     return space, tracer, ref, err
+
+
+def _per_light(lights, seed: int, n: int, trace) -> tuple[np.ndarray, np.ndarray]:
+    """``trace(light, seed + h)`` → two independent halves (a, b), each (n, 1, 3), for
+    each light h: the mean ``ref`` (L, n, 3) and standard errors ``err`` (L, n, 3),
+    |a − b| / 2 (its square is an unbiased estimate of the variance)."""
+    ref, err = np.zeros((len(lights), n, 3)), np.zeros((len(lights), n, 3))
+    for h, light in enumerate(lights):
+        a, b = trace(light, seed + h)
+        ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
+    return ref, err
 
 
 def _hair_mesh_references(bundle: Path, manifest: dict, lights, spp: int, seed: int,
@@ -254,6 +261,7 @@ def _hair_mesh_references(bundle: Path, manifest: dict, lights, spp: int, seed: 
     from prtcore.reference.hair_mesh import chiang_hair_mesh_reference, hair_mesh_reference
     from prtcore.reference.lightmap import texel_space_for
     from prtcore.transport.fibre import hair_tracer
+    from prtcore.transport.fibre_chiang import bundle_fibre
 
     scene, texels = texel_space_for(bundle, timer=timer)
     with timer.stage("reference"):
@@ -261,22 +269,17 @@ def _hair_mesh_references(bundle: Path, manifest: dict, lights, spp: int, seed: 
         space = build_strand_space(hair, int(manifest["strands"]["texels_per_strand"]))
         tracer, fibres = hair_tracer(space, scene)
         every = np.arange(texels.count + space.count)
-        ref = np.zeros((len(lights), len(every), 3))
-        err = np.zeros_like(ref)
-        chiang = (manifest.get("fibre") or {}).get("chiang")
-        if chiang is not None:
-            from prtcore.core.spec import ChiangSpec
-            from prtcore.transport.fibre_chiang import chiang_fibre
-            fib = chiang_fibre(ChiangSpec(**chiang), space)
-        for h, light in enumerate(lights):
-            if chiang is not None:
-                a, b = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres,
-                                                  [light], every, spp, seed + h, fib.params,
-                                                  fib.sigma_points)
-            else:
-                a, b = hair_mesh_reference(scene, texels, space, tracer, fibres, [light],
-                                           every, spp, seed + h)
-            ref[h], err[h] = (a[:, 0] + b[:, 0]) / 2, np.abs(a[:, 0] - b[:, 0]) / 2
+        fibre = bundle_fibre(manifest, space)
+
+        def trace(light, seed_h):
+            if fibre is not None:
+                return chiang_hair_mesh_reference(scene, texels, space, tracer, fibres,
+                                                  [light], every, spp, seed_h,
+                                                  fibre.params, fibre.sigma_points)
+            return hair_mesh_reference(scene, texels, space, tracer, fibres, [light], every,
+                                       spp, seed_h)
+
+        ref, err = _per_light(lights, seed, len(every), trace)
     return texels, space, tracer, ref, err
 
 

@@ -129,6 +129,36 @@ def fibre_nee(lights: Sequence[Light], tracer: RayTracer, params: ChiangParams,
     return out
 
 
+def fibre_starts(space: StrandSpace, off: np.ndarray, sigma_points: np.ndarray,
+                 texels: np.ndarray, rng: np.random.Generator) -> tuple:
+    """Where paths from strand ``texels`` (n,) start: a point uniform over each texel's arc
+    on the axis, its tangent, the outside radius (``off`` (p,) per hair point), σ_a
+    (``sigma_points`` (p, 3)) and a view direction ωo with density cos θo / π² over the
+    sphere. Returns (centre, tangent, radius, sigma, wo)."""
+    hair = space.hair
+    strand = space.strand[texels]
+    arc = space.arc[texels, 0] + rng.random(len(texels)) * (space.arc[texels, 1]
+                                                            - space.arc[texels, 0])
+    centre, tangent, _ = axis_frame(hair, strand, arc)
+    radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
+    sigma = interp_points(hair, sigma_points, strand, arc)
+    return centre, tangent, radius, sigma, cosine_about(random_radial(tangent, rng), rng)
+
+
+def fibre_at_hits(hair, mesh: FibreMesh, off: np.ndarray, sigma_points: np.ndarray,
+                  triangle: np.ndarray, barycentric: np.ndarray) -> tuple:
+    """The fibre vertices of hits on the tubes (their own triangle indices (n,) and
+    barycentrics (n, 3)): the segment's unit tangent, the axis point, the outside radius
+    and σ_a, interpolated along the segment. Returns (tangent, centre, radius, sigma)."""
+    seg, t = segment_hits(mesh, triangle, barycentric)
+    p0 = hair.segment_start[seg]
+    a0, b0 = hair.points[p0], hair.points[p0 + 1]
+    ax = b0 - a0
+    return (ax / np.linalg.norm(ax, axis=1, keepdims=True), a0 + t[:, None] * ax,
+            (1 - t) * off[p0] + t * off[p0 + 1],
+            (1 - t)[:, None] * sigma_points[p0] + t[:, None] * sigma_points[p0 + 1])
+
+
 def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
                      mesh_faces: int, lights: Sequence[Light], texels: np.ndarray,
                      paths: int, seed: int, params: ChiangParams,
@@ -157,14 +187,9 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
                          h, rng)
 
     def trace(owner: np.ndarray, rng: np.random.Generator, acc: np.ndarray) -> None:
-        tex = texels[owner]
         n = len(owner)
-        strand = space.strand[tex]
-        arc = space.arc[tex, 0] + rng.random(n) * (space.arc[tex, 1] - space.arc[tex, 0])
-        centre, tangent, _ = axis_frame(hair, strand, arc)
-        radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
-        sigma = interp_points(hair, sig_pt, strand, arc)
-        wo = cosine_about(random_radial(tangent, rng), rng)  # density cos θo / π² over the sphere
+        centre, tangent, radius, sigma, wo = fibre_starts(space, off, sig_pt, texels[owner],
+                                                          rng)
         beta = np.ones((n, 3))
         alive = np.arange(n)
         for depth in range(max_depth + 1):  # the texel, then up to max_depth fibre hits
@@ -184,15 +209,9 @@ def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,
             alive, wi = alive[fib], wi[fib]
             if not len(alive):
                 break
-            seg, t = segment_hits(mesh, hits.triangle[fib] - mesh_faces,
-                                  hits.barycentric[fib])
-            p0 = hair.segment_start[seg]
-            a0, b0 = hair.points[p0], hair.points[p0 + 1]
-            ax = b0 - a0
-            tangent[alive] = ax / np.linalg.norm(ax, axis=1, keepdims=True)
-            centre[alive] = a0 + t[:, None] * ax
-            radius[alive] = (1 - t) * off[p0] + t * off[p0 + 1]
-            sigma[alive] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
+            tangent[alive], centre[alive], radius[alive], sigma[alive] = fibre_at_hits(
+                hair, mesh, off, sig_pt, hits.triangle[fib] - mesh_faces,
+                hits.barycentric[fib])
             wo[alive] = -wi
             if exitance != "exact":  # shade toward a fresh ωo, weighted by the kernel
                 fresh = cosine_about(random_radial(tangent[alive], rng), rng)

@@ -29,17 +29,19 @@ from collections.abc import Sequence
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams, sample_scattering
-from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
+from prtcore.core.fibres import FibreMesh, outside_offset
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
-from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
+from prtcore.receivers.strands import StrandSpace
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
 from prtcore.reference.chiang import (
     EXITANCE_ORDERS,
     facing,
+    fibre_at_hits,
     fibre_nee,
+    fibre_starts,
     projection_kernel,
     random_radial,
 )
@@ -185,14 +187,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
             beta[mi] = rho_mesh[row[mi]]
         hi = np.flatnonzero(fib)
         if len(hi):  # fibre: a point uniform over the arc, a view direction cos θo / π²
-            tex = row[hi] - t_m
-            strand = space.strand[tex]
-            arc = space.arc[tex, 0] + rng.random(len(hi)) * (space.arc[tex, 1]
-                                                             - space.arc[tex, 0])
-            pos[hi], tangent[hi], _ = axis_frame(hair, strand, arc)
-            radius[hi] = interp_points(hair, off[:, None], strand, arc)[:, 0]
-            sigma[hi] = interp_points(hair, sig_pt, strand, arc)
-            wo[hi] = cosine_about(random_radial(tangent[hi], rng), rng)
+            pos[hi], tangent[hi], radius[hi], sigma[hi], wo[hi] = fibre_starts(
+                space, off, sig_pt, row[hi] - t_m, rng)
         alive = np.arange(n)
         for depth in range(1, max_depth + 1):
             if not len(alive):
@@ -221,16 +217,10 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                 break
             fi, si = np.flatnonzero(to_fibre), np.flatnonzero(~to_fibre)
             if len(fi):
-                seg, t = segment_hits(fibres, tri[fi] - f, bary[fi])
-                p0 = hair.segment_start[seg]
-                a0, b0 = hair.points[p0], hair.points[p0 + 1]
-                ax = b0 - a0
                 v = alive[fi]
                 fib[v] = True
-                tangent[v] = ax / np.linalg.norm(ax, axis=1, keepdims=True)
-                pos[v] = a0 + t[:, None] * ax
-                radius[v] = (1 - t) * off[p0] + t * off[p0 + 1]
-                sigma[v] = (1 - t)[:, None] * sig_pt[p0] + t[:, None] * sig_pt[p0 + 1]
+                tangent[v], pos[v], radius[v], sigma[v] = fibre_at_hits(
+                    hair, fibres, off, sig_pt, tri[fi] - f, bary[fi])
                 if exitance == "exact":
                     wo[v] = -d[fi]
                 else:  # the fast path's model: a fresh view, weighted by its kernel

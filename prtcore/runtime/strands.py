@@ -31,7 +31,6 @@ from prtcore.core.fibres import outside_offset, segment_hits
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import CLAMP_TO_EDGE, albedo_at, clamp_albedo, sample_texture
 from prtcore.core.scene import Light, Texture
-from prtcore.core.spec import ChiangSpec
 from prtcore.emitters.punctual import irradiance
 from prtcore.io.bundle import is_hair_mesh, load_runtime, read_manifest, strand_runtime
 from prtcore.io.gltf.loader import load_asset
@@ -46,7 +45,7 @@ from prtcore.reference.camera import Camera
 from prtcore.reference.chiang import fibre_nee
 from prtcore.runtime.cpu import blend_at, plane_weights, shade_points
 from prtcore.transport.fibre import hair_tracer
-from prtcore.transport.fibre_chiang import chiang_fibre
+from prtcore.transport.fibre_chiang import bundle_fibre
 
 
 def sample_strands(image: np.ndarray, layout: dict, strand: np.ndarray,
@@ -99,9 +98,8 @@ def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
         axis, normal, _ = azimuth_frame(hair, strand, arc, point)
         extra = interp_points(hair, np.concatenate([outside_offset(hair)[:, None],
                                                     hair.color], axis=1), strand, arc)
-        chiang = (manifest.get("fibre") or {}).get("chiang")
-        if chiang is not None:  # the BCSDF toward the camera at the offset seen
-            fibre = chiang_fibre(ChiangSpec(**chiang), space)
+        fibre = bundle_fibre(manifest, space)
+        if fibre is not None:  # the BCSDF toward the camera at the offset seen
             tangent = axis_frame(hair, strand, arc)[1]
             wo = -d[hit]
             out[hit] += fibre_nee(lights, tracer, fibre.params, np.ones((len(hit), 3)), axis,

@@ -124,15 +124,12 @@ class StrandRenderer(GLRenderer):
         if self.hair.strand_count > MAX_GL_STRANDS:
             raise PrtError(f"{self.bundle}: {self.hair.strand_count} strands; the GL "
                            f"renderer draws at most {MAX_GL_STRANDS}")
-        self.fibre = None  # the Chiang fibre of the bundle, or None (diffuse)
-        chiang = (self.manifest.get("fibre") or {}).get("chiang")
-        if chiang is not None:
-            from prtcore.core.spec import ChiangSpec
-            from prtcore.receivers.strands import build_strand_space
-            from prtcore.transport.fibre_chiang import chiang_fibre
+        from prtcore.receivers.strands import build_strand_space
+        from prtcore.transport.fibre_chiang import bundle_fibre
 
-            self.fibre = chiang_fibre(ChiangSpec(**chiang), build_strand_space(
-                self.hair, int(self.layout["texels_per_strand"])))
+        # the Chiang fibre of the bundle, or None (diffuse)
+        self.fibre = bundle_fibre(self.manifest, build_strand_space(
+            self.hair, int(self.layout["texels_per_strand"])))
         self._mgl = moderngl
         self._open(ctx, lambda: self._setup(int(shadow_resolution)))
 

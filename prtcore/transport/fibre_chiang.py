@@ -103,6 +103,14 @@ def chiang_fibre(spec: ChiangSpec, space: StrandSpace) -> ChiangFibre:
                        sigma_points=sig_p)
 
 
+def bundle_fibre(manifest: dict, space: StrandSpace) -> ChiangFibre | None:
+    """The Chiang fibre a bundle was baked with (its manifest's ``fibre.chiang``) on
+    ``space``, or None for a diffuse fibre's bundle: what its drawing and its validation
+    shade with."""
+    chiang = (manifest.get("fibre") or {}).get("chiang")
+    return None if chiang is None else chiang_fibre(ChiangSpec(**chiang), space)
+
+
 def check_lights(lights: Sequence[Light]) -> None:
     """Refuse lights the Chiang fibre cannot shade (none of :data:`CHIANG_LIGHT_TYPES`): a
     :class:`~prtcore.core.errors.SpecError` naming ``lights.families``."""
@@ -243,9 +251,11 @@ def _environment_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[
         s = d.shape[1]
         frame = None if frames is None else tuple(np.repeat(f[idx], j * s, axis=0)
                                                   for f in frames)
-        w = exitance_weights(fibre.albedo, np.repeat(tangent[idx].reshape(-1, 3), s, axis=0),
-                     d.reshape(-1, 3), np.repeat(fibre.sigma_texels[idx], j * s, axis=0),
-                     exitance, frame)  # (F, n J S, 3)
+        w = exitance_weights(fibre.albedo,
+                             np.repeat(tangent[idx].reshape(-1, 3), s, axis=0),
+                             d.reshape(-1, 3),
+                             np.repeat(fibre.sigma_texels[idx], j * s, axis=0), exitance,
+                             frame)  # (F, n J S, 3)
         w = (w.reshape(len(w), len(idx), j * s, 3)
              * vis.reshape(len(idx), j * s)[None, :, :, None])
         for k, light in enumerate(lights):
@@ -289,19 +299,19 @@ def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, ray
                     ) -> tuple[RayBlockProduct, np.ndarray]:
     """``solve_indirect``'s (product, albedo) for the gather on the exitance coefficients,
     W_c (FT, FT) per channel c, matrix-free (:class:`prtcore.core.sparse.RayBlockProduct`):
-    row block a of the receiving texel takes each ray's weight a (:func:`exitance_weights` of its
-    direction, the receiving texel's σ) times column block b of the texel hit, read toward
-    the ray (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its second-order
-    terms at −d, :func:`exitance_reads`), over M. The solver computes ``L = ρ ∘ W'(L_d + L)``;
-    with ``W' = 2 W`` and ρ = 1/2 (below its albedo clamp) that is ``L = W (L_d + L)``."""
+    row block a of the receiving texel takes each ray's weight a (:func:`ray_weights`: of
+    its direction, the receiving texel's σ) times column block b of the texel hit, read
+    toward the ray (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its
+    second-order terms at −d, :func:`exitance_reads`), over M. The solver computes
+    ``L = ρ ∘ W'(L_d + L)``; with ``W' = 2 W`` and ρ = 1/2 (below its albedo clamp) that
+    is ``L = W (L_d + L)``."""
     rows, cols, data = term.rays
     t = space.count
-    d, tangent = data[:, :3].astype(np.float64), data[:, 3:6].astype(np.float64)
     frames = texel_frames(space) if exitance == "quadratic" else None
-    w = exitance_weights(fibre.albedo, tangent, d, fibre.sigma_texels[rows], exitance,
-                 None if frames is None else (frames[0][rows], frames[1][rows]))  # (F, n, 3)
+    w = ray_weights(fibre, rows, data, exitance, frames)  # (F, n, 3)
     f = len(w)
-    read = exitance_reads(d, None if frames is None else (frames[0][cols], frames[1][cols]), f)
+    read = exitance_reads(data[:, :3].astype(np.float64), None if frames is None
+                          else (frames[0][cols], frames[1][cols]), f)
     weight = np.moveaxis(w, 0, 1) * (2.0 / rays)  # (n, F, 3)
     product = RayBlockProduct(rows, cols, weight, np.stack(read, axis=1), t, threads)
     return product, np.full((f * t, 3), 0.5)
