@@ -14,11 +14,18 @@ per colour:
 * ``isotropic_model``: the isotropic fast path against the path tracer that shades each
   hit toward a fresh direction (``exitance="isotropic"``): the gather, table and solve
   alone, without the approximation;
+* ``isotropic_denoised`` (and for every exitance): after the bake's denoising of the
+  strand texels (``prtcore.transport.strand_denoise``, ``--neighbours`` k, irradiance
+  taken against the fibre's sphere-averaged albedo);
 * with ``--mitsuba-rays R``: ``pathtracer_vs_mitsuba``, prtcore's Chiang path tracer
   against Mitsuba 3's own ``hair`` BSDF and path tracer (prtcore.reference.mitsuba_fibres:
   the polylines as B-spline curves), both sides' noise removed.
 
-Usage: python benchmarks/hair_chiang_accuracy.py [--strands 1000] [--texels-per-strand 12]
+``--scene hairball``: the bake's 10k hairball (``--strands`` 10000 then) under
+``hairball_lights`` instead of the tangle.
+
+Usage: python benchmarks/hair_chiang_accuracy.py [--scene tangle|hairball] [--strands 1000]
+       [--texels-per-strand 12]
        [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
        [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0]
 """
@@ -43,7 +50,7 @@ from prtcore.core.spec import ChiangSpec  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.reference.chiang import chiang_reference  # noqa: E402
 from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
-from prtcore.scenes.hair import tangle, tangle_lights  # noqa: E402
+from prtcore.scenes.hair import hairball, hairball_lights, tangle, tangle_lights  # noqa: E402
 from prtcore.transport.fibre import hair_tracer  # noqa: E402
 from prtcore.transport.fibre_chiang import (  # noqa: E402
     EXITANCE,
@@ -51,13 +58,17 @@ from prtcore.transport.fibre_chiang import (  # noqa: E402
     chiang_fibre,
     chiang_gather,
     chiang_operator,
+    texel_albedo,
 )
 from prtcore.transport.solve import solve_indirect  # noqa: E402
+from prtcore.transport.strand_denoise import (  # noqa: E402
+    DEFAULT_NEIGHBOURS,
+    denoise_irradiance,
+    neighbour_kernel,
+)
 
-LIGHTS = tangle_lights()
 
-
-def fast_path(space, tracer, mesh, fibre, args) -> tuple[dict, dict]:
+def fast_path(space, tracer, mesh, fibre, args, lights) -> tuple[dict, dict]:
     """{exitance: indirect (T, K, 3)} and {exitance: seconds} (the gather shared)."""
     t0 = time.perf_counter()
     term = chiang_gather(space, tracer, mesh, 0, args.rays, 2, fibre)
@@ -65,7 +76,7 @@ def fast_path(space, tracer, mesh, fibre, args) -> tuple[dict, dict]:
     out, seconds = {}, {}
     for exitance in EXITANCE:
         t1 = time.perf_counter()
-        direct = chiang_direct(space, tracer, LIGHTS, args.samples, 1, fibre, exitance)
+        direct = chiang_direct(space, tracer, lights, args.samples, 1, fibre, exitance)
         product, rho = chiang_operator(space, term, fibre, args.rays, exitance)
         x = solve_indirect(None, rho, direct.reshape(-1, *direct.shape[2:]), 64, 1e-4,
                            method="neumann", product=product)[0]
@@ -76,7 +87,10 @@ def fast_path(space, tracer, mesh, fibre, args) -> tuple[dict, dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--strands", type=int, default=1000)
+    ap.add_argument("--scene", choices=("tangle", "hairball"), default="tangle")
+    ap.add_argument("--strands", type=int, default=None,
+                    help="1000 for the tangle, 10000 for the hairball")
+    ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS)
     ap.add_argument("--texels-per-strand", type=int, default=12)
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--samples", type=int, default=16)
@@ -88,24 +102,32 @@ def main() -> None:
     results = {}
     for color in args.colors:
         rgb = [float(c) for c in color.split(",")]
-        hair = tangle(args.strands)
+        if args.scene == "hairball":
+            hair, lights = hairball(args.strands or 10_000), hairball_lights()
+        else:
+            hair, lights = tangle(args.strands or 1000), tangle_lights()
         hair = dataclasses.replace(hair, color=np.tile(rgb, (hair.point_count, 1)))
         space = build_strand_space(hair, args.texels_per_strand)
         tracer, mesh = hair_tracer(space)
         fibre = chiang_fibre(ChiangSpec(), space)
-        fast, seconds = fast_path(space, tracer, mesh, fibre, args)
+        fast, seconds = fast_path(space, tracer, mesh, fibre, args, lights)
+        kernel = neighbour_kernel(space.position, args.neighbours)
+        rho = texel_albedo(fibre)
+        for e in EXITANCE:
+            fast[f"{e}_denoised"] = denoise_irradiance(
+                kernel, fast[e].astype(np.float32), rho).astype(np.float64)
         sel = np.random.default_rng(5).choice(space.count, args.texels, replace=False)
         t0 = time.perf_counter()
-        ref = chiang_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, 7,
+        ref = chiang_reference(space, tracer, mesh, 0, lights, sel, args.paths, 7,
                                fibre.params, fibre.sigma_points)
         ref_s = time.perf_counter() - t0
-        iso = chiang_reference(space, tracer, mesh, 0, LIGHTS, sel, args.paths, 8,
+        iso = chiang_reference(space, tracer, mesh, 0, lights, sel, args.paths, 8,
                                fibre.params, fibre.sigma_points, exitance="isotropic")
-        rows = {e: noise_corrected_error(fast[e][sel], *ref) for e in EXITANCE}
+        rows = {e: noise_corrected_error(fast[e][sel], *ref) for e in fast}
         rows["isotropic_model"] = noise_corrected_error(fast["isotropic"][sel], *iso)
         if args.mitsuba_rays:
             from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect
-            mit = mitsuba_fibre_indirect(space, LIGHTS, sel, args.mitsuba_rays, 9,
+            mit = mitsuba_fibre_indirect(space, lights, sel, args.mitsuba_rays, 9,
                                          chiang=dataclasses.replace(
                                              fibre.params,
                                              sigma_a=tuple(fibre.sigma_texels[0])))
@@ -113,7 +135,7 @@ def main() -> None:
         print(f"colour {color} (σ_a {np.round(fibre.sigma_texels[0], 3).tolist()}), "
               f"{space.count} texels")
         for name, e in rows.items():
-            print(f"  {name:16}: rRMSE {e['rrmse']:.3f} (raw {e['raw_rrmse']:.3f}, reference "
+            print(f"  {name:20}: rRMSE {e['rrmse']:.3f} (raw {e['raw_rrmse']:.3f}, reference "
                   f"noise {e['reference_noise']:.3f})  bias {e['bias']:+.3f} ± "
                   f"{e['bias_se']:.3f}")
         print("  fast path " + ", ".join(f"{e} {s:.1f} s" for e, s in seconds.items())
@@ -122,7 +144,9 @@ def main() -> None:
         results[color] = {"errors": rows, "fast_seconds": seconds,
                           "reference_seconds": ref_s, "texels": space.count,
                           "sigma_a": fibre.sigma_texels[0].tolist()}
-    out = ROOT / "benchmarks" / "results" / "hair_chiang_accuracy.json"
+    out = ROOT / "benchmarks" / "results" / (
+        "hair_chiang_accuracy.json" if args.scene == "tangle"
+        else f"hair_chiang_accuracy_{args.scene}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args), "results": results}, indent=1))
     print(f"wrote {out}")

@@ -10,7 +10,9 @@ hits with their own normal and albedo), the reference's noise removed with two i
 halves; for both ``hair.harmonics`` variants (first_bounce: the hair's direct first
 harmonic in the first bounce only; all_bounces: every strand texel's mean, cos and sin in
 every bounce, what a hair + mesh bake uses by default), each with and without the near
-field of the hair's rays that hit the scalp close by (``--no-hair-near`` drops it). Also
+field of the hair's rays that hit the scalp close by (``--no-hair-near`` drops it), and
+with the near field after the bake's denoising of the strand texels
+(``prtcore.transport.strand_denoise``, ``--neighbours`` k: rows "…, denoised"). Also
 printed: how much of each receiver's indirect light the other brings (the
 hair-alone and head-alone bakes on the same receivers), which says the two-way interaction
 is there and how large it is.
@@ -24,6 +26,7 @@ Usage: python benchmarks/hair_mesh_accuracy.py [--strands 2000] [--rays 256]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import tempfile
@@ -46,6 +49,10 @@ from prtcore.reference.hair_mesh import hair_mesh_reference  # noqa: E402
 from prtcore.scenes.hair import head_hair, head_lights, write_head  # noqa: E402
 from prtcore.transport.fibre import hair_tracer  # noqa: E402
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset  # noqa: E402
+from prtcore.transport.strand_denoise import (  # noqa: E402
+    DEFAULT_NEIGHBOURS,
+    denoise_dataset,
+)
 
 LIGHTS = head_lights()
 #: the coverage above which atlas texels are counted in the "mesh_covered" error
@@ -70,6 +77,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--texels-per-strand", type=int, default=8)
     ap.add_argument("--samples", type=int, default=8, help="direct samples J")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS,
+                    help="k of the strand texels' denoising (variants '…, denoised')")
     ap.add_argument("--max-bounces", type=int, default=64,
                     help="the fast path's solve and the reference's paths stop after N")
     ap.add_argument("--orders", type=int, default=1,
@@ -108,14 +117,22 @@ def main(argv: list[str] | None = None) -> dict:
             data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
                                           LIGHTS, spec=spec, harmonics=harmonics,
                                           hair_near=near, orders=a.orders)
-            fast = data.indirect[rows].astype(np.float64)
-            result["variants"][f"{harmonics}{'' if near else ', no hair near field'}"] = {
-                "seconds": time.perf_counter() - t0,
-                "mesh": noise_corrected_error(fast[:nm], ra[:nm], rb[:nm]),
-                "mesh_covered": noise_corrected_error(fast[:nm][big], ra[:nm][big],
-                                                      rb[:nm][big]),
-                "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
-                "all": noise_corrected_error(fast, ra, rb)}
+            def errors(values: np.ndarray, seconds: float) -> dict:
+                fast = values[rows].astype(np.float64)
+                return {"seconds": seconds,
+                        "mesh": noise_corrected_error(fast[:nm], ra[:nm], rb[:nm]),
+                        "mesh_covered": noise_corrected_error(fast[:nm][big], ra[:nm][big],
+                                                              rb[:nm][big]),
+                        "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
+                        "all": noise_corrected_error(fast, ra, rb)}
+
+            name = f"{harmonics}{'' if near else ', no hair near field'}"
+            result["variants"][name] = errors(data.indirect, time.perf_counter() - t0)
+            if near:  # and after the bake's denoising of the strand texels
+                den = denoise_dataset(dataclasses.replace(data, indirect=data.indirect.copy()),
+                                      space, a.neighbours, first_row=t_m)
+                result["variants"][f"{harmonics}, denoised"] = errors(
+                    den.indirect, time.perf_counter() - t0)
             if harmonics == "all_bounces" and near:
                 kept = data
     # what the other receiver brings: the same receivers without it

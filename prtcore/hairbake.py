@@ -23,9 +23,13 @@ path tracer, as ``prtcore report BUNDLE --reference-spp N`` does (hair alone:
 :mod:`prtcore.reference.fibres` or :mod:`prtcore.reference.chiang`; with a mesh:
 :mod:`prtcore.reference.hair_mesh`), and the verdict is judged on it.
 
+The strand texels' indirect light is denoised before the fit
+(:mod:`prtcore.transport.strand_denoise`, ``hair.denoise_neighbours``): each texel's
+irradiance averaged with its nearest texels in space.
+
 Not yet: keyframes, ``measurement_points.placement`` other than the hull, and
-``fit.denoise`` (the seam-aware filter is for surfaces; strand texels are fitted as
-traced).
+``fit.denoise`` (the seam-aware filter of surfaces, so a mesh baked with the hair has its
+atlas fitted as traced).
 """
 
 from __future__ import annotations
@@ -69,10 +73,12 @@ from prtcore.transport.fibre_chiang import (
     EXITANCE_TERMS,
     check_lights,
     chiang_fibre,
+    texel_albedo,
 )
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset
+from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS, denoise_dataset
 
 METHOD = "data_driven"
 #: writes a run's report files: (directory, method, result, report, seconds, t_start)
@@ -116,8 +122,10 @@ CHIANG_FIXED_LIGHTS = 512
 
 def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, no surface denoising,
-    ``hair.harmonics = "auto"`` resolved (all_bounces with a mesh: the light that goes
-    head → hair → head needs the side of the fibre that faced the head, docs/hair.md),
+    ``hair.denoise_neighbours = "auto"`` resolved (32 for the diffuse fibre, 0 for the
+    Chiang fibre), ``hair.harmonics = "auto"`` resolved (all_bounces with a mesh: the light
+    that goes head → hair → head needs the side of the fibre that faced the head,
+    docs/hair.md),
     "auto" light counts fixed (:data:`CHIANG_FIXED_LIGHTS` for the Chiang fibre);
     keys a hair bake cannot honour yet are refused by name."""
     if spec.keyframes.animation is not None:
@@ -130,6 +138,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
             spec.lights, count=CHIANG_FIXED_LIGHTS))
     spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     harmonics = spec.hair.harmonics
+    denoise = spec.hair.denoise_neighbours
+    if denoise == "auto":  # measured in docs/hair.md, "Denoising the strand texels"
+        denoise = 0 if spec.hair.fibre == "chiang" else DEFAULT_NEIGHBOURS
     if spec.hair.fibre == "chiang":
         harmonics = "auto"  # the Chiang fibre carries no harmonics (its own transport)
     elif harmonics == "auto":
@@ -138,7 +149,8 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
         fit=dataclasses.replace(spec.fit, denoise=0.0),
-        hair=dataclasses.replace(spec.hair, harmonics=harmonics))
+        hair=dataclasses.replace(spec.hair, harmonics=harmonics,
+                                 denoise_neighbours=denoise))
 
 
 def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
@@ -278,6 +290,10 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,
                                       harmonics=spec.hair.harmonics)
+    data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
+                           albedo=None if fibre is None else texel_albedo(fibre),
+                           first_row=intake.texels.mesh.count if scene is not None else 0,
+                           timer=timer, threads=tracer.threads)
     inputs = BakeInputs(spec=spec, intake=intake, train=train, hold=hold, keyframes=None,
                         data=data)
     m = method(METHOD)

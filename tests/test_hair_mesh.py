@@ -144,7 +144,10 @@ def bundle(tmp_path_factory):
     spec = d / "spec.json"
     spec.write_text(json.dumps({
         "atlas": {"resolution": 32}, "hair": {"texels_per_strand": 6},
-        "lights": {"count": 24, "holdout": 6, "seed": 2},
+        # 128 training lights for 32 points (with 24 the transfer is underdetermined and
+        # the verdict's ratio swings 1.06–1.45× with the lights' seed on this small
+        # asset; docs/hair.md, "Denoising the strand texels")
+        "lights": {"count": 128, "holdout": 16, "seed": 2},
         "measurement_points": {"count": 32, "supersample": 2},
         "transport": {"gather_rays": 32}, "fit": {"basis": 8}}))
     out = d / "out"

@@ -288,6 +288,11 @@ class HairSpec:
     #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "auto" (docs/hair.md;
     #: "auto": first_bounce for hair alone, all_bounces for hair baked with a mesh)
     harmonics: str = "auto"
+    #: k: every strand texel's indirect light averaged with its k − 1 nearest texels in
+    #: space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: not denoised;
+    #: "auto": 32 for the diffuse fibre, 0 for "chiang" (whose texels differ with the
+    #: fibre's direction, so neighbours' averages add bias)
+    denoise_neighbours: int | str = "auto"
     #: the Chiang fibre's parameters (used with ``fibre = "chiang"``)
     chiang: ChiangSpec = ChiangSpec()
 
@@ -760,6 +765,8 @@ def _parse(data: Any) -> BakeSpec:
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
         harmonics=_choice(hs.get("harmonics", "auto"), "hair.harmonics",
                           ("auto", "first_bounce", "all_bounces")),
+        denoise_neighbours=_int_or_auto(hs.get("denoise_neighbours", "auto"),
+                                        "hair.denoise_neighbours", lo=0, hi=1024),
         chiang=_chiang(hs.get("chiang", {})),
     )
     if hair.fibre == "chiang" and hair.harmonics != "auto":

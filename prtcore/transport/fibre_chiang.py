@@ -103,6 +103,19 @@ def chiang_fibre(spec: ChiangSpec, space: StrandSpace) -> ChiangFibre:
                        sigma_points=sig_p)
 
 
+def texel_albedo(fibre: ChiangFibre, nodes: int = 8) -> np.ndarray:
+    """(T, 3) float64: every strand texel's directional albedo Ā averaged over incident
+    directions uniform on the sphere (sin θi uniform in [−1, 1]: ``nodes`` Gauss–Legendre
+    nodes in |sin θi|): the ρ whose ratio to it makes a Chiang texel's exitance an
+    irradiance (:mod:`prtcore.transport.strand_denoise` averages that)."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    sig = fibre.sigma_texels
+    out = np.zeros(sig.shape)
+    for xi, wi in zip((x + 1) / 2, w / 2, strict=True):
+        out += wi * fibre.albedo(np.full(len(sig), xi), sig)
+    return out
+
+
 def bundle_fibre(manifest: dict, space: StrandSpace) -> ChiangFibre | None:
     """The Chiang fibre a bundle was baked with (its manifest's ``fibre.chiang``) on
     ``space``, or None for a diffuse fibre's bundle: what its drawing and its validation

@@ -1,0 +1,112 @@
+"""The strand texels' denoising (prtcore.transport.strand_denoise): the kernel's rows, what
+it must leave alone, and that it removes noise. Its accuracy against the fibre path tracer
+is in tests/test_reference_fibres.py; the figures in docs/hair.md."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from prtcore.core.spec import SpecError, parse_spec
+from prtcore.receivers.strands import build_strand_space
+from prtcore.scenes.hair import tangle
+from prtcore.transport.dataset import Dataset
+from prtcore.transport.strand_denoise import (
+    denoise_dataset,
+    denoise_irradiance,
+    neighbour_kernel,
+)
+
+
+def _points(n: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).random((n, 3))
+
+
+def test_kernel_rows_are_normalised_local_and_hold_the_texel_itself():
+    p = _points(500)
+    ker = neighbour_kernel(p, 16)
+    m = ker.matrix.tocsr()
+    assert m.shape == (500, 500) and m.dtype == np.float32
+    np.testing.assert_allclose(np.asarray(m.sum(axis=1)).ravel(), 1.0, rtol=1e-6)
+    assert np.all(np.diff(m.indptr) == 16)
+    assert np.all(m.diagonal() > 0)
+    # every neighbour lies within the texel's radius, the 17th nearest point's distance
+    rows = np.repeat(np.arange(500), 16)
+    d = np.linalg.norm(p[m.indices] - p[rows], axis=1)
+    assert np.all(d <= ker.radius[rows] + 1e-12)
+    # the nearest other point weighs more than a farther one (Epanechnikov)
+    w = m.toarray()
+    i = 7
+    order = np.argsort(np.linalg.norm(p - p[i], axis=1))
+    assert w[i, order[1]] > w[i, order[10]] > 0
+
+
+def test_fewer_texels_than_neighbours_and_the_identity():
+    p = _points(5)
+    ker = neighbour_kernel(p, 32)  # every texel is every texel's neighbour
+    assert ker.neighbours == 5
+    np.testing.assert_allclose(np.asarray(ker.matrix.sum(axis=1)).ravel(), 1, rtol=1e-6)
+    assert np.all(ker.matrix.toarray() > 0)
+    for k in (0, 1):
+        np.testing.assert_array_equal(neighbour_kernel(p, k).matrix.toarray(), np.eye(5))
+
+
+def test_uniform_irradiance_and_colour_edges_are_kept_exactly():
+    """A field of constant irradiance over strands of two colours side by side is left as
+    it is: the filter averages irradiance, not radiance, so colours do not mix. A channel
+    in which a fibre is black stays black and lends nothing."""
+    n = 400
+    p = _points(n, 1)
+    albedo = np.where((np.arange(n) % 2 == 0)[:, None], [0.9, 0.1, 0.0], [0.1, 0.2, 0.8])
+    e = np.array([[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]])  # (K, 3) irradiance per light
+    radiance = (albedo[:, None, :] / np.pi * e[None]).astype(np.float32)
+    out = denoise_irradiance(neighbour_kernel(p, 24), radiance.copy(), albedo)
+    np.testing.assert_allclose(out, radiance, rtol=1e-5, atol=1e-7)
+    assert np.all(out[0::2, :, 2] == 0)
+
+
+def test_denoising_removes_independent_noise_and_keeps_a_smooth_field():
+    """A smooth field with 30 % independent noise per texel: the filter brings it within
+    a third of the noise and does not shift its mean."""
+    rng = np.random.default_rng(3)
+    p = rng.random((20000, 3))
+    truth = (1 + p[:, 0] + 0.5 * np.sin(3 * p[:, 1]))[:, None, None] * np.ones((1, 2, 3))
+    noisy = (truth * (1 + 0.3 * rng.standard_normal(truth.shape))).astype(np.float32)
+    albedo = np.full((len(p), 3), 0.5)
+    out = denoise_irradiance(neighbour_kernel(p, 32), noisy.copy(), albedo)
+    before = np.sqrt(np.mean((noisy - truth) ** 2))
+    after = np.sqrt(np.mean((out - truth) ** 2))
+    assert after < before / 3, (before, after)
+    assert abs(out.mean() / truth.mean() - 1) < 0.01
+
+
+def test_denoise_dataset_filters_the_strand_rows_only():
+    """With a mesh's atlas texels first, only the strand rows change; the stats say so."""
+    space = build_strand_space(tangle(60), 4)
+    t_m, t = 7, space.count
+    rng = np.random.default_rng(0)
+    indirect = rng.random((t_m + t, 3, 3)).astype(np.float32)
+    data = Dataset(lights=(), direct_points=np.zeros((0, 3, 3), np.float32),
+                   direct_texels=None, indirect=indirect.copy(), iterations=1, residual=0.0)
+    out = denoise_dataset(data, space, 8, first_row=t_m)
+    np.testing.assert_array_equal(out.indirect[:t_m], indirect[:t_m])
+    assert not np.allclose(out.indirect[t_m:], indirect[t_m:])
+    assert out.stats["denoise"]["neighbours"] == 8
+    # the strand rows are exactly the kernel applied to the irradiance
+    ker = neighbour_kernel(space.position, 8)
+    expect = denoise_irradiance(ker, indirect[t_m:].copy(), space.albedo)
+    np.testing.assert_array_equal(out.indirect[t_m:], expect)
+    assert denoise_dataset(data, space, 0) is data
+
+
+def test_the_spec_key_and_its_default_per_fibre():
+    from prtcore.hairbake import hair_spec
+    assert parse_spec({}).hair.denoise_neighbours == "auto"
+    assert hair_spec(parse_spec({})).hair.denoise_neighbours == 32
+    # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md)
+    assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair.denoise_neighbours == 0
+    assert hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}})
+                     ).hair.denoise_neighbours == 8
+    assert parse_spec({"hair": {"denoise_neighbours": 0}}).hair.denoise_neighbours == 0
+    with pytest.raises(SpecError, match=r"hair\.denoise_neighbours"):
+        parse_spec({"hair": {"denoise_neighbours": -1}})
