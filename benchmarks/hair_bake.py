@@ -44,6 +44,7 @@ from prtcore.io.hair import write_hair  # noqa: E402
 from prtcore.scenes.hair import hairball  # noqa: E402
 from prtcore.transport.fibre import hair_tracer  # noqa: E402
 from prtcore.transport.hair import bake_hair_dataset  # noqa: E402
+from prtcore.transport.strand_denoise import denoise_dataset  # noqa: E402
 
 
 def peak_rss() -> int:
@@ -109,6 +110,9 @@ def main() -> None:
         t1 = time.perf_counter()
         data = bake_hair_dataset(space, intake.points, tracer, train, hold,
                                  spec.transport, timer, keep_direct_texels=False)  # the bake's
+        # and the bake's denoising of the strand texels (part of the dataset it fits)
+        data = denoise_dataset(data, space, spec.hair.denoise_neighbours, timer=timer,
+                               threads=tracer.threads)
         t2 = time.perf_counter()
         row.update(tracer_seconds=t1 - t0, dataset_seconds=t2 - t1,
                    stage_seconds=dict(timer.seconds), rays=tracer.rays_traced,

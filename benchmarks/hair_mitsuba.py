@@ -12,15 +12,20 @@ fibre's diameter, rays leaving from its circumradius):
 * ``pathtracer``: prtcore's fibre path tracer through those tubes (``--paths`` per texel);
 * ``harmonic``: the fast path a bake uses by default (direct light's first azimuthal
   harmonic in the first bounce; ``--samples`` direct samples J, ``--rays`` gather rays M);
-* ``all_bounces``: the fast path with ``hair.harmonics = "all_bounces"``.
+* ``all_bounces``: the fast path with ``hair.harmonics = "all_bounces"``;
+* ``harmonic_denoised``, ``all_bounces_denoised``: those after the bake's denoising of the
+  strand texels (prtcore.transport.strand_denoise, k = 32: what a bake ships).
+
+``--scene hairball``: the bake's 10k hairball under ``hairball_lights`` instead of the
+tangle (``--rays 64 --samples 4 --texels-per-strand 10``: the bake's defaults).
 
 The path tracer's row isolates what the tubes cost: both sides trace the same diffuse-fibre
 model, so the difference is the geometry (prism vs round, and where rays leave a fibre).
 Prints a table and writes benchmarks/results/hair_mitsuba_<texels per strand>.json.
 
-Usage: python benchmarks/hair_mitsuba.py [--texels 600] [--mitsuba-rays 2048]
-       [--texels-per-strand 12] [--sides 3,6] [--paths 2048] [--rays 256] [--samples 16]
-       [--fast]
+Usage: python benchmarks/hair_mitsuba.py [--scene tangle|hairball] [--texels 600]
+       [--mitsuba-rays 2048] [--texels-per-strand 12] [--sides 3,6] [--paths 2048]
+       [--rays 256] [--samples 16] [--fast]
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ if str(ROOT) not in sys.path:
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.reference.fibres import fibre_reference, noise_corrected_error  # noqa: E402
 from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect  # noqa: E402
-from prtcore.scenes.hair import tangle, tangle_lights  # noqa: E402
+from prtcore.scenes.hair import hairball, hairball_lights, tangle, tangle_lights  # noqa: E402
 from prtcore.transport.fibre import (  # noqa: E402
     fibre_direct,
     fibre_gather,
@@ -50,6 +55,11 @@ from prtcore.transport.fibre import (  # noqa: E402
     harmonic_first_bounce,
 )
 from prtcore.transport.solve import solve_indirect  # noqa: E402
+from prtcore.transport.strand_denoise import (  # noqa: E402
+    DEFAULT_NEIGHBOURS,
+    denoise_irradiance,
+    neighbour_kernel,
+)
 
 
 def fast_path(space, tracer, mesh, lights, rays: int, samples: int) -> dict:
@@ -62,11 +72,16 @@ def fast_path(space, tracer, mesh, lights, rays: int, samples: int) -> dict:
         term.block, np.tile(space.albedo, (3, 1)),
         np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
         method="neumann")
-    return {"harmonic": harm, "all_bounces": np.maximum(every[:space.count], 0)}
+    every = np.maximum(every[:space.count], 0)
+    kernel = neighbour_kernel(space.position, DEFAULT_NEIGHBOURS)
+    return {"harmonic": harm, "all_bounces": every,
+            "harmonic_denoised": denoise_irradiance(kernel, harm.copy(), space.albedo),
+            "all_bounces_denoised": denoise_irradiance(kernel, every.copy(), space.albedo)}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", choices=("tangle", "hairball"), default="tangle")
     ap.add_argument("--texels", type=int, default=600)
     ap.add_argument("--mitsuba-rays", type=int, default=2048)
     ap.add_argument("--texels-per-strand", type=int, default=12)
@@ -77,10 +92,10 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--fast", action="store_true", help="also the fast path's rows")
     args = ap.parse_args()
-    hair = tangle(1000)
+    hair, lights = ((hairball(10_000), hairball_lights()) if args.scene == "hairball"
+                    else (tangle(1000), tangle_lights()))
     hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
     space = build_strand_space(hair, args.texels_per_strand)
-    lights = tangle_lights()
     sel = np.random.default_rng(0).choice(space.count, args.texels, replace=False)
     t0 = time.perf_counter()
     mit = mitsuba_fibre_indirect(space, lights, sel, args.mitsuba_rays, seed=9)
@@ -101,10 +116,12 @@ def main() -> None:
         for name, est in found.items():
             e = noise_corrected_error(est, *mit)
             rows.append({"sides": sides, "estimate": name, **e})
-            print(f"sides {sides:2}  {name:12} against Mitsuba: rRMSE {100 * e['rrmse']:5.2f} %"
+            print(f"sides {sides:2}  {name:20} against Mitsuba: rRMSE {100 * e['rrmse']:5.2f} %"
                   f"  bias {100 * e['bias']:+5.2f} ± {100 * e['bias_se']:.2f} %")
         print(f"  ({seconds:.1f} s)")
-    out = ROOT / "benchmarks" / "results" / f"hair_mitsuba_{args.texels_per_strand}.json"
+    out = ROOT / "benchmarks" / "results" / (
+        f"hair_mitsuba_{args.texels_per_strand}.json" if args.scene == "tangle"
+        else f"hair_mitsuba_{args.scene}_{args.texels_per_strand}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args), "rows": rows,
                                "load": os.getloadavg()[0]}, indent=1))

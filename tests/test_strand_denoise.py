@@ -110,3 +110,27 @@ def test_the_spec_key_and_its_default_per_fibre():
     assert parse_spec({"hair": {"denoise_neighbours": 0}}).hair.denoise_neighbours == 0
     with pytest.raises(SpecError, match=r"hair\.denoise_neighbours"):
         parse_spec({"hair": {"denoise_neighbours": -1}})
+
+
+def test_a_chiang_bake_is_denoised_when_asked_against_its_fibres_albedo(tmp_path):
+    """``hair.denoise_neighbours`` set for the Chiang fibre: the bake denoises, dividing by
+    the fibre's sphere-averaged directional albedo, which is in (0, 1) and larger for
+    lighter hair."""
+    import json
+
+    from prtcore.core.spec import ChiangSpec
+    from prtcore.io.hair import write_hair
+    from prtcore.pipeline import bake
+    from prtcore.transport.fibre_chiang import chiang_fibre, texel_albedo
+
+    space = build_strand_space(tangle(40), 2)
+    light = texel_albedo(chiang_fibre(ChiangSpec(eumelanin=0.5), space))
+    dark = texel_albedo(chiang_fibre(ChiangSpec(eumelanin=4.0), space))
+    assert light.shape == (space.count, 3) and np.all((0 < dark) & (dark < light) & (light < 1))
+    asset = write_hair(tmp_path / "t.hair", tangle(60))
+    spec = {"hair": {"texels_per_strand": 4, "fibre": "chiang", "denoise_neighbours": 8},
+            "lights": {"count": 12, "holdout": 4}, "measurement_points": {"count": 8},
+            "transport": {"gather_rays": 8}, "fit": {"basis": 4}}
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    report = json.loads((out / "report.json").read_text())
+    assert report["transport"]["denoise"]["neighbours"] == 8
