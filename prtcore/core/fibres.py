@@ -7,14 +7,20 @@ Two representations, measured by ``benchmarks/hair_geometry.py`` (docs/hair.md):
   frame so the prism does not twist. The polygon's circumradius is chosen so that its
   *mean projected width* equals the fibre's diameter (``R = r · π / (k · sin(π / k))``, the
   Cauchy formula: mean width = perimeter / π), so shadow rays from every direction see on
-  average as much fibre as a cylinder blocks.
+  average as much fibre as a cylinder blocks. **Joints are mitred** (:func:`miter`): a
+  ring lies across the bisector of the two segments it joins, so a circle of radius r
+  there would pinch both segments to r · cos(θ/2) across the bend (θ the bend angle); the
+  ring is stretched by 1 / cos(θ/2) along the bend, which makes it the section of both
+  segments' cylinders. On the 10k hairball (bends of 55° on average, a stretch of 1.13)
+  unmitred tubes blocked 43.1 % of 1.2 cm rays from inside the ball against 44.1 % for
+  Mitsuba 3's round curves; mitred, 44.2 % (docs/hair.md).
 * **ribbons** (:func:`fibre_ribbons`): one quad per segment, flat along the transported
   frame: half the triangles of a 3-sided tube, but a ray travelling in the ribbon's plane
   passes through it — camera-facing ribbons need a camera, which a bake has not.
 
-Ray origins leaving a fibre start on the tube's circumscribed cylinder
-(:func:`outside_offset`): from there a ray with a positive radial component never
-re-enters its own convex prism.
+Ray origins leaving a fibre start on the tube's circumscribed cylinder, widened at each
+point by its miter's stretch (:func:`outside_offset`): from there a ray with a positive
+radial component never re-enters its own convex prism.
 
 A tube's triangles are ordered by segment: triangle ``f`` belongs to segment
 ``f // (2 · sides)`` (:attr:`prtcore.core.hair.Hair.segment_start`), its first ``sides``
@@ -33,6 +39,8 @@ from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.hair import Hair
 
 DEFAULT_SIDES = 3
+#: the largest stretch of a mitred ring (:func:`miter`): 1 / cos(60°)
+MITER_LIMIT = 2.0
 
 
 def circumradius_scale(sides: int) -> float:
@@ -52,6 +60,35 @@ def tangents(hair: Hair) -> np.ndarray:
     t = p[np.minimum(nxt, len(p) - 1)] - p[np.maximum(prv, 0)]
     n = np.linalg.norm(t, axis=1, keepdims=True)
     return np.divide(t, n, out=np.tile([0.0, 1.0, 0.0], (len(p), 1)), where=n > 0)
+
+
+def miter(hair: Hair) -> tuple[np.ndarray, np.ndarray]:
+    """The joints' miters: (bend (p, 3) float64 unit direction of the bend across the
+    point's tangent, zero where the strand is straight or ends; stretch (p,) float64
+    1 / cos(θ/2), θ the angle between the segments meeting at the point, 1 at a strand's
+    ends; at most :data:`MITER_LIMIT`, reached at a bend of 120°: a sharper fold would
+    grow a spike no round fibre has)."""
+    p = hair.points
+    n = len(p)
+    inner = np.ones(n, dtype=bool)
+    inner[hair.offsets[:-1]] = False
+    inner[np.maximum(hair.offsets[1:] - 1, 0)] = False
+    i = np.flatnonzero(inner)
+    d_in = p[i] - p[i - 1]
+    d_out = p[i + 1] - p[i]
+    for d in (d_in, d_out):  # coincident points: no bend
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    half_cos = np.linalg.norm(d_in + d_out, axis=1) / 2
+    t = tangents(hair)[i]
+    b = d_out - d_in
+    b -= np.einsum("ij,ij->i", b, t)[:, None] * t
+    norm = np.linalg.norm(b, axis=1)
+    bend = np.zeros((n, 3))
+    stretch = np.ones(n)
+    ok = norm > 1e-12
+    bend[i[ok]] = b[ok] / norm[ok, None]
+    stretch[i[ok]] = np.minimum(1 / np.maximum(half_cos[ok], 1e-3), MITER_LIMIT)
+    return bend, stretch
 
 
 def transported_frames(hair: Hair) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,6 +139,9 @@ def fibre_tubes(hair: Hair, sides: int = DEFAULT_SIDES) -> FibreMesh:
     ang = 2 * np.pi * np.arange(sides) / sides
     ring = (np.cos(ang)[None, :, None] * u[:, None, :] + np.sin(ang)[None, :, None]
             * v[:, None, :])
+    bend, stretch = miter(hair)  # each ring stretched along its bend (mitred joints)
+    along = np.einsum("psj,pj->ps", ring, bend)
+    ring += ((stretch - 1)[:, None] * along)[:, :, None] * bend[:, None, :]
     positions = (hair.points[:, None, :] + radius[:, None, None] * ring).reshape(-1, 3)
     s0 = hair.segment_start[:, None] * sides  # (g, 1) first vertex of the start ring
     a = s0 + np.arange(sides)[None, :]
@@ -147,8 +187,9 @@ def segment_hits(mesh: FibreMesh, triangle: np.ndarray, barycentric: np.ndarray
 
 def outside_offset(hair: Hair, sides: int = DEFAULT_SIDES) -> np.ndarray:
     """(p,) float64: the radius at each point from which rays leave the fibre — the tube's
-    circumradius plus a relative margin of 1e-3."""
-    return hair.thickness / 2 * circumradius_scale(sides) * (1 + 1e-3)
+    circumradius times the point's miter stretch (:func:`miter`), plus a relative margin
+    of 1e-3."""
+    return hair.thickness / 2 * circumradius_scale(sides) * miter(hair)[1] * (1 + 1e-3)
 
 
 def cylinder_normal(tangent: np.ndarray, direction: np.ndarray, impact: np.ndarray
