@@ -14,7 +14,8 @@ fibre's diameter, rays leaving from its circumradius):
   harmonic in the first bounce; ``--samples`` direct samples J, ``--rays`` gather rays M);
 * ``all_bounces``: the fast path with ``hair.harmonics = "all_bounces"``;
 * ``harmonic_denoised``, ``all_bounces_denoised``: those after the bake's denoising of the
-  strand texels (prtcore.transport.strand_denoise, k = 32: what a bake ships).
+  strand texels (prtcore.transport.strand_denoise, ``--neighbours`` k, by default what a
+  bake ships).
 
 ``--scene hairball``: the bake's 10k hairball under ``hairball_lights`` instead of the
 tangle (``--rays 64 --samples 4 --texels-per-strand 10``: the bake's defaults).
@@ -62,7 +63,8 @@ from prtcore.transport.strand_denoise import (  # noqa: E402
 )
 
 
-def fast_path(space, tracer, mesh, lights, rays: int, samples: int) -> dict:
+def fast_path(space, tracer, mesh, lights, rays: int, samples: int,
+              neighbours: int = DEFAULT_NEIGHBOURS) -> dict:
     """name → (T, K, 3) the fast path's indirect lightmaps, both harmonic variants."""
     direct = fibre_direct(space, tracer, lights, samples, seed=1)
     term = fibre_gather(space, tracer, mesh, 0, rays, seed=2, all_bounces=True)
@@ -73,7 +75,7 @@ def fast_path(space, tracer, mesh, lights, rays: int, samples: int) -> dict:
         np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]]), 64, 1e-4,
         method="neumann")
     every = np.maximum(every[:space.count], 0)
-    kernel = neighbour_kernel(space.position, DEFAULT_NEIGHBOURS)
+    kernel = neighbour_kernel(space.position, neighbours)
     return {"harmonic": harm, "all_bounces": every,
             "harmonic_denoised": denoise_irradiance(kernel, harm.copy(), space.albedo),
             "all_bounces_denoised": denoise_irradiance(kernel, every.copy(), space.albedo)}
@@ -91,6 +93,8 @@ def main() -> None:
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--fast", action="store_true", help="also the fast path's rows")
+    ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS,
+                    help="k of the denoised rows")
     args = ap.parse_args()
     hair, lights = ((hairball(10_000), hairball_lights()) if args.scene == "hairball"
                     else (tangle(1000), tangle_lights()))
@@ -111,7 +115,7 @@ def main() -> None:
         if args.fast:
             found.update({k: v[sel].astype(np.float64) for k, v in
                           fast_path(space, tracer, mesh, lights, args.rays,
-                                    args.samples).items()})
+                                    args.samples, args.neighbours).items()})
         seconds = time.perf_counter() - t0
         for name, est in found.items():
             e = noise_corrected_error(est, *mit)
