@@ -111,21 +111,23 @@ def main(argv: list[str] | None = None) -> dict:
     result = {"strands": a.strands, "mesh_texels": t_m, "strand_texels": t_h,
               "rays": a.rays, "direct_samples": a.samples, "paths": a.paths,
               "reference_seconds": ref_s, "variants": {}}
+    def errors(values: np.ndarray, seconds: float) -> dict:
+        """A variant's rows: its (T, K, 3) indirect light at the sampled texels against
+        the reference, per receiver."""
+        fast = values[rows].astype(np.float64)
+        return {"seconds": seconds,
+                "mesh": noise_corrected_error(fast[:nm], ra[:nm], rb[:nm]),
+                "mesh_covered": noise_corrected_error(fast[:nm][big], ra[:nm][big],
+                                                      rb[:nm][big]),
+                "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
+                "all": noise_corrected_error(fast, ra, rb)}
+
     for harmonics in ("first_bounce", "all_bounces"):
         for near in (1.0, 0.0):
             t0 = time.perf_counter()
             data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
                                           LIGHTS, spec=spec, harmonics=harmonics,
                                           hair_near=near, orders=a.orders)
-            def errors(values: np.ndarray, seconds: float) -> dict:
-                fast = values[rows].astype(np.float64)
-                return {"seconds": seconds,
-                        "mesh": noise_corrected_error(fast[:nm], ra[:nm], rb[:nm]),
-                        "mesh_covered": noise_corrected_error(fast[:nm][big], ra[:nm][big],
-                                                              rb[:nm][big]),
-                        "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
-                        "all": noise_corrected_error(fast, ra, rb)}
-
             name = f"{harmonics}{'' if near else ', no hair near field'}"
             result["variants"][name] = errors(data.indirect, time.perf_counter() - t0)
             if near:  # and after the bake's denoising of the strand texels
