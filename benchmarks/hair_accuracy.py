@@ -13,7 +13,9 @@ benchmarks/results/hair_accuracy.json, per variant:
 * ``all_bounces_h2``: the same plus the direct light's second azimuthal harmonic in the
   first bounce (``harmonic_first_bounce(..., first=2)``);
 * ``harmonic_denoised``, ``all_bounces_denoised``: those two after the bake's denoising
-  of the strand texels (``prtcore.transport.strand_denoise``, ``--neighbours`` k);
+  of the strand texels (``prtcore.transport.strand_denoise``, ``--neighbours`` k: a local
+  linear fit); ``harmonic_averaged``: the harmonic variant under the plain kernel average
+  of the same k neighbours (the filter before the local fit);
 * with ``--second-seed``: ``harmonic_systematic``, the harmonic variant's error shared by
   two fast paths with independent seeds (both runs' noise removed as the reference's is),
   and ``harmonic_noise``, the fast path's own per-texel noise relative to the light's RMS;
@@ -136,6 +138,9 @@ def main() -> None:
     every2 = np.maximum(every2[:t], 0)
     kernel = neighbour_kernel(space.position, args.neighbours)
     harm_d = denoise_irradiance(kernel, harm.copy(), space.albedo)
+    harm_a = denoise_irradiance(neighbour_kernel(space.position, args.neighbours,
+                                                 local_linear=False), harm.copy(),
+                                space.albedo)
     every_d = denoise_irradiance(kernel, every.copy(), space.albedo)
     sel = np.random.default_rng(0).choice(space.count, args.texels, replace=False)
     ref = fibre_reference(space, tracer, mesh, 0, lights, sel, args.paths, seed=7,
@@ -149,6 +154,7 @@ def main() -> None:
             "all_bounces_h2": noise_corrected_error(every2[sel].astype(float), *ref),
             "harmonic_denoised": noise_corrected_error(harm_d[sel].astype(float), *ref),
             "all_bounces_denoised": noise_corrected_error(every_d[sel].astype(float), *ref),
+            "harmonic_averaged": noise_corrected_error(harm_a[sel].astype(float), *ref),
             **(_second_run(space, tracer, mesh, lights, args, harm, sel, ref)
                if args.second_seed else {}),
             "model": noise_corrected_error(const[sel].astype(float), *avg)}

@@ -15,7 +15,8 @@ fibre's diameter, rays leaving from its circumradius):
 * ``all_bounces``: the fast path with ``hair.harmonics = "all_bounces"``;
 * ``harmonic_denoised``, ``all_bounces_denoised``: those after the bake's denoising of the
   strand texels (prtcore.transport.strand_denoise, ``--neighbours`` k, by default what a
-  bake ships).
+  bake ships: a local linear fit); ``harmonic_averaged``: the plain kernel average of the
+  same k neighbours instead (the filter before the local fit).
 
 ``--scene hairball``: the bake's 10k hairball under ``hairball_lights`` instead of the
 tangle (``--rays 64 --samples 4 --texels-per-strand 10``: the bake's defaults).
@@ -76,7 +77,9 @@ def fast_path(space, tracer, mesh, lights, rays: int, samples: int,
         method="neumann")
     every = np.maximum(every[:space.count], 0)
     kernel = neighbour_kernel(space.position, neighbours)
+    average = neighbour_kernel(space.position, neighbours, local_linear=False)
     return {"harmonic": harm, "all_bounces": every,
+            "harmonic_averaged": denoise_irradiance(average, harm.copy(), space.albedo),
             "harmonic_denoised": denoise_irradiance(kernel, harm.copy(), space.albedo),
             "all_bounces_denoised": denoise_irradiance(kernel, every.copy(), space.albedo)}
 

@@ -25,7 +25,7 @@ path tracer, as ``prtcore report BUNDLE --reference-spp N`` does (hair alone:
 
 The strand texels' indirect light is denoised before the fit
 (:mod:`prtcore.transport.strand_denoise`, ``hair.denoise_neighbours``): each texel's
-irradiance averaged with its nearest texels in space.
+irradiance fitted by a plane through its nearest texels in space.
 
 Not yet: keyframes, ``measurement_points.placement`` other than the hull, and
 ``fit.denoise`` (the seam-aware filter of surfaces, so a mesh baked with the hair has its
@@ -122,7 +122,7 @@ CHIANG_FIXED_LIGHTS = 512
 
 def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, no surface denoising,
-    ``hair.denoise_neighbours = "auto"`` resolved (32 for the diffuse fibre, 0 for the
+    ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
     Chiang fibre), ``hair.harmonics = "auto"`` resolved (all_bounces with a mesh: the light
     that goes head → hair → head needs the side of the fibre that faced the head,
     docs/hair.md),

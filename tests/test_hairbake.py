@@ -62,8 +62,8 @@ def test_hair_bundle_states_its_strand_layout(bundle):
     assert m["verdict"]["status"] == "pass" and m["verdict"]["ratio"] <= 1.25
     # the diffuse fibre's strand texels are denoised by default (hair.denoise_neighbours)
     report = json.loads((out / "report.json").read_text())
-    assert report["transport"]["denoise"]["neighbours"] == 32
-    assert m["spec"]["hair"]["denoise_neighbours"] == 32
+    assert report["transport"]["denoise"]["neighbours"] == 64
+    assert m["spec"]["hair"]["denoise_neighbours"] == 64
 
 
 @pytest.fixture

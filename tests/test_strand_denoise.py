@@ -24,7 +24,7 @@ def _points(n: int, seed: int = 0) -> np.ndarray:
 
 def test_kernel_rows_are_normalised_local_and_hold_the_texel_itself():
     p = _points(500)
-    ker = neighbour_kernel(p, 16)
+    ker = neighbour_kernel(p, 16, local_linear=False)
     m = ker.matrix.tocsr()
     assert m.shape == (500, 500) and m.dtype == np.float32
     np.testing.assert_allclose(np.asarray(m.sum(axis=1)).ravel(), 1.0, rtol=1e-6)
@@ -43,7 +43,7 @@ def test_kernel_rows_are_normalised_local_and_hold_the_texel_itself():
 
 def test_fewer_texels_than_neighbours_and_the_identity():
     p = _points(5)
-    ker = neighbour_kernel(p, 32)  # every texel is every texel's neighbour
+    ker = neighbour_kernel(p, 32, local_linear=False)  # every texel is every one's neighbour
     assert ker.neighbours == 5
     np.testing.assert_allclose(np.asarray(ker.matrix.sum(axis=1)).ravel(), 1, rtol=1e-6)
     assert np.all(ker.matrix.toarray() > 0)
@@ -60,9 +60,51 @@ def test_uniform_irradiance_and_colour_edges_are_kept_exactly():
     albedo = np.where((np.arange(n) % 2 == 0)[:, None], [0.9, 0.1, 0.0], [0.1, 0.2, 0.8])
     e = np.array([[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]])  # (K, 3) irradiance per light
     radiance = (albedo[:, None, :] / np.pi * e[None]).astype(np.float32)
-    out = denoise_irradiance(neighbour_kernel(p, 24), radiance.copy(), albedo)
+    out = denoise_irradiance(neighbour_kernel(p, 24), radiance.copy(), albedo, position=p)
     np.testing.assert_allclose(out, radiance, rtol=1e-5, atol=1e-7)
     assert np.all(out[0::2, :, 2] == 0)
+    # the blue channel's kernel was rebuilt over the odd texels alone: without the
+    # positions that cannot be done
+    with pytest.raises(ValueError, match="positions"):
+        denoise_irradiance(neighbour_kernel(p, 24), radiance.copy(), albedo)
+
+
+def test_texels_that_lend_nothing_are_nobodys_neighbours():
+    p = _points(300, 2)
+    lend = np.arange(300) % 3 != 0
+    m = neighbour_kernel(p, 12, lend=lend).matrix
+    assert np.all(lend[m.indices]) and np.all(np.diff(m.indptr) == 12)
+    np.testing.assert_allclose(np.asarray(m.sum(axis=1)).ravel(), 1, rtol=1e-5)
+
+
+def test_the_local_linear_fit_keeps_a_gradient_where_the_average_bends_it():
+    """Irradiance falling linearly through a ball of texels (light entering from one
+    side): the local linear fit reproduces it exactly, at the ball's surface too, where the
+    kernel average's one-sided neighbours pull every texel towards the inside. Texels on
+    one line (a lone strand) fit along the line and do not extrapolate across it."""
+    rng = np.random.default_rng(4)
+    p = rng.normal(size=(4000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    p *= np.cbrt(rng.random((4000, 1)))
+    e = 2.0 + p[:, 0]
+    radiance = np.repeat((0.5 / np.pi * e)[:, None, None], 3, axis=2).astype(np.float32)
+    albedo = np.full((4000, 3), 0.5)
+    llr = denoise_irradiance(neighbour_kernel(p, 64), radiance.copy(), albedo)
+    avg = denoise_irradiance(neighbour_kernel(p, 64, local_linear=False), radiance.copy(),
+                             albedo)
+    # within the slopes' ridge (SLOPE_RIDGE shrinks them by a fraction of a per cent)
+    np.testing.assert_allclose(llr, radiance, rtol=5e-3)
+    rim = np.linalg.norm(p, axis=1) > 0.9
+    bent = np.abs(avg - radiance)[rim].max() / radiance[rim].mean()
+    assert bent > 0.03, bent
+    line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]
+    ker = neighbour_kernel(line, 16)
+    assert ker.local_linear
+    ramp = 1 + 3 * line[:, 0]
+    np.testing.assert_allclose(ker.matrix @ ramp, ramp, rtol=1e-2)
+    end = neighbour_kernel(line, 16, local_linear=False).matrix @ ramp
+    assert end[0] > 1.2 and end[-1] < 3.8, end  # the average, pulled inwards at the ends
+    assert np.abs(ker.matrix).sum(axis=1).max() <= 2.5
 
 
 def test_denoising_removes_independent_noise_and_keeps_a_smooth_field():
@@ -102,7 +144,7 @@ def test_denoise_dataset_filters_the_strand_rows_only():
 def test_the_spec_key_and_its_default_per_fibre():
     from prtcore.hairbake import hair_spec
     assert parse_spec({}).hair.denoise_neighbours == "auto"
-    assert hair_spec(parse_spec({})).hair.denoise_neighbours == 32
+    assert hair_spec(parse_spec({})).hair.denoise_neighbours == 64
     # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md)
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair.denoise_neighbours == 0
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}})

@@ -288,9 +288,9 @@ class HairSpec:
     #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "auto" (docs/hair.md;
     #: "auto": first_bounce for hair alone, all_bounces for hair baked with a mesh)
     harmonics: str = "auto"
-    #: k: every strand texel's indirect light averaged with its k − 1 nearest texels in
-    #: space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: not denoised;
-    #: "auto": 32 for the diffuse fibre, 0 for "chiang" (whose texels differ with the
+    #: k: every strand texel's indirect light from a local linear fit through its k nearest
+    #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
+    #: "auto": 64 for the diffuse fibre, 0 for "chiang" (whose texels differ with the
     #: fibre's direction, so neighbours' averages add bias)
     denoise_neighbours: int | str = "auto"
     #: the Chiang fibre's parameters (used with ``fibre = "chiang"``)

@@ -93,11 +93,11 @@ DOCS: dict[str, str] = {
                       "with a mesh) · `first_bounce` (the direct light's first azimuthal "
                       "harmonic in the first bounce) · `all_bounces` (every texel's mean, "
                       "cos and sin through every bounce: 9× the operator, a slower solve)",
-    "hair.denoise_neighbours": "`auto` (32 for the diffuse fibre, 0 for `chiang`), or k "
+    "hair.denoise_neighbours": "`auto` (64 for the diffuse fibre, 0 for `chiang`), or k "
                                "in 0–1024: every strand texel's indirect irradiance "
-                               "averaged with its k − 1 nearest texels in space "
-                               "(Epanechnikov weights, adaptive radius; docs/hair.md); 0 "
-                               "or 1: off",
+                               "taken from a local linear fit through its k nearest texels "
+                               "in space (Epanechnikov weights, adaptive radius; "
+                               "docs/hair.md); 0 or 1: off",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",

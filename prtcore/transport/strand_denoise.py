@@ -36,88 +36,156 @@ from prtcore.core.sparse import SparseProduct
 from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.dataset import Dataset
 
-#: the default k (``hair.denoise_neighbours``): the hairball's rRMSE against the path
-#: tracer falls from 18 % to 6 % with little bias (docs/hair.md)
-DEFAULT_NEIGHBOURS = 32
-#: texels whose neighbours are found at once (a (chunk, k + 1) float64 + int64 query)
-QUERY_CHUNK = 1 << 16
+#: the default k (``hair.denoise_neighbours``): on the 10k hairball at the bake's defaults
+#: the rRMSE against the path tracer falls from 16 % to 7 % with no bias (docs/hair.md)
+DEFAULT_NEIGHBOURS = 64
+#: texels whose neighbours are found and fitted at once (a few (chunk, k, 4) float64
+#: temporaries: 33 MB each at k = 64)
+QUERY_CHUNK = 1 << 14
 #: columns (lights × channels) filtered at once, so the temporary stays small
 COLUMN_BLOCK = 48
+#: the ridge on the local fit's slopes, relative to the row's weight (the slopes are fitted
+#: in units of the kernel radius): it keeps the fit of neighbours that lie nearly on a line
+#: or a plane (a lone strand, a flat lock) from extrapolating, and pulls it towards the
+#: kernel average there
+SLOPE_RIDGE = 1e-3
+#: a row whose local-linear weights sum to more than this in absolute value (its noise
+#: gain) keeps the kernel average's weights instead
+MAX_GAIN = 2.5
 
 
 @dataclass(frozen=True)
 class NeighbourKernel:
     """The denoising filter of T texels.
 
-    matrix : (T, T) float32 CSR, row i the normalised weights of texel i's k nearest texels
+    matrix : (T, T) float32 CSR; row i the weights of texel i's k nearest texels, which
+        sum to 1 (they may be negative with ``local_linear``)
     neighbours : k
     radius : (T,) float64 the kernel radius h of every texel (metres)
+    local_linear : whether the weights are those of a local linear fit rather than the
+        kernel average
     """
 
     matrix: sp.csr_matrix
     neighbours: int
     radius: np.ndarray
+    local_linear: bool = False
+
+
+def _local_linear_weights(offset: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The weights (n, k) float64 that give the intercept of the weighted least-squares
+    plane ``E(x) ≈ a + b·(x − x_i)`` through each row's k neighbours: ``offset`` (n, k, 3)
+    float64 their positions relative to the texel in units of its kernel radius, ``w``
+    (n, k) float64 the kernel's weights. The slopes carry a ridge of ``SLOPE_RIDGE`` × the
+    row's weight; a row with a noise gain Σ|l| above ``MAX_GAIN`` keeps ``w`` normalised.
+    """
+    n, k = w.shape
+    x = np.concatenate([np.ones((n, k, 1)), offset], axis=2)
+    xtw = x.transpose(0, 2, 1) * w[:, None, :]  # (n, 4, k)
+    gram = xtw @ x
+    ridge = SLOPE_RIDGE * w.sum(axis=1)
+    gram[:, 1:, 1:] += ridge[:, None, None] * np.eye(3)
+    e0 = np.zeros((n, 4, 1))
+    e0[:, 0] = 1.0
+    coef = np.linalg.solve(gram, e0)  # (n, 4, 1): the first row of gram⁻¹
+    lw = (xtw.transpose(0, 2, 1) @ coef)[..., 0]
+    gain = np.abs(lw).sum(axis=1)
+    avg = w / w.sum(axis=1, keepdims=True)
+    return np.where((np.isfinite(gain) & (gain <= MAX_GAIN))[:, None], lw, avg)
 
 
 def neighbour_kernel(position: np.ndarray, neighbours: int = DEFAULT_NEIGHBOURS,
-                     threads: int = 2) -> NeighbourKernel:
-    """The kernel over ``position`` (T, 3) float64 texel points: ``neighbours`` (k)
-    nearest points each, itself included (every point when T ≤ k); k ≤ 1: the
-    identity."""
+                     threads: int = 2, local_linear: bool = True,
+                     lend: np.ndarray | None = None) -> NeighbourKernel:
+    """The kernel over ``position`` (T, 3) float64 texel points: each texel's ``neighbours``
+    (k) nearest points (every point when T ≤ k), itself included, with Epanechnikov weights
+    of an adaptive radius, and with ``local_linear`` (the default) the weights of the local
+    linear fit under them (:func:`_local_linear_weights`). ``lend`` (T,) bool: only those
+    texels are anyone's neighbours (a texel that lends nothing still gets a row). k ≤ 1:
+    the identity."""
     position = np.asarray(position, dtype=np.float64)
     t = len(position)
-    if t <= 1 or neighbours <= 1:
+    source = np.arange(t) if lend is None else np.flatnonzero(lend)
+    if t <= 1 or neighbours <= 1 or len(source) <= 1:
+        if lend is not None and len(source) < t and neighbours > 1:
+            raise ValueError("neighbour_kernel: fewer than two texels lend light")
         return NeighbourKernel(sp.identity(t, dtype=np.float32, format="csr"), 1,
                                np.zeros(t))
-    k = min(int(neighbours), t)
-    tree = cKDTree(position)
+    k = min(int(neighbours), len(source))
+    tree = cKDTree(position[source])
     cols = np.empty((t, k), dtype=np.int32)
     data = np.empty((t, k), dtype=np.float32)
     radius = np.empty(t)
     for a in range(0, t, QUERY_CHUNK):
         b = min(a + QUERY_CHUNK, t)
-        dist, idx = tree.query(position[a:b], k=min(k + 1, t), workers=threads)
-        # h: the (k + 1)-th point's distance; with k = T every point counts, the
+        dist, idx = tree.query(position[a:b], k=min(k + 1, len(source)), workers=threads)
+        # h: the (k + 1)-th point's distance; with k = all points every one counts, the
         # farthest with weight 1 − 1/1.25²
-        h = dist[:, -1] if k < t else 1.25 * dist[:, -1]
+        h = dist[:, -1] if k < len(source) else 1.25 * dist[:, -1]
         # coincident points (h = 0): equal weights
         safe = np.where(h > 0, h, 1.0)[:, None]
         w = np.maximum(1.0 - (dist[:, :k] / safe) ** 2, 0.0)
         w[h == 0] = 1.0
-        data[a:b] = w / w.sum(axis=1, keepdims=True)
-        cols[a:b] = idx[:, :k]
+        idx = source[idx[:, :k]]
+        if local_linear and k >= 4:
+            offset = (position[idx] - position[a:b, None, :]) / safe[..., None]
+            data[a:b] = _local_linear_weights(offset, w)
+        else:
+            data[a:b] = w / w.sum(axis=1, keepdims=True)
+        cols[a:b] = idx
         radius[a:b] = h
     matrix = sp.csr_matrix((data.reshape(-1), cols.reshape(-1),
                             np.arange(0, t * k + 1, k, dtype=np.int64)), shape=(t, t))
     matrix.sort_indices()
-    return NeighbourKernel(matrix, k, radius)
+    return NeighbourKernel(matrix, k, radius, local_linear and k >= 4)
 
 
 def denoise_irradiance(kernel: NeighbourKernel, radiance: np.ndarray, albedo: np.ndarray,
-                       threads: int = 2) -> np.ndarray:
+                       threads: int = 2, position: np.ndarray | None = None
+                       ) -> np.ndarray:
     """Replace ``radiance`` (T, K, 3) float32 outgoing radiance L = ρ/π·E of the kernel's T
-    texels **in place** by ``ρ · (W (L / ρ))``, W the kernel with each row's weights
-    renormalised over the neighbours whose ρ > 0 in that channel; ``albedo`` (T, 3) the
-    fibres' ρ. Returns ``radiance``. Works ``COLUMN_BLOCK`` columns at a time."""
+    texels **in place** by ``ρ · max(W (L / ρ), 0)``, W the kernel; ``albedo`` (T, 3) the
+    fibres' ρ. In a channel where some fibres have ρ = 0 (they tell nothing of the light
+    they receive) W is rebuilt over the others, which needs ``position``. Returns
+    ``radiance``. Works ``COLUMN_BLOCK`` columns at a time."""
     t = kernel.matrix.shape[0]
     if radiance.shape[0] != t or not radiance.flags.c_contiguous:
         raise ValueError(f"denoise_irradiance: expected a C-contiguous ({t}, K, 3) array, "
                          f"got {radiance.shape}")
     rho = np.asarray(albedo, dtype=np.float32).reshape(t, 3)
     lit = rho > 0
-    inv = np.where(lit, 1.0 / np.where(lit, rho, 1.0), 0.0).astype(np.float32)
-    product = SparseProduct(kernel.matrix, threads)
-    # the weight each row has over the neighbours that lend light, per channel
-    norm = product(lit.astype(np.float32))
-    scale = np.where(norm > 0, rho / np.where(norm > 0, norm, 1.0), 0.0).astype(np.float32)
     flat = radiance.reshape(t, -1, 3)
-    k = flat.shape[1]
-    step = max(1, COLUMN_BLOCK // 3)
+    channels: dict[bytes, list[int]] = {}
+    for c in range(3):
+        channels.setdefault(np.packbits(lit[:, c]).tobytes(), []).append(c)
+    for chans in channels.values():
+        lend = lit[:, chans[0]]
+        if lend.sum() < 2:  # nothing to average
+            continue
+        ker = kernel
+        if not lend.all():
+            if position is None:
+                raise ValueError("denoise_irradiance: fibres with ρ = 0 in a channel need "
+                                 "the texels' positions to rebuild the kernel")
+            ker = neighbour_kernel(position, kernel.neighbours, threads,
+                                   kernel.local_linear, lend)
+        _filter(SparseProduct(ker.matrix, threads), flat, rho, chans)
+    return radiance
+
+
+def _filter(product: SparseProduct, flat: np.ndarray, rho: np.ndarray,
+            chans: list[int]) -> None:
+    """``flat[:, :, c]`` ← ρ_c · max(W (L_c / ρ_c), 0) for the channels ``chans``, in place
+    (0 where ρ_c = 0)."""
+    t, k, _ = flat.shape
+    r = rho[:, chans]
+    inv = np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0).astype(np.float32)
+    step = max(1, COLUMN_BLOCK // len(chans))
     for a in range(0, k, step):
         b = min(a + step, k)
-        e = (flat[:, a:b] * inv[:, None, :]).reshape(t, -1)
-        flat[:, a:b] = product(e).reshape(t, b - a, 3) * scale[:, None, :]
-    return radiance
+        e = (flat[:, a:b][:, :, chans] * inv[:, None, :]).reshape(t, -1)
+        out = np.maximum(product(e), 0.0).reshape(t, b - a, len(chans))
+        flat[:, a:b, chans] = out * r[:, None, :]
 
 
 def denoise_dataset(data: Dataset, space: StrandSpace, neighbours: int,
@@ -144,7 +212,7 @@ def denoise_dataset(data: Dataset, space: StrandSpace, neighbours: int,
         kernel = neighbour_kernel(space.position, neighbours, threads)
         rows = data.indirect[first_row:first_row + t]  # a view: contiguous rows
         denoise_irradiance(kernel, rows, space.albedo if albedo is None else albedo,
-                           threads)
+                           threads, space.position)
         seconds = time.perf_counter() - t0
     stats = {**data.stats, "denoise": {"neighbours": kernel.neighbours,
                                        "median_radius_m": float(np.median(kernel.radius)),
