@@ -7,9 +7,10 @@ the fibre gather whose rays reach the atlas texels, one solve) is compared on ra
 subsets of the atlas texels and of the strand texels with
 prtcore.reference.hair_mesh (every fibre hit shaded with its own round-fibre normal, mesh
 hits with their own normal and albedo), the reference's noise removed with two independent
-halves; for both ``hair.harmonics`` variants (first_bounce: the hair's direct first
+halves; for the ``hair.harmonics`` variants (first_bounce: the hair's direct first
 harmonic in the first bounce only; all_bounces: every strand texel's mean, cos and sin in
-every bounce, what a hair + mesh bake uses by default), each with and without the near
+every bounce; mesh_bounces, what a hair + mesh bake uses by default: the same state, the
+harmonics fed by the direct light and the mesh only), each with and without the near
 field of the hair's rays that hit the scalp close by (``--no-hair-near`` drops it), and
 with the near field after the bake's denoising of the strand texels
 (``prtcore.transport.strand_denoise``, ``--neighbours`` k: rows "…, denoised"). Also
@@ -122,7 +123,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
                 "all": noise_corrected_error(fast, ra, rb)}
 
-    for harmonics in ("first_bounce", "all_bounces"):
+    for harmonics in ("first_bounce", "mesh_bounces", "all_bounces"):
         for near in (1.0, 0.0):
             t0 = time.perf_counter()
             data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
@@ -135,7 +136,7 @@ def main(argv: list[str] | None = None) -> dict:
                                       space, a.neighbours, first_row=t_m)
                 result["variants"][f"{harmonics}, denoised"] = errors(
                     den.indirect, time.perf_counter() - t0)
-            if harmonics == "all_bounces" and near:
+            if harmonics == "mesh_bounces" and near:  # the bake's default with a mesh
                 kept = data
     # what the other receiver brings: the same receivers without it
     alone_h = _hair_alone(space, points, spec)

@@ -123,9 +123,9 @@ CHIANG_FIXED_LIGHTS = 512
 def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, no surface denoising,
     ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
-    Chiang fibre), ``hair.harmonics = "auto"`` resolved (all_bounces with a mesh: the light
-    that goes head → hair → head needs the side of the fibre that faced the head,
-    docs/hair.md),
+    Chiang fibre), ``hair.harmonics = "auto"`` resolved (mesh_bounces with a mesh: the
+    light that goes head → hair → head needs the side of the fibre that faced the head,
+    docs/hair.md; mesh_bounces without a mesh is exactly first_bounce, and says so),
     "auto" light counts fixed (:data:`CHIANG_FIXED_LIGHTS` for the Chiang fibre);
     keys a hair bake cannot honour yet are refused by name."""
     if spec.keyframes.animation is not None:
@@ -144,7 +144,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.hair.fibre == "chiang":
         harmonics = "auto"  # the Chiang fibre carries no harmonics (its own transport)
     elif harmonics == "auto":
-        harmonics = "all_bounces" if with_mesh else "first_bounce"
+        harmonics = "mesh_bounces" if with_mesh else "first_bounce"
+    elif harmonics == "mesh_bounces" and not with_mesh:
+        harmonics = "first_bounce"  # no mesh light for the harmonics to carry
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
@@ -193,7 +195,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     float32 for the k = :data:`~prtcore.transport.fibre.FIRST_BOUNCE_LIGHTS` lights held at
     once, plus the fibre tubes) against ``limit_bytes``; returns the estimate. With
     ``hair.harmonics = "all_bounces"``: the (3T, 3T) operator's nine blocks (20 bytes per
-    gather ray and block before they are summed) and a solve over 3T rows (the stacked
+    gather ray and block before they are summed; "mesh_bounces": three, the mean rows')
+    and a solve over 3T rows (the stacked
     direct light and five working arrays of (3T, K, 3) float32). Without it the solve
     writes the indirect light over the texels' direct light (``bake_hair_dataset``'s
     ``keep_direct_texels=False``), so one (T, K, 3) float32 of the surface model's three
@@ -203,7 +206,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     segments = space.hair.point_count - space.hair.strand_count
-    everything = spec.hair.harmonics == "all_bounces"
+    everything = spec.hair.harmonics in ("all_bounces", "mesh_bounces")
+    blocks = 9 if spec.hair.harmonics == "all_bounces" else 3
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \
         + 2 * t * held * 12 + segments * MEM_PER_FIBRE_SEGMENT
@@ -214,7 +218,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         est += t * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
             spec.hair.chiang.exitance] + (2 * f * t * k * 12 if f > 1 else 0)
     if everything:
-        est += t * spec.transport.gather_rays * 9 * 20 + 6 * 3 * t * k * 12
+        est += t * spec.transport.gather_rays * blocks * 20 + 6 * 3 * t * k * 12
     else:  # the indirect light overwrites the direct
         est -= t * k * 12
     if mesh_texels:

@@ -285,8 +285,9 @@ class HairSpec:
     albedo: tuple[float, float, float] | None = None
     #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
     fibre: str = "diffuse"
-    #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "auto" (docs/hair.md;
-    #: "auto": first_bounce for hair alone, all_bounces for hair baked with a mesh)
+    #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "mesh_bounces" |
+    #: "auto" (docs/hair.md; "auto": first_bounce for hair alone, mesh_bounces for hair
+    #: baked with a mesh; mesh_bounces without a mesh is first_bounce)
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
@@ -764,7 +765,7 @@ def _parse(data: Any) -> BakeSpec:
         albedo=albedo,
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
         harmonics=_choice(hs.get("harmonics", "auto"), "hair.harmonics",
-                          ("auto", "first_bounce", "all_bounces")),
+                          ("auto", "first_bounce", "all_bounces", "mesh_bounces")),
         denoise_neighbours=_int_or_auto(hs.get("denoise_neighbours", "auto"),
                                         "hair.denoise_neighbours", lo=0, hi=1024),
         chiang=_chiang(hs.get("chiang", {})),

@@ -233,7 +233,8 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                  rays: int, seed: int, harmonics: int = HARMONICS,
                  all_bounces: bool = False, mesh_texels: Callable | None = None,
                  mesh_columns: int = 0, orders: int = 1,
-                 ray_data: Callable | None = None) -> FibreTerm:
+                 ray_data: Callable | None = None,
+                 harmonic_rows: bool = True) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
     mesh_texels : the mesh receives too (a hair + mesh bake): a
@@ -241,7 +242,9 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     rays whose first hit is the front of a mesh face go to :attr:`FibreTerm.mesh` (None:
     mesh hits bring nothing).
     all_bounces : also build :attr:`FibreTerm.block`, the gather on the (mean, cos, sin)
-    harmonics of every texel (:func:`harmonic_block`), up to order ``orders``.
+    harmonics of every texel (:func:`harmonic_block`), up to order ``orders``;
+    ``harmonic_rows=False``: its harmonic rows take nothing from other fibres (the mesh
+    block's still take the mesh's light).
     ray_data : what another fibre needs of every ray that hits a fibre, ``ray_data(texel
     (n,), arc (n,), d (n, 3))`` → (n, F): kept in :attr:`FibreTerm.rays`
     (:mod:`prtcore.transport.fibre_chiang` weights the rays with it)."""
@@ -310,7 +313,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     block = None
     if all_bounces:
         po = np.concatenate(po_all) if po_all else np.zeros(0, np.float32)
-        block = harmonic_block(t, rays, rows, cols, po, psi, orders)
+        block = harmonic_block(t, rays, rows, cols, po, psi, orders, harmonic_rows)
     to_mesh = mesh_block = mesh_hits = None
     if mesh_texels is not None:
         mr = np.concatenate(mesh_rows) if mesh_rows else np.zeros(0, np.int32)
@@ -380,21 +383,28 @@ def fourier_rows(angle: np.ndarray, orders: int, scale: float = 1.0) -> np.ndarr
 
 
 def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
-                   phi_o: np.ndarray, psi: np.ndarray, orders: int = 1) -> sp.csr_matrix:
+                   phi_o: np.ndarray, psi: np.ndarray, orders: int = 1,
+                   harmonic_rows: bool = True) -> sp.csr_matrix:
     """The gather on the azimuthal harmonics of every texel up to order H (``orders``),
     (nT, nT) float32 CSR with n = 2H + 1: row block a ∈ (mean, cos φ, sin φ, cos 2φ, …)
     of the receiving texel, column block b of the source. A ray leaving texel i at
     azimuth φ_o and hitting texel j at azimuth ψ adds ``w_a(φ_o) v_b(ψ) / M`` with
     ``w = (1, 2 cos φ_o, 2 sin φ_o, …)`` (the Fourier coefficients of the irradiance
     around the receiving fibre, whose ray origins are stratified in azimuth) and
-    ``v = (1, cos ψ, sin ψ, …)`` (the source's outgoing radiance at the point hit)."""
+    ``v = (1, cos ψ, sin ψ, …)`` (the source's outgoing radiance at the point hit).
+    ``harmonic_rows=False`` (``hair.harmonics = "mesh_bounces"``): only the mean rows
+    receive, so a texel's harmonics never take light from other fibres (they hold what
+    the direct light and the mesh give them); the harmonic row blocks stay, empty."""
     n = 2 * orders + 1
     w = fourier_rows(phi_o, orders, 2)
     v = fourier_rows(psi, orders)
-    r = np.concatenate([rows.astype(np.int64) + a * t for a in range(n) for _ in range(n)])
-    c = np.concatenate([cols.astype(np.int64) + b * t for _ in range(n) for b in range(n)])
+    receiving = range(n) if harmonic_rows else range(1)
+    r = np.concatenate([rows.astype(np.int64) + a * t for a in receiving
+                        for _ in range(n)])
+    c = np.concatenate([cols.astype(np.int64) + b * t for _ in receiving
+                        for b in range(n)])
     d = np.concatenate([(w[a] * v[b]).astype(np.float32) / np.float32(rays)
-                        for a in range(n) for b in range(n)])
+                        for a in receiving for b in range(n)])
     m = sp.csr_matrix((d, (r, c)), shape=(n * t, n * t))
     m.sum_duplicates()
     m.sort_indices()

@@ -181,7 +181,11 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     (:func:`harmonic_operator`, solved by the Neumann series): the light that goes head →
     hair → head keeps the side of the fibre that faced the head; ``orders`` (H) harmonics
     (the state is T_m + (2H + 1) T_h rows; the hair's direct light then takes
-    max(4H, J) samples per texel)."""
+    max(4H, J) samples per texel); "mesh_bounces" — the same state and solve, but a strand
+    texel's harmonics take light from the mesh (and the direct light) only, never from
+    other fibres: later fibre-to-fibre bounces stay radially constant, as in
+    first_bounce, while the head → hair → head light keeps its side (docs/hair.md,
+    "Which harmonics with a mesh")."""
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
@@ -192,10 +196,11 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                              near_field=spec.near_field,
                              direct_samples=spec.direct_samples, foreign=strands)
     r1 = tracer.rays_traced
-    everything = harmonics == "all_bounces"
+    everything = harmonics in ("all_bounces", "mesh_bounces")
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
                             all_bounces=everything, orders=orders,
+                            harmonic_rows=harmonics == "all_bounces",
                             mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
     r2 = tracer.rays_traced
     mh = strands.harmonics(gather.valid_rays, orders if everything else 1)
