@@ -19,7 +19,8 @@ per colour:
   taken against the fibre's sphere-averaged albedo);
 * with ``--mitsuba-rays R``: ``pathtracer_vs_mitsuba``, prtcore's Chiang path tracer
   against Mitsuba 3's own ``hair`` BSDF and path tracer (prtcore.reference.mitsuba_fibres:
-  the polylines as B-spline curves), both sides' noise removed.
+  the polylines as B-spline curves), both sides' noise removed; and ``{exitance}_vs_mitsuba``,
+  the fast path against Mitsuba directly.
 
 ``--scene hairball``: the bake's 10k hairball (``--strands`` 10000 then) under
 ``hairball_lights`` instead of the tangle.
@@ -132,6 +133,8 @@ def main() -> None:
                                              fibre.params,
                                              sigma_a=tuple(fibre.sigma_texels[0])))
             rows["pathtracer_vs_mitsuba"] = noise_corrected_error(ref, *mit)
+            for e in EXITANCE:
+                rows[f"{e}_vs_mitsuba"] = noise_corrected_error(fast[e][sel], *mit)
         print(f"colour {color} (σ_a {np.round(fibre.sigma_texels[0], 3).tolist()}), "
               f"{space.count} texels")
         for name, e in rows.items():
