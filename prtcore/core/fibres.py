@@ -22,10 +22,19 @@ Ray origins leaving a fibre start on the tube's circumscribed cylinder, widened 
 point by its miter's stretch (:func:`outside_offset`): from there a ray with a positive
 radial component never re-enters its own convex prism.
 
+**Each segment is cut into ``pieces`` collinear sub-prisms** (:data:`DEFAULT_PIECES`): the
+intermediate rings are the vertex-wise interpolation of the segment's two end rings, so the
+surface is the same ruled prism. A segment of the 10k hairball is 9 mm long and 0.1 mm thick,
+and its triangles run diagonally through mostly empty bounding boxes. Cut in two, Embree
+traces 1.5–1.8× more rays per CPU-second along the Morton curve (``python
+benchmarks/hair_rays.py``, row "segments split"; docs/hair.md) for twice the triangles.
+
 A tube's triangles are ordered by segment: triangle ``f`` belongs to segment
-``f // (2 · sides)`` (:attr:`prtcore.core.hair.Hair.segment_start`), its first ``sides``
-triangles have two vertices on the segment's start ring. :func:`segment_hits` maps a hit's
-barycentrics to (segment, parameter along it).
+``f // (2 · sides · pieces)`` (:attr:`prtcore.core.hair.Hair.segment_start`), then by piece
+from the segment's start, and in a piece its first ``sides`` triangles have two vertices on
+the piece's start ring. :func:`segment_hits` maps a hit's barycentrics to (segment,
+parameter along it). The vertices: every point's ring first (``sides`` each, the point's
+index × sides), then the intermediate rings, segment by segment.
 """
 
 from __future__ import annotations
@@ -39,6 +48,8 @@ from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.hair import Hair
 
 DEFAULT_SIDES = 3
+#: collinear sub-prisms per tube segment (the module docstring)
+DEFAULT_PIECES = 2
 #: the largest stretch of a mitred ring (:func:`miter`): 1 / cos(60°)
 MITER_LIMIT = 2.0
 
@@ -116,24 +127,29 @@ class FibreMesh:
     """Triangles standing for the fibres.
 
     positions : (v, 3) float64; faces : (f, 3) int64;
-    kind : "tubes" | "ribbons"; sides : quads per segment (1 for ribbons);
-    ring : (p,) int64 first vertex of each point's ring (``sides`` vertices, 2 for ribbons)
+    kind : "tubes" | "ribbons"; sides : quads around a segment (1 for ribbons);
+    pieces : collinear sub-prisms per segment (1 for ribbons)
     """
 
     positions: np.ndarray
     faces: np.ndarray
     kind: str
     sides: int
+    pieces: int = 1
 
     @property
     def triangles_per_segment(self) -> int:
-        return 2 * self.sides
+        return 2 * self.sides * self.pieces
 
 
-def fibre_tubes(hair: Hair, sides: int = DEFAULT_SIDES) -> FibreMesh:
-    """Prisms of ``sides`` (≥ 3) faces around every segment (see the module docstring)."""
+def fibre_tubes(hair: Hair, sides: int = DEFAULT_SIDES,
+                pieces: int = DEFAULT_PIECES) -> FibreMesh:
+    """Prisms of ``sides`` (≥ 3) faces around every segment, each cut into ``pieces`` (≥ 1)
+    collinear sub-prisms (see the module docstring)."""
     if sides < 3:
         raise ValueError(f"fibre tubes need at least 3 sides, got {sides}")
+    if pieces < 1:
+        raise ValueError(f"fibre tubes need at least 1 piece per segment, got {pieces}")
     _, u, v = transported_frames(hair)
     radius = hair.thickness / 2 * circumradius_scale(sides)
     ang = 2 * np.pi * np.arange(sides) / sides
@@ -142,17 +158,29 @@ def fibre_tubes(hair: Hair, sides: int = DEFAULT_SIDES) -> FibreMesh:
     bend, stretch = miter(hair)  # each ring stretched along its bend (mitred joints)
     along = np.einsum("psj,pj->ps", ring, bend)
     ring += ((stretch - 1)[:, None] * along)[:, :, None] * bend[:, None, :]
-    positions = (hair.points[:, None, :] + radius[:, None, None] * ring).reshape(-1, 3)
-    s0 = hair.segment_start[:, None] * sides  # (g, 1) first vertex of the start ring
-    a = s0 + np.arange(sides)[None, :]
-    b = s0 + (np.arange(sides)[None, :] + 1) % sides
-    a1, b1 = a + sides, b + sides  # the end ring
-    # first the `sides` triangles with two start-ring vertices, then the others
-    lower = np.stack([a, b, b1], axis=2)
-    upper = np.stack([a, b1, a1], axis=2)
-    faces = np.concatenate([lower, upper], axis=1).reshape(-1, 3)
-    return FibreMesh(positions=positions, faces=faces.astype(np.int64), kind="tubes",
-                     sides=sides)
+    rings = hair.points[:, None, :] + radius[:, None, None] * ring  # (p, sides, 3)
+    start = hair.segment_start
+    g = len(start)
+    frac = np.arange(1, pieces)[None, :, None, None] / pieces  # (1, P − 1, 1, 1)
+    inner = (1 - frac) * rings[start][:, None] + frac * rings[start + 1][:, None]
+    positions = np.concatenate([rings.reshape(-1, 3), inner.reshape(-1, 3)])
+    # first vertex of ring j = 0 … P of every segment (g, P + 1)
+    first = np.empty((g, pieces + 1), dtype=np.int64)
+    first[:, 0] = start * sides
+    first[:, pieces] = (start + 1) * sides
+    first[:, 1:pieces] = len(hair.points) * sides + (
+        np.arange(g)[:, None] * (pieces - 1) + np.arange(pieces - 1)[None, :]) * sides
+    k = np.arange(sides)
+    a = first[:, :-1, None] + k  # (g, P, sides) the piece's start ring
+    b = first[:, :-1, None] + (k + 1) % sides
+    a1 = first[:, 1:, None] + k  # its end ring
+    b1 = first[:, 1:, None] + (k + 1) % sides
+    # per piece: first the `sides` triangles with two start-ring vertices, then the others
+    lower = np.stack([a, b, b1], axis=3)
+    upper = np.stack([a, b1, a1], axis=3)
+    faces = np.concatenate([lower, upper], axis=2).reshape(-1, 3)
+    return FibreMesh(positions=positions, faces=faces, kind="tubes", sides=sides,
+                     pieces=pieces)
 
 
 def fibre_ribbons(hair: Hair) -> FibreMesh:
@@ -175,9 +203,12 @@ def segment_hits(mesh: FibreMesh, triangle: np.ndarray, barycentric: np.ndarray
     seg = triangle // per
     local = triangle % per
     if mesh.kind == "tubes":
-        # lower triangles (a, b, b1): vertex 2 on the end ring; upper (a, b1, a1): 1 and 2
+        piece, local = np.divmod(local, 2 * mesh.sides)
+        # lower triangles (a, b, b1): vertex 2 on the piece's end ring; upper (a, b1, a1):
+        # 1 and 2
         lower = local < mesh.sides
-        t = np.where(lower, barycentric[:, 2], barycentric[:, 1] + barycentric[:, 2])
+        t = (piece + np.where(lower, barycentric[:, 2], barycentric[:, 1] + barycentric[:, 2])
+             ) / mesh.pieces
     else:
         # (s0, s0+1, s0+3) then (s0, s0+3, s0+2): end-ring vertices are 3 and 2
         first = local == 0

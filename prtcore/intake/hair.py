@@ -15,7 +15,7 @@ from prtcore.core.scene import Material, Scene
 def hair_scene(hair: Hair, sides: int = DEFAULT_SIDES) -> Scene:
     """The fibre tubes as a scene: radial vertex normals, one material whose base colour
     is the hair's mean colour (hull points take their albedo from it)."""
-    mesh = fibre_tubes(hair, sides)
+    mesh = fibre_tubes(hair, sides, pieces=1)  # a vertex per point and side
     axis = np.repeat(hair.points, sides, axis=0)
     n = mesh.positions - axis
     n /= np.linalg.norm(n, axis=1, keepdims=True)

@@ -76,7 +76,8 @@ def render_strands(bundle: str | Path, lights: Sequence[Light], camera: Camera,
     hair = read_hair(bundle / (manifest["asset"]["hair"]["file"] if both else
                                manifest["asset"]["file"]))
     space = build_strand_space(hair, int(layout["texels_per_strand"]))
-    tracer, mesh = hair_tracer(space, scene)
+    # the GL renderer's tubes (one prism per segment), so both drawings see one surface
+    tracer, mesh = hair_tracer(space, scene, pieces=1)
     first = scene.triangle_count if both else 0
     o, d = camera.primary_rays()
     hits = tracer.intersect(o, d)

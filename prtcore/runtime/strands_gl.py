@@ -77,7 +77,7 @@ def tube_vertices(hair, sides: int = DEFAULT_SIDES, sigma: np.ndarray | None = N
     Chiang fibre, ``sigma`` (p, 3): its absorption per unit radius), and the unit
     direction of the segment ending at p (the start ring of a strand: the one leaving it;
     never read — a tube triangle's provoking, last, vertex is on its segment's end ring)."""
-    mesh = fibre_tubes(hair, sides)
+    mesh = fibre_tubes(hair, sides, pieces=1)  # a vertex per point and side
     strand = np.repeat(np.arange(hair.strand_count), np.diff(hair.offsets))
     p = hair.points
     seg = np.zeros_like(p)

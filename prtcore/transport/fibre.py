@@ -57,6 +57,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from prtcore.core.fibres import (
+    DEFAULT_PIECES,
     DEFAULT_SIDES,
     FibreMesh,
     cylinder_normal,
@@ -86,16 +87,20 @@ MEM_PER_TEXEL_RAY = 40
 MEM_PER_RAY_IN_FLIGHT = 300
 #: Memory of the fibre tubes per polyline segment (bytes): prtcore's float64 vertices,
 #: faces and face normals plus Embree's copies and BVH, measured at 10k strands × 16
-#: segments by benchmarks/hair_geometry.py (89 + 112 MiB) and rounded up.
-MEM_PER_FIBRE_SEGMENT = 1400
+#: segments by benchmarks/hair_geometry.py (89 + 112 MiB) and rounded up; segments cut
+#: in two (DEFAULT_PIECES = 2) raised the 10k bake's peak by 0.15 GiB (≈ 1000 bytes a
+#: segment), so 2400.
+MEM_PER_FIBRE_SEGMENT = 2400
 
 
 def hair_tracer(space: StrandSpace, scene: Scene | None = None, sides: int = DEFAULT_SIDES,
-                threads: int | None = None) -> tuple[RayTracer, FibreMesh]:
+                threads: int | None = None, pieces: int = DEFAULT_PIECES
+                ) -> tuple[RayTracer, FibreMesh]:
     """The tracer of a hair bake and its fibre tubes: ``scene``'s triangles (if any) with
     indices [0, F), then the tubes' with indices F + their own. The scale (ray offsets,
-    "infinite" distance) is the radius of everything's bounds."""
-    mesh = fibre_tubes(space.hair, sides)
+    "infinite" distance) is the radius of everything's bounds. ``pieces``: sub-prisms per
+    segment (:data:`prtcore.core.fibres.DEFAULT_PIECES`, for the BVH's sake)."""
+    mesh = fibre_tubes(space.hair, sides, pieces)
     if scene is not None and scene.triangle_count:
         positions = np.concatenate([scene.positions, mesh.positions])
         faces = np.concatenate([scene.faces, mesh.faces + len(scene.positions)])
