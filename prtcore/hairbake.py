@@ -67,7 +67,12 @@ from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.transport.dataset import Dataset, estimate_bake_bytes
-from prtcore.transport.fibre import FIRST_BOUNCE_LIGHTS, MEM_PER_FIBRE_SEGMENT, hair_tracer
+from prtcore.transport.fibre import (
+    FIRST_BOUNCE_LIGHTS,
+    MEM_PER_FIBRE_SEGMENT,
+    STACKED_HARMONICS,
+    hair_tracer,
+)
 from prtcore.transport.fibre_chiang import (
     CHIANG_BYTES_PER_RAY,
     EXITANCE_TERMS,
@@ -206,7 +211,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     segments = space.hair.point_count - space.hair.strand_count
-    everything = spec.hair.harmonics in ("all_bounces", "mesh_bounces")
+    everything = spec.hair.harmonics in STACKED_HARMONICS
     blocks = 9 if spec.hair.harmonics == "all_bounces" else 3
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     est = estimate_bake_bytes(t, k, spec.transport, ("fibre",)) \

@@ -387,6 +387,11 @@ def fourier_rows(angle: np.ndarray, orders: int, scale: float = 1.0) -> np.ndarr
     return np.stack(out)
 
 
+#: the ``hair.harmonics`` variants whose state stacks every strand texel's (mean, cos, sin)
+#: and whose operator is :func:`harmonic_block` (mesh_bounces: its mean rows only)
+STACKED_HARMONICS = ("all_bounces", "mesh_bounces")
+
+
 def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
                    phi_o: np.ndarray, psi: np.ndarray, orders: int = 1,
                    harmonic_rows: bool = True) -> sp.csr_matrix:

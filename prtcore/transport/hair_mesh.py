@@ -43,6 +43,7 @@ from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import (
+    STACKED_HARMONICS,
     FibreTerm,
     MeshHits,
     direct_and_first_bounce,
@@ -196,7 +197,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                              near_field=spec.near_field,
                              direct_samples=spec.direct_samples, foreign=strands)
     r1 = tracer.rays_traced
-    everything = harmonics in ("all_bounces", "mesh_bounces")
+    everything = harmonics in STACKED_HARMONICS
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
                             all_bounces=everything, orders=orders,
