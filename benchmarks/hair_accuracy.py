@@ -16,7 +16,8 @@ benchmarks/results/hair_accuracy.json, per variant:
   of the strand texels (``prtcore.transport.strand_denoise``, ``--neighbours`` k: a local
   linear fit); ``harmonic_averaged``: the harmonic variant under the plain kernel average
   of the same k neighbours (the filter before the local fit);
-* with ``--second-seed``: ``harmonic_systematic``, the harmonic variant's error shared by
+* with ``--second-seed``: ``harmonic_denoised_seed2``, the denoised harmonic variant
+  with independent seeds; ``harmonic_systematic``, the harmonic variant's error shared by
   two fast paths with independent seeds (both runs' noise removed as the reference's is),
   and ``harmonic_noise``, the fast path's own per-texel noise relative to the light's RMS;
 * ``model``: the constant variant against a reference that makes the same radially constant
@@ -73,10 +74,15 @@ from prtcore.transport.strand_denoise import (  # noqa: E402
 )
 
 
-def _second_run(space, tracer, mesh, lights, args, harm, sel, ref) -> dict:
+def _second_run(space, tracer, mesh, lights, args, harm, sel, ref, kernel) -> dict:
     """The harmonic variant again with independent seeds: the error the two runs share
-    against the reference, and the fast path's own noise (rows of the same form)."""
-    direct = fibre_direct(space, tracer, lights, args.samples, seed=11, harmonics=2)
+    against the reference, the fast path's own noise (rows of the same form), and the
+    second run denoised by ``kernel`` (the bake's error with another seed)."""
+    direct = fibre_direct(space, tracer, lights, args.samples, seed=11, harmonics=2,
+                          estimator=args.direct)
+    if args.source_neighbours > 1:
+        denoise_irradiance(neighbour_kernel(space.position, args.source_neighbours),
+                           direct.mean, space.albedo)
     term = fibre_gather(space, tracer, mesh, 0, args.rays, seed=12, harmonics=1)
     again, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, args.max_bounces,
                                1e-4, first_bounce=harmonic_first_bounce(term, direct))
@@ -84,7 +90,10 @@ def _second_run(space, tracer, mesh, lights, args, harm, sel, ref) -> dict:
     shared = noise_corrected_error((a, b), *ref)
     rms = float(np.sqrt(np.mean(((ref[0] + ref[1]) / 2) ** 2)))
     own = float(np.sqrt(np.mean((a - b) ** 2) / 2)) / rms
-    return {"harmonic_systematic": shared,
+    again_d = denoise_irradiance(kernel, again.copy(), space.albedo)
+    return {"harmonic_denoised_seed2": noise_corrected_error(again_d[sel].astype(float),
+                                                             *ref),
+            "harmonic_systematic": shared,
             "harmonic_noise": {"rrmse": own, "raw_rrmse": own, "reference_noise": 0.0,
                                "bias": 0.0, "bias_se": 0.0}}
 
@@ -96,6 +105,9 @@ def main() -> None:
                     help="1000 for the tangle, 10000 for the hairball")
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--direct", choices=("facing", "sampled"), default="facing",
+                    help="the direct light's estimator (hair.direct); --samples: its arc "
+                         "samples (facing) or surface points (sampled) per texel")
     ap.add_argument("--paths", type=int, default=1024)
     ap.add_argument("--texels", type=int, default=300)
     ap.add_argument("--texels-per-strand", type=int, default=4)
@@ -103,6 +115,9 @@ def main() -> None:
     ap.add_argument("--mitsuba-texels", type=int, default=100)
     ap.add_argument("--max-bounces", type=int, default=64)
     ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS)
+    ap.add_argument("--source-neighbours", type=int, default=0,
+                    help="k > 1: the direct light's mean filtered over k neighbours "
+                         "before the solves (experiment)")
     ap.add_argument("--second-seed", action="store_true",
                     help="run the harmonic fast path again with other seeds: its own noise")
     args = ap.parse_args()
@@ -115,7 +130,11 @@ def main() -> None:
     space = build_strand_space(hair, args.texels_per_strand)
     tracer, mesh = hair_tracer(space)
     t0 = time.perf_counter()
-    direct = fibre_direct(space, tracer, lights, args.samples, seed=1, harmonics=2)
+    direct = fibre_direct(space, tracer, lights, args.samples, seed=1, harmonics=2,
+                          estimator=args.direct)
+    if args.source_neighbours > 1:
+        denoise_irradiance(neighbour_kernel(space.position, args.source_neighbours),
+                           direct.mean, space.albedo)
     term = fibre_gather(space, tracer, mesh, 0, args.rays, seed=2, all_bounces=True,
                         harmonics=2)
     const, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, nb, 1e-4)
@@ -155,7 +174,7 @@ def main() -> None:
             "harmonic_denoised": noise_corrected_error(harm_d[sel].astype(float), *ref),
             "all_bounces_denoised": noise_corrected_error(every_d[sel].astype(float), *ref),
             "harmonic_averaged": noise_corrected_error(harm_a[sel].astype(float), *ref),
-            **(_second_run(space, tracer, mesh, lights, args, harm, sel, ref)
+            **(_second_run(space, tracer, mesh, lights, args, harm, sel, ref, kernel)
                if args.second_seed else {}),
             "model": noise_corrected_error(const[sel].astype(float), *avg)}
     if args.mitsuba_samples:

@@ -16,7 +16,8 @@ fibre path tracer (prtcore.reference.fibres) on N random texels × 256 paths for
 light and prints the time per path and the per-texel relative noise it reaches.
 
 Usage: python benchmarks/hair_bake.py [--strands 10000] [--lights 128] [--rays 64]
-       [--estimate-only] [--path-tracer-texels N]
+       [--estimate-only] [--path-tracer-texels N] [--direct facing|sampled]
+       [--direct-samples auto|N]
 """
 
 from __future__ import annotations
@@ -59,12 +60,17 @@ def main() -> None:
     ap.add_argument("--rays", type=int, default=64)
     ap.add_argument("--estimate-only", action="store_true")
     ap.add_argument("--path-tracer-texels", type=int, default=0)
+    ap.add_argument("--direct", choices=("facing", "sampled"), default="facing",
+                    help="hair.direct, the direct light's estimator")
+    ap.add_argument("--direct-samples", default="auto", help="hair.direct_samples")
     args = ap.parse_args()
     tmp = ROOT / "benchmarks" / "results" / f"hairball-{args.strands}.hair"
     tmp.parent.mkdir(parents=True, exist_ok=True)
     write_hair(tmp, hairball(strands=args.strands, seed=0))
     spec = hair_spec(parse_spec({
-        "hair": {"texels_per_strand": 10},
+        "hair": {"texels_per_strand": 10, "direct": args.direct,
+                 "direct_samples": (args.direct_samples if args.direct_samples == "auto"
+                                    else int(args.direct_samples))},
         "lights": {"count": args.lights, "holdout": 16,
                    "families": [{"type": "point", "position": {"shell": [1.5, 3.0]},
                                  "intensity": {"uniform": [0.5, 2.0]}}]},
@@ -75,7 +81,8 @@ def main() -> None:
     space = intake.texels
     estimate = check_hair_memory(tmp, space, spec, 1 << 62)
     row = {"strands": args.strands, "texels": space.count, "lights": args.lights + 16,
-           "gather_rays": args.rays, "estimate_bytes": estimate,
+           "gather_rays": args.rays, "direct": spec.hair.direct,
+           "direct_samples": spec.hair.direct_samples, "estimate_bytes": estimate,
            "limit_bytes": limits.max_bake_bytes, "fits_limit": estimate <= limits.max_bake_bytes}
     print(f"{args.strands} strands: {space.count} strand texels ({space.width}×{space.height}),"
           f" K = {args.lights} + 16: memory estimate {estimate / 2**30:.2f} GiB "
@@ -109,7 +116,9 @@ def main() -> None:
         tracer.occluded(space.position[:1], space.normal[:1])  # Embree's lazy BVH build
         t1 = time.perf_counter()
         data = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                 spec.transport, timer, keep_direct_texels=False)  # the bake's
+                                 spec.transport, timer, keep_direct_texels=False,
+                                 direct_estimator=spec.hair.direct,
+                                 direct_samples=spec.hair.direct_samples)  # the bake's
         # and the bake's denoising of the strand texels (part of the dataset it fits)
         data = denoise_dataset(data, space, spec.hair.denoise_neighbours, timer=timer,
                                threads=tracer.threads)

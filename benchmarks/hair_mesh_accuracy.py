@@ -76,7 +76,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--texels", type=int, default=300, help="of each kind")
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--texels-per-strand", type=int, default=8)
-    ap.add_argument("--samples", type=int, default=8, help="direct samples J")
+    ap.add_argument("--samples", type=int, default=8,
+                    help="the mesh's direct samples J (transport.direct_samples), and the "
+                         "hair's with --direct sampled")
+    ap.add_argument("--direct", choices=("facing", "sampled"), default="facing",
+                    help="the hair's direct-light estimator (hair.direct; facing takes "
+                         "its default arc samples)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS,
                     help="k of the strand texels' denoising (variants '…, denoised')")
@@ -110,7 +115,8 @@ def main(argv: list[str] | None = None) -> dict:
     # than by the path tracer's regions, where the light under hair changes within a mm
     big = texels.coverage[mesh_rows] >= COVERED
     result = {"strands": a.strands, "mesh_texels": t_m, "strand_texels": t_h,
-              "rays": a.rays, "direct_samples": a.samples, "paths": a.paths,
+              "rays": a.rays, "direct_samples": a.samples, "direct": a.direct,
+              "paths": a.paths,
               "reference_seconds": ref_s, "variants": {}}
     def errors(values: np.ndarray, seconds: float) -> dict:
         """A variant's rows: its (T, K, 3) indirect light at the sampled texels against
@@ -128,7 +134,8 @@ def main(argv: list[str] | None = None) -> dict:
             t0 = time.perf_counter()
             data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
                                           LIGHTS, spec=spec, harmonics=harmonics,
-                                          hair_near=near, orders=a.orders)
+                                          hair_near=near, orders=a.orders,
+                                          direct_estimator=a.direct)
             name = f"{harmonics}{'' if near else ', no hair near field'}"
             result["variants"][name] = errors(data.indirect, time.perf_counter() - t0)
             if near:  # and after the bake's denoising of the strand texels

@@ -65,9 +65,10 @@ from prtcore.transport.strand_denoise import (  # noqa: E402
 
 
 def fast_path(space, tracer, mesh, lights, rays: int, samples: int,
-              neighbours: int = DEFAULT_NEIGHBOURS) -> dict:
-    """name → (T, K, 3) the fast path's indirect lightmaps, both harmonic variants."""
-    direct = fibre_direct(space, tracer, lights, samples, seed=1)
+              neighbours: int = DEFAULT_NEIGHBOURS, direct: str = "facing") -> dict:
+    """name → (T, K, 3) the fast path's indirect lightmaps, both harmonic variants;
+    ``direct`` the direct light's estimator (``hair.direct``) with ``samples``."""
+    direct = fibre_direct(space, tracer, lights, samples, seed=1, estimator=direct)
     term = fibre_gather(space, tracer, mesh, 0, rays, seed=2, all_bounces=True)
     harm, *_ = solve_indirect(term.matrix, space.albedo, direct.mean, 64, 1e-4,
                               first_bounce=harmonic_first_bounce(term, direct))
@@ -96,6 +97,9 @@ def main() -> None:
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--fast", action="store_true", help="also the fast path's rows")
+    ap.add_argument("--direct", choices=("facing", "sampled"), default="facing",
+                    help="the fast path's direct-light estimator (hair.direct); --samples "
+                         "its arc samples (facing, the bake's default 2) or points (sampled)")
     ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS,
                     help="k of the denoised rows")
     args = ap.parse_args()
@@ -118,7 +122,8 @@ def main() -> None:
         if args.fast:
             found.update({k: v[sel].astype(np.float64) for k, v in
                           fast_path(space, tracer, mesh, lights, args.rays,
-                                    args.samples, args.neighbours).items()})
+                                    args.samples, args.neighbours,
+                                    args.direct).items()})
         seconds = time.perf_counter() - t0
         for name, est in found.items():
             e = noise_corrected_error(est, *mit)

@@ -71,6 +71,7 @@ from prtcore.transport.fibre import (
     FIRST_BOUNCE_LIGHTS,
     MEM_PER_FIBRE_SEGMENT,
     STACKED_HARMONICS,
+    direct_sample_count,
     hair_tracer,
 )
 from prtcore.transport.fibre_chiang import (
@@ -128,7 +129,9 @@ CHIANG_FIXED_LIGHTS = 512
 def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, no surface denoising,
     ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
-    Chiang fibre), ``hair.harmonics = "auto"`` resolved (mesh_bounces with a mesh: the
+    Chiang fibre), ``hair.direct_samples = "auto"`` resolved for the diffuse fibre
+    (:func:`prtcore.transport.fibre.direct_sample_count`), ``hair.harmonics = "auto"``
+    resolved (mesh_bounces with a mesh: the
     light that goes head → hair → head needs the side of the fibre that faced the head,
     docs/hair.md; mesh_bounces without a mesh is exactly first_bounce, and says so),
     "auto" light counts fixed (:data:`CHIANG_FIXED_LIGHTS` for the Chiang fibre);
@@ -152,12 +155,16 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         harmonics = "mesh_bounces" if with_mesh else "first_bounce"
     elif harmonics == "mesh_bounces" and not with_mesh:
         harmonics = "first_bounce"  # no mesh light for the harmonics to carry
+    samples = spec.hair.direct_samples
+    if spec.hair.fibre == "diffuse":
+        samples = direct_sample_count(spec.hair.direct, samples,
+                                      spec.transport.direct_samples)
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
         fit=dataclasses.replace(spec.fit, denoise=0.0),
         hair=dataclasses.replace(spec.hair, harmonics=harmonics,
-                                 denoise_neighbours=denoise))
+                                 denoise_neighbours=denoise, direct_samples=samples))
 
 
 def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
@@ -289,7 +296,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                                           spec.transport, timer,
                                           harmonics=spec.hair.harmonics,
                                           keep_direct_texels=False, fibre=fibre,
-                                          chiang_exitance=spec.hair.chiang.exitance)
+                                          chiang_exitance=spec.hair.chiang.exitance,
+                                          direct_estimator=spec.hair.direct,
+                                          direct_samples=spec.hair.direct_samples)
     elif fibre is not None:
         data = bake_chiang_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres,
                                              intake.points, tracer, train, hold,
@@ -298,7 +307,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,
-                                      harmonics=spec.hair.harmonics)
+                                      harmonics=spec.hair.harmonics,
+                                      direct_estimator=spec.hair.direct,
+                                      direct_samples=spec.hair.direct_samples)
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,

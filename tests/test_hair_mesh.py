@@ -135,6 +135,28 @@ def test_mesh_bounces_harmonics_take_the_mesh_s_light_not_the_fibres(head):
     assert (abs(every.mesh_block - mesh_only.mesh_block) > 0).nnz == 0
 
 
+def test_the_state_is_solved_in_an_order_that_keeps_its_blocks(head):
+    """state_order: a permutation of the T_m + n·T_h state rows in which the atlas and
+    the strands' first block mix (Morton order of their positions: head texels beside
+    the hair above them) and each harmonic block is the strands' own Morton order."""
+    from prtcore.transport.hair_mesh import state_order
+
+    _, texels, space, *_ = head
+    t_m, t_h = texels.count, space.count
+    for n in (1, 3):
+        order = state_order(texels, space, n)
+        assert np.array_equal(np.sort(order), np.arange(t_m + n * t_h))
+        head_block = order[:t_m + t_h]
+        assert head_block.max() < t_m + t_h
+        # atlas and strand rows interleave rather than follow each other
+        atlas = np.flatnonzero(head_block < t_m)
+        strands = np.flatnonzero(head_block >= t_m)
+        assert strands[0] < atlas[-1] and atlas[0] < strands[-1]
+        for b in range(1, n):
+            block = order[t_m + b * t_h:t_m + (b + 1) * t_h]
+            assert np.array_equal(block, t_m + b * t_h + space.morton)
+
+
 def test_each_receiver_gets_light_from_the_other(head):
     """A convex head alone has no indirect light; with hair all of it comes off the hair.
     The hair gets more indirect light with the head under it than alone."""

@@ -64,6 +64,8 @@ def test_hair_bundle_states_its_strand_layout(bundle):
     report = json.loads((out / "report.json").read_text())
     assert report["transport"]["denoise"]["neighbours"] == 64
     assert m["spec"]["hair"]["denoise_neighbours"] == 64
+    # and their direct light is the facing estimator's, with its samples stated
+    assert (m["spec"]["hair"]["direct"], m["spec"]["hair"]["direct_samples"]) == ("facing", 2)
 
 
 @pytest.fixture

@@ -63,6 +63,8 @@ def test_empty_spec_is_defaults():
     ({"lights": {"families": []}}, "lights.families"),
     ({"transport": {"tolerance": float("nan")}}, "transport.tolerance"),
     ({"measurement_points": {"placement": "volume"}}, "measurement_points.placement"),
+    ({"hair": {"direct": "exact"}}, "hair.direct"),
+    ({"hair": {"direct_samples": 0}}, "hair.direct_samples"),
     ([1, 2], "<root>"),
 ])
 def test_invalid_specs_name_their_key(data, key):

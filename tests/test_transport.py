@@ -651,3 +651,27 @@ def test_the_solve_may_write_over_the_direct_light(block_on_floor, block_problem
         np.testing.assert_array_equal(got, want)
     with pytest.raises(ValueError, match="out must be"):
         solve_indirect(g, albedo, direct, 30, 1e-4, out=np.zeros((2, 2, 3), np.float32))
+
+
+@pytest.mark.parametrize("method", ["chebyshev", "neumann"])
+def test_a_solve_in_another_row_order_is_the_same_solve(block_problem, monkeypatch, method):
+    """``order``: the system solved with its rows permuted (P G Pᵀ) gives the caller's
+    rows back in the caller's order, equal to the plain solve up to float32 summation
+    order, with a first-bounce correction on some rows and written over the direct light
+    one configuration at a time (a block read wrongly would show)."""
+    g, albedo, direct = block_problem
+    t = g.shape[0]
+    monkeypatch.setattr(solve_module, "SOLVE_BLOCK_BYTES",
+                        solve_module.SOLVE_WORK_ARRAYS * 4 * 3 * t)  # 1 light
+    rows = np.arange(0, t, 3)
+    extra = (rows, np.abs(direct[rows]) * np.float32(0.5))
+    want = solve_indirect(g, albedo, direct, 40, 1e-6, method=method, first_bounce=extra)[0]
+    order = np.random.default_rng(3).permutation(t)
+    mine = np.array(direct, dtype=np.float32, order="C")
+    got = solve_indirect(g, albedo, mine, 40, 1e-6, method=method, first_bounce=extra,
+                         out=mine, order=order)[0]
+    assert got is mine
+    np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6 * np.abs(want).max())
+    assert not np.array_equal(order, np.arange(t))
+    with pytest.raises(ValueError, match="order works with a plain matrix"):
+        solve_indirect(g, albedo, direct, 4, 1e-3, order=order, product=lambda x: x)

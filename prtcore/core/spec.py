@@ -294,12 +294,22 @@ class HairSpec:
     #: "auto": 64 for the diffuse fibre, 0 for "chiang" (whose texels differ with the
     #: fibre's direction, so neighbours' averages add bias)
     denoise_neighbours: int | str = "auto"
+    #: the diffuse fibre's direct-light estimator: "facing" (one shadow ray per arc sample
+    #: and light from across the projected width, the azimuth in closed form) | "sampled"
+    #: (J stratified azimuths per texel, each shaded) (prtcore.transport.fibre_facing)
+    direct: str = "facing"
+    #: the diffuse fibre's samples per strand texel for the direct light: arc samples
+    #: (facing) or surface points (sampled); "auto": FACING_SAMPLES (facing), or max(4,
+    #: transport.direct_samples) (sampled; the Chiang fibre always takes that)
+    direct_samples: int | str = "auto"
     #: the Chiang fibre's parameters (used with ``fibre = "chiang"``)
     chiang: ChiangSpec = ChiangSpec()
 
 
 #: fibre models a hair bake can use
 FIBRE_MODELS = ("diffuse", "chiang")
+#: the diffuse fibre's direct-light estimators (``hair.direct``)
+DIRECT_ESTIMATORS = ("facing", "sampled")
 
 
 @dataclass(frozen=True)
@@ -768,6 +778,9 @@ def _parse(data: Any) -> BakeSpec:
                           ("auto", "first_bounce", "all_bounces", "mesh_bounces")),
         denoise_neighbours=_int_or_auto(hs.get("denoise_neighbours", "auto"),
                                         "hair.denoise_neighbours", lo=0, hi=1024),
+        direct=_choice(hs.get("direct", "facing"), "hair.direct", DIRECT_ESTIMATORS),
+        direct_samples=_int_or_auto(hs.get("direct_samples", "auto"), "hair.direct_samples",
+                                    lo=1, hi=256),
         chiang=_chiang(hs.get("chiang", {})),
     )
     if hair.fibre == "chiang" and hair.harmonics != "auto":

@@ -101,6 +101,15 @@ DOCS: dict[str, str] = {
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "
                                "docs/hair.md); 0 or 1: off",
+    "hair.direct": "the diffuse fibre's direct light: `facing` (one shadow ray per arc "
+                   "sample and light, from a point across the fibre's projected width; "
+                   "the azimuth integrated in closed form) · `sampled` (J stratified "
+                   "azimuths per texel, each shaded); docs/hair.md",
+    "hair.direct_samples": "`auto` (2 arc samples for `facing`, max(4, "
+                           "`transport.direct_samples`) points for `sampled`), or 1–256; "
+                           "`facing` with 1 traces half the shadow rays (the 10k "
+                           "hairball's dataset 35 s instead of 46 s, 7.9 % instead of "
+                           "6.4 % against the path tracer; docs/hair.md)",
     "fit.ridge": "λ ≥ 0 in normalised units, or `auto` (leave-one-out)",
     "fit.channels": "`mono` (one basis for R, G, B) · `rgb` (one per channel)",
     "fit.gamma": "null, or g in [1, 10]: fit values as |v|^(1/g)",

@@ -37,6 +37,7 @@ import numpy as np
 from prtcore.core.errors import SpecError
 from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits, transported_frames
 from prtcore.core.hair import Hair
+from prtcore.receivers.texels import morton_order
 
 DEFAULT_TEXELS_PER_STRAND = 10
 #: widest strand texture built (texels); more strands make it taller, not wider
@@ -87,6 +88,15 @@ class StrandSpace:
         computed once (it mitres every joint: 57 ms for the 10k hairball, which
         :meth:`surface_points` would pay per gather batch)."""
         return outside_offset(self.hair)
+
+    @cached_property
+    def morton(self) -> np.ndarray:
+        """(t,) int64: the texels in the 3-D Morton order of their axis points
+        (:func:`prtcore.receivers.texels.morton_order`). Work done in this order — a
+        light's shadow rays, the gather's rays, the solve's rows — keeps neighbouring
+        texels together in cache (docs/hair.md, "Speed and memory")."""
+        return morton_order(self.position, np.stack([self.position.min(axis=0),
+                                                     self.position.max(axis=0)]))
 
     @property
     def count(self) -> int:

@@ -70,11 +70,12 @@ from prtcore.core.progress import StageTimer, bar
 from prtcore.core.raytrace import RayTracer, default_threads
 from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import SparseProduct
-from prtcore.core.spec import TransportSpec
+from prtcore.core.spec import DIRECT_ESTIMATORS, TransportSpec
+from prtcore.emitters.base import emitter_for
 from prtcore.receivers.strands import StrandSpace, azimuth_frame
-from prtcore.receivers.texels import morton_order
 from prtcore.transport.base import TransportOperator, register
 from prtcore.transport.direct import direct_radiance
+from prtcore.transport.fibre_facing import facing_direct, facing_samples
 
 #: rays per intersect call of the fibre gather
 FIBRE_BATCH = 1 << 18
@@ -127,16 +128,71 @@ class FibreDirect:
     harmonics: np.ndarray
 
 
+#: arc samples per texel of the facing estimator with ``hair.direct_samples = "auto"``
+#: (docs/hair.md: the 10k hairball's accuracy and time against the sampled estimator)
+FACING_SAMPLES = 2
+
+
+def direct_sample_count(estimator: str, samples: int | str, transport_samples: int,
+                        orders: int = HARMONICS) -> int:
+    """Samples per texel of the direct light (``hair.direct_samples``; "auto":
+    :data:`FACING_SAMPLES` for "facing", ``max(4·orders, transport.direct_samples)`` for
+    "sampled", whose J > 2H stratified azimuths keep H harmonics unaliased)."""
+    if samples != "auto":
+        return int(samples)
+    if estimator == "facing":
+        return FACING_SAMPLES
+    return max(4 * orders, int(transport_samples))
+
+
 def fibre_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                  samples: int, seed: int, harmonics: int = HARMONICS,
-                 block: int = 1 << 14) -> FibreDirect:
-    """Direct outgoing radiance of every strand texel for every light from ``samples`` (J)
-    surface points per texel (:meth:`~prtcore.receivers.strands.StrandSpace.surface_samples`,
-    azimuths stratified), each shadowed by everything in ``tracer`` (other fibres, the
-    mesh): the mean and ``harmonics`` (H) harmonics ``(2/J) Σ L_j (cos hφ_j, sin hφ_j)``
-    (J > 2H keeps them unaliased by the stratified azimuths)."""
-    return direct_of_samples(space, tracer, lights, direct_samples(space, samples, seed),
-                             harmonics, block, progress=True)
+                 estimator: str = "facing") -> FibreDirect:
+    """Direct outgoing radiance of every strand texel for every light, shadowed by
+    everything in ``tracer`` (other fibres, the mesh): the azimuthal mean and ``harmonics``
+    (H) harmonics. ``estimator`` (:data:`prtcore.core.spec.DIRECT_ESTIMATORS`): "facing"
+    (one shadow ray per arc sample and light, :mod:`prtcore.transport.fibre_facing`)
+    with ``samples`` arc samples per texel, or "sampled" with ``samples`` (J) surface
+    points per texel (:meth:`~prtcore.receivers.strands.StrandSpace.surface_samples`,
+    azimuths stratified; harmonics ``(2/J) Σ L_j (cos hφ_j, sin hφ_j)``, J > 2H keeps
+    them unaliased)."""
+    return direct_of_draw(space, tracer, lights,
+                          draw_direct(space, samples, seed, estimator, lights), harmonics,
+                          progress=True)
+
+
+def draw_direct(space: StrandSpace, samples: int, seed: int, estimator: str,
+                lights: Sequence[Light]) -> tuple:
+    """What the direct light of ``estimator`` draws once for any of ``lights``:
+    (:class:`~prtcore.transport.fibre_facing.FacingSamples` or None, :func:`direct_samples`'
+    tuple or None). The facing estimator's lights without a compiled row (an
+    environment) take the sampled estimator's ``max(4, 2·samples)`` points."""
+    if estimator not in DIRECT_ESTIMATORS:
+        raise ValueError(f"hair.direct: unknown estimator {estimator!r} "
+                         f"(expected one of {', '.join(DIRECT_ESTIMATORS)})")
+    if estimator == "sampled":
+        return None, direct_samples(space, samples, seed)
+    rowless = any(emitter_for(light).kernel_row(light) is None for light in lights)
+    return (facing_samples(space, samples, seed),
+            direct_samples(space, max(4, 2 * samples), seed) if rowless else None)
+
+
+def direct_of_draw(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
+                   drawn: tuple, harmonics: int, progress: bool) -> FibreDirect:
+    """:func:`fibre_direct` for ``lights`` from :func:`draw_direct`'s ``drawn``."""
+    facing, sampled = drawn
+    if facing is None:
+        return direct_of_samples(space, tracer, lights, sampled, harmonics, 1 << 14,
+                                 progress)
+    mean, harm = facing_direct(space, tracer, lights, facing, harmonics, progress)
+    rest = [i for i, light in enumerate(lights)
+            if emitter_for(light).kernel_row(light) is None]
+    if rest:
+        part = direct_of_samples(space, tracer, [lights[i] for i in rest], sampled,
+                                 harmonics, 1 << 14, progress=False)
+        mean[:, rest] = part.mean
+        harm[:, :, rest] = part.harmonics
+    return FibreDirect(mean, harm)
 
 
 def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
@@ -147,8 +203,7 @@ def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
     cache (10k hairball: 0.56 → 0.84–0.96 M shadow rays/s on one thread); each texel's
     value is the same whichever block computes it."""
     origin, normal, _, phi = space.surface_samples(samples, seed)
-    order = morton_order(space.position, np.stack([space.position.min(axis=0),
-                                                   space.position.max(axis=0)]))
+    order = space.morton
     return origin, normal, phi, order
 
 
@@ -194,10 +249,10 @@ def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Li
 @dataclass(frozen=True)
 class MeshHits:
     """The fibre gather's rays whose first hit is the front of the mesh (a hair + mesh
-    bake), in the order traced: ``row`` (n,) int64 strand texel, ``col`` (n,) int64 atlas
-    texel, ``triangle`` (n,) int64 and ``barycentric`` (n, 3) float64 the hit, ``t`` (n,)
-    float64 its distance; with :func:`fibre_gather`'s ``ray_data``, ``data`` (n, F)
-    float32 its values for these rays (else None)."""
+    bake), by texel and then in the order of its samples: ``row`` (n,) int64 strand
+    texel, ``col`` (n,) int64 atlas texel, ``triangle`` (n,) int64 and ``barycentric``
+    (n, 3) float64 the hit, ``t`` (n,) float64 its distance; with :func:`fibre_gather`'s
+    ``ray_data``, ``data`` (n, F) float32 its values for these rays (else None)."""
 
     row: np.ndarray
     col: np.ndarray
@@ -267,11 +322,16 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     n_fibre = n_mesh = 0
     total = t * rays
     starts = range(0, total, FIBRE_BATCH)
+    # the rays traced texel by texel in the Morton order of the texels' axis points, so
+    # that a batch's origins share Embree's upper nodes in cache (as the direct light's)
+    order = space.morton
     for a in bar(starts, "fibre gather", total=len(starts)):
         b = min(a + FIBRE_BATCH, total)
+        pos = np.arange(a, b)
+        ray = order[pos // rays] * rays + pos % rays  # the rays' own indices
         u = rng.random(b - a)
-        origin, normal, _ = space.surface_points(np.arange(a, b) // rays, sample_arc[a:b],
-                                                 phi[a:b], frame_u)
+        origin, normal, _ = space.surface_points(ray // rays, sample_arc[ray], phi[ray],
+                                                 frame_u)
         d = directions_around(normal, np.sqrt(u), 2 * np.pi * rng.random(b - a))
         del normal
         hits = tracer.intersect(origin, d)
@@ -280,31 +340,33 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         n_mesh += int((hits.hit & ~fib).sum())
         if mesh_texels is not None:  # the front of the mesh: its atlas texel receives
             on = np.flatnonzero(hits.hit & ~fib & hits.front)
-            mesh_rows.append(((a + on) // rays).astype(np.int32))
+            mesh_rows.append((ray[on] // rays).astype(np.int32))
             mesh_cols.append(mesh_texels(hits.triangle, hits.barycentric, on, origin, d,
                                          hits.t, index=on).astype(np.int32))
             if all_bounces:
-                mesh_po.append(phi[a:b][on].astype(np.float32))
+                mesh_po.append(phi[ray[on]].astype(np.float32))
             mesh_tri.append(hits.triangle[on])
             mesh_bary.append(hits.barycentric[on])
             mesh_t.append(hits.t[on])
             if ray_data is not None:
-                mesh_rw.append(ray_data(np.arange(a, b)[on] // rays, sample_arc[a:b][on],
+                mesh_rw.append(ray_data(ray[on] // rays, sample_arc[ray[on]],
                                         d[on]).astype(np.float32))
         del origin
         texel, cs = fibre_hits(space, mesh, hits.triangle[fib] - mesh_faces,
                                hits.barycentric[fib], d[fib], rng, frame_u)
-        rows_all.append((np.arange(a, b, dtype=np.int64)[fib] // rays).astype(np.int32))
+        rows_all.append((ray[fib] // rays).astype(np.int32))
         cols_all.append(texel.astype(np.int32))
         cs_all.append(cs.astype(np.float32))
         if ray_data is not None:
-            rw_all.append(ray_data(np.arange(a, b)[fib] // rays, sample_arc[a:b][fib],
+            rw_all.append(ray_data(ray[fib] // rays, sample_arc[ray[fib]],
                                    d[fib]).astype(np.float32))
         if all_bounces:
-            po_all.append(phi[a:b][fib].astype(np.float32))
-    rows = np.concatenate(rows_all) if rows_all else np.zeros(0, np.int32)
-    cols = np.concatenate(cols_all) if cols_all else np.zeros(0, np.int32)
-    cs = np.concatenate(cs_all) if cs_all else np.zeros((0, 2), np.float32)
+            po_all.append(phi[ray[fib]].astype(np.float32))
+    # back in texel order (stable: a texel's rays stay in the order of its samples), as
+    # RayBlockProduct and MeshHits' readers expect
+    rows, perm = _by_row(rows_all)
+    cols = np.concatenate(cols_all)[perm] if cols_all else np.zeros(0, np.int32)
+    cs = np.concatenate(cs_all)[perm] if cs_all else np.zeros((0, 2), np.float32)
 
     def csr(w: np.ndarray) -> sp.csr_matrix:
         m = sp.csr_matrix((w / np.float32(rays), (rows, cols)), shape=(t, t))
@@ -317,18 +379,18 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                  for f in (np.cos, np.sin))
     block = None
     if all_bounces:
-        po = np.concatenate(po_all) if po_all else np.zeros(0, np.float32)
+        po = np.concatenate(po_all)[perm] if po_all else np.zeros(0, np.float32)
         block = harmonic_block(t, rays, rows, cols, po, psi, orders, harmonic_rows)
     to_mesh = mesh_block = mesh_hits = None
     if mesh_texels is not None:
-        mr = np.concatenate(mesh_rows) if mesh_rows else np.zeros(0, np.int32)
-        mc = np.concatenate(mesh_cols) if mesh_cols else np.zeros(0, np.int32)
+        mr, mperm = _by_row(mesh_rows)
+        mc = np.concatenate(mesh_cols)[mperm] if mesh_cols else np.zeros(0, np.int32)
         to_mesh = sp.csr_matrix((np.full(len(mr), 1 / np.float32(rays), np.float32),
                                  (mr, mc)), shape=(t, mesh_columns))
         to_mesh.sum_duplicates()
         to_mesh.sort_indices()
         if all_bounces:
-            mpo = np.concatenate(mesh_po) if mesh_po else np.zeros(0, np.float32)
+            mpo = np.concatenate(mesh_po)[mperm] if mesh_po else np.zeros(0, np.float32)
             w = fourier_rows(mpo, orders, 2)
             mesh_block = sp.csr_matrix(
                 (np.concatenate([w[a] / np.float32(rays) for a in range(len(w))]),
@@ -337,21 +399,31 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
             mesh_block.sum_duplicates()
             mesh_block.sort_indices()
         mesh_hits = MeshHits(row=mr.astype(np.int64), col=mc.astype(np.int64),
-                             triangle=np.concatenate(mesh_tri) if mesh_tri else
+                             triangle=np.concatenate(mesh_tri)[mperm] if mesh_tri else
                              np.zeros(0, np.int64),
-                             barycentric=np.concatenate(mesh_bary) if mesh_bary else
+                             barycentric=np.concatenate(mesh_bary)[mperm] if mesh_bary else
                              np.zeros((0, 3)),
-                             t=np.concatenate(mesh_t) if mesh_t else np.zeros(0),
-                             data=np.concatenate(mesh_rw) if mesh_rw else None)
+                             t=np.concatenate(mesh_t)[mperm] if mesh_t else np.zeros(0),
+                             data=np.concatenate(mesh_rw)[mperm] if mesh_rw else None)
     kept = None
     if ray_data is not None:
-        kept = (rows, cols, np.concatenate(rw_all) if rw_all else np.zeros((0, 1),
-                                                                           np.float32))
+        kept = (rows, cols, np.concatenate(rw_all)[perm] if rw_all else
+                np.zeros((0, 1), np.float32))
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
                      block=block, mesh=to_mesh, mesh_block=mesh_block, mesh_hits=mesh_hits,
                      rays=kept,
                      stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
                             "misses": total - n_fibre - n_mesh})
+
+
+def _by_row(parts: list) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of a gather's batches ((n_i,) int32 each) concatenated and sorted, and the
+    stable permutation that sorts them ((n,) int64)."""
+    if not parts:
+        return np.zeros(0, np.int32), np.zeros(0, np.int64)
+    rows = np.concatenate(parts)
+    perm = np.argsort(rows, kind="stable")
+    return rows[perm], perm
 
 
 def fibre_hits(space: StrandSpace, mesh: FibreMesh, triangle: np.ndarray,
@@ -447,7 +519,7 @@ FIRST_BOUNCE_LIGHTS = 16
 
 def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                             samples: int, seed: int, term: FibreTerm,
-                            block: int = FIRST_BOUNCE_LIGHTS
+                            block: int = FIRST_BOUNCE_LIGHTS, estimator: str = "facing"
                             ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """:func:`fibre_direct`'s mean and :func:`harmonic_first_bounce` of ``term`` with it,
     ``block`` lights at a time, so that the direct light's harmonics ((2, T, K, 3)
@@ -459,11 +531,11 @@ def direct_and_first_bounce(space: StrandSpace, tracer: RayTracer, lights: Seque
     rows = term.harmonics[0].shape[0] if term.harmonics else t  # (T_m + T) with a mesh
     mean = np.empty((t, k, 3), dtype=np.float32)
     val = np.empty((rows, k, 3), dtype=np.float32)
-    drawn = direct_samples(space, samples, seed)  # once for every block of lights
+    drawn = draw_direct(space, samples, seed, estimator, lights)  # once for every block
     starts = range(0, k, block)
     for k0 in bar(starts, "direct fibres", total=len(starts)):
-        part = direct_of_samples(space, tracer, lights[k0:k0 + block], drawn, HARMONICS,
-                                 1 << 14, progress=False)
+        part = direct_of_draw(space, tracer, lights[k0:k0 + block], drawn, HARMONICS,
+                              progress=False)
         mean[:, k0:k0 + block] = part.mean
         val[:, k0:k0 + block] = harmonic_first_bounce(term, part)[1]
         del part

@@ -22,7 +22,12 @@ from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.dataset import Dataset, direct_at_points
-from prtcore.transport.fibre import direct_and_first_bounce, fibre_direct, fibre_gather
+from prtcore.transport.fibre import (
+    direct_and_first_bounce,
+    direct_sample_count,
+    fibre_direct,
+    fibre_gather,
+)
 from prtcore.transport.fibre_chiang import (
     ChiangFibre,
     chiang_direct,
@@ -40,12 +45,14 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
                       spec: TransportSpec | None = None, timer: StageTimer | None = None,
                       scene: Scene | None = None, harmonics: str = "first_bounce",
                       keep_direct_texels: bool = True, fibre: ChiangFibre | None = None,
-                      chiang_exitance: str = "isotropic") -> Dataset:
+                      chiang_exitance: str = "isotropic", direct_estimator: str = "facing",
+                      direct_samples: int | str = "auto") -> Dataset:
     """The lighting database of a hair bake (``Dataset``: direct at the points, direct and
     indirect at the strand texels, training lights first). ``tracer`` is
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene`` (the mesh of a
-    hair + mesh bake, or None). ``spec.direct_samples`` points per texel (at least 4, so
-    that the first harmonic is resolved).
+    hair + mesh bake, or None). ``direct_estimator`` (``hair.direct``): the diffuse fibre's
+    direct-light estimator, ``direct_samples`` (``hair.direct_samples``) its samples per
+    texel (:func:`prtcore.transport.fibre.direct_sample_count`).
 
     harmonics (``hair.harmonics``): "first_bounce" — the direct light's first azimuthal
     harmonic rides the first bounce, later bounces are radially constant; "all_bounces" —
@@ -69,6 +76,7 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     everything = harmonics == "all_bounces"
+    samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples)
     rays0 = tracer.rays_traced
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
@@ -79,19 +87,20 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     rays2 = tracer.rays_traced
     with timer.stage("direct fibres"):
         if everything:
-            direct = fibre_direct(space, tracer, lights, max(4, spec.direct_samples),
-                                  spec.seed + 1)
+            direct = fibre_direct(space, tracer, lights, samples, spec.seed + 1,
+                                  estimator=direct_estimator)
             direct_mean = direct.mean
         else:  # the first bounce made light block by light block, harmonics not kept
             direct_mean, first = direct_and_first_bounce(
-                space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1, term)
+                space, tracer, lights, samples, spec.seed + 1, term, estimator=direct_estimator)
     rays3 = tracer.rays_traced
     t = space.count
     if everything:
         stacked = np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]])
         indirect, bounces, resid, solve_stats = solve_indirect(
             term.block, np.tile(space.albedo, (3, 1)), stacked, spec.max_bounces,
-            spec.tolerance, timer, method="neumann", threads=tracer.threads)
+            spec.tolerance, timer, method="neumann", threads=tracer.threads,
+            order=np.concatenate([space.morton + b * t for b in range(3)]))
         # the truncated azimuthal series of a noisy gather can dip below zero at a few
         # texels; light cannot: clamped, and counted
         negative = int((indirect[:t] < 0).sum())
@@ -101,7 +110,7 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
         indirect, bounces, resid, solve_stats = solve_indirect(
             term.matrix, space.albedo, direct_mean, spec.max_bounces, spec.tolerance, timer,
             threads=tracer.threads, first_bounce=first,
-            out=None if keep_direct_texels else direct_mean)
+            out=None if keep_direct_texels else direct_mean, order=space.morton)
     stats = {"train": len(lights_train), "fibre": term.stats, "harmonics": harmonics,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}

@@ -39,7 +39,7 @@ from prtcore.core.scene import Light, Scene
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
-from prtcore.receivers.texels import TexelSpace
+from prtcore.receivers.texels import TexelSpace, morton_order
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import (
@@ -47,6 +47,7 @@ from prtcore.transport.fibre import (
     FibreTerm,
     MeshHits,
     direct_and_first_bounce,
+    direct_sample_count,
     fibre_direct,
     fibre_gather,
     fibre_hits,
@@ -160,6 +161,19 @@ def hair_mesh_stats(lights_train: Sequence[Light], lights_holdout: Sequence[Ligh
             "solve": solve}
 
 
+def state_order(texels: TexelSpace, space: StrandSpace, n: int) -> np.ndarray:
+    """The order in which a hair + mesh bake solves its state (T_m + n·T_h rows: atlas
+    texels, then n blocks of strand texels): the atlas and the strands' first block
+    together in the Morton order of their positions, so that a head's texels and the
+    hair above them sit side by side, then each further block in the strands' Morton
+    order (:func:`prtcore.transport.solve.solve_indirect`'s ``order``). (T_m + n·T_h,)
+    int64."""
+    t_m, t_h = texels.count, space.count
+    pos = np.concatenate([texels.position, space.position])
+    head = morton_order(pos, np.stack([pos.min(axis=0), pos.max(axis=0)]))
+    return np.concatenate([head, *(t_m + b * t_h + space.morton for b in range(1, n))])
+
+
 def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            fibres: FibreMesh, points: MeasurementPoints, tracer: RayTracer,
                            lights_train: Sequence[Light],
@@ -167,22 +181,24 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            spec: TransportSpec | None = None,
                            timer: StageTimer | None = None,
                            harmonics: str = "first_bounce", orders: int = 1,
-                           hair_near: float | None = None) -> Dataset:
+                           hair_near: float | None = None, direct_estimator: str = "facing",
+                           direct_samples: int | str = "auto") -> Dataset:
     """The lighting database of a hair + mesh bake (``Dataset``: direct at the points,
     indirect at the T_m + T_h texels, mesh first; training lights first; the texels'
     direct light is not kept — the solve writes over it). ``tracer`` and ``fibres``:
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene``. Both gathers
     take ``spec.gather_rays`` rays per texel; the mesh's direct light is averaged over
-    ``spec.direct_samples`` points per texel, the hair's over ``max(4, ·)`` (the first
-    harmonic needs 4).
+    ``spec.direct_samples`` points per texel; the hair's comes from ``direct_estimator``
+    (``hair.direct``) with ``direct_samples`` (``hair.direct_samples``,
+    :func:`prtcore.transport.fibre.direct_sample_count`).
 
     harmonics (``hair.harmonics``): "first_bounce" — the hair's direct first harmonic rides
     the first bounce of every row; "all_bounces" — the strand texels carry (mean, cos,
     sin) through every bounce and the mesh rows read them at the azimuth they hit
     (:func:`harmonic_operator`, solved by the Neumann series): the light that goes head →
     hair → head keeps the side of the fibre that faced the head; ``orders`` (H) harmonics
-    (the state is T_m + (2H + 1) T_h rows; the hair's direct light then takes
-    max(4H, J) samples per texel); "mesh_bounces" — the same state and solve, but a strand
+    (the state is T_m + (2H + 1) T_h rows; the sampled estimator then takes max(4H, J)
+    samples per texel); "mesh_bounces" — the same state and solve, but a strand
     texel's harmonics take light from the mesh (and the direct light) only, never from
     other fibres: later fibre-to-fibre bounces stay radially constant, as in
     first_bounce, while the head → hair → head light keeps its side (docs/hair.md,
@@ -239,8 +255,10 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     r5 = tracer.rays_traced
     with timer.stage("direct fibres"):
         if everything:
-            d = fibre_direct(space, tracer, lights, max(4 * orders, spec.direct_samples),
-                             spec.seed + 1, harmonics=orders)
+            d = fibre_direct(space, tracer, lights,
+                             direct_sample_count(direct_estimator, direct_samples,
+                                                 spec.direct_samples, orders),
+                             spec.seed + 1, harmonics=orders, estimator=direct_estimator)
             direct[t_m:t_m + t_h] = d.mean
             for b in range(2 * orders):
                 direct[t_m + (b + 1) * t_h:t_m + (b + 2) * t_h] = d.harmonics[b]
@@ -248,7 +266,9 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
             first = near
         else:
             direct[t_m:], first = direct_and_first_bounce(
-                space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1, both)
+                space, tracer, lights,
+                direct_sample_count(direct_estimator, direct_samples, spec.direct_samples),
+                spec.seed + 1, both, estimator=direct_estimator)
             first = add_first_bounce(first, near)
     r6 = tracer.rays_traced
     rho_h = np.asarray(space.albedo, np.float64)
@@ -257,7 +277,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     indirect, bounces, resid, solve_stats = solve_indirect(
         matrix, albedo, direct, spec.max_bounces, spec.tolerance, timer,
         method="neumann" if everything else "chebyshev", threads=tracer.threads,
-        first_bounce=first, out=direct)
+        first_bounce=first, out=direct, order=state_order(texels, space, n))
     if everything:  # a truncated azimuthal series can dip below zero: clamped, counted
         indirect = indirect[:t_m + t_h]
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
