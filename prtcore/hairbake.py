@@ -214,7 +214,9 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     ``keep_direct_texels=False``), so one (T, K, 3) float32 of the surface model's three
     (direct, indirect, first-bounce correction) is not held. ``mesh_texels`` T_m > 0 (a
     hair + mesh bake): plus the surface bake's estimate of T_m texels and the stacked
-    direct light's and the solve's (T_m + nT, K, 3) float32 rows."""
+    direct light's and the solve's (T_m + nT, K, 3) float32 rows. (The diffuse fibre's
+    operator is copied into Morton order for the solve, then the original dropped, before
+    the solve's working arrays exist: the peak holds one.)"""
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     segments = space.hair.point_count - space.hair.strand_count

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from prtcore.core.sparse import RayBlockProduct, csr_dense, row_chunks
+from prtcore.core.sparse import RayBlockProduct, csr_dense, permute_csr, row_chunks
 from prtcore.transport import kernels
 
 
@@ -132,3 +132,26 @@ def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f):
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
     with pytest.raises(ValueError, match="sorted"):
         RayBlockProduct(rows[::-1], cols, weight, read, t)
+
+
+def test_permute_csr_is_p_a_p_transposed_with_sorted_rows():
+    """permute_csr(A, order) equals scipy's A[order][:, order] entry for entry, rows
+    sorted by column, duplicates kept (a gather's CSR has none after summing, but the
+    permutation must not merge or drop them)."""
+    rng = np.random.default_rng(4)
+    a = sp.random(300, 300, density=0.05, random_state=5, format="csr", dtype=np.float32)
+    a.sort_indices()
+    order = rng.permutation(300)
+    got = permute_csr(a, order)
+    want = a[order][:, order].tocsr()
+    want.sort_indices()
+    for i in range(300):
+        row = got.indices[got.indptr[i]:got.indptr[i + 1]]
+        assert np.all(np.diff(row) > 0)
+    np.testing.assert_array_equal(got.toarray(), want.toarray())
+    dup = sp.csr_matrix((np.array([1.0, 2.0, 3.0], np.float32), np.array([1, 1, 0]),
+                         np.array([0, 2, 3, 3])), shape=(3, 3))
+    p = permute_csr(dup, np.array([1, 0, 2]))
+    assert p.nnz == 3 and np.array_equal(p.toarray(), dup[[1, 0, 2]][:, [1, 0, 2]].toarray())
+    with pytest.raises(ValueError, match="square"):
+        permute_csr(sp.csr_matrix((2, 3)), np.arange(2))

@@ -19,6 +19,7 @@ from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Material, Scene
+from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import LightFamily, LightsSpec, TransportSpec
 from prtcore.emitters.families import sample_configurations
 from prtcore.intake.points import MeasurementPoints
@@ -655,10 +656,11 @@ def test_the_solve_may_write_over_the_direct_light(block_on_floor, block_problem
 
 @pytest.mark.parametrize("method", ["chebyshev", "neumann"])
 def test_a_solve_in_another_row_order_is_the_same_solve(block_problem, monkeypatch, method):
-    """``order``: the system solved with its rows permuted (P G Pᵀ) gives the caller's
-    rows back in the caller's order, equal to the plain solve up to float32 summation
-    order, with a first-bounce correction on some rows and written over the direct light
-    one configuration at a time (a block read wrongly would show)."""
+    """``order``: the operator given with its rows permuted (P G Pᵀ, permute_csr) and
+    everything else in the caller's order gives the caller's rows back in that order,
+    equal to the plain solve up to float32 summation order, with a first-bounce
+    correction on some rows and written over the direct light one configuration at a time
+    (a block read wrongly would show)."""
     g, albedo, direct = block_problem
     t = g.shape[0]
     monkeypatch.setattr(solve_module, "SOLVE_BLOCK_BYTES",
@@ -668,8 +670,8 @@ def test_a_solve_in_another_row_order_is_the_same_solve(block_problem, monkeypat
     want = solve_indirect(g, albedo, direct, 40, 1e-6, method=method, first_bounce=extra)[0]
     order = np.random.default_rng(3).permutation(t)
     mine = np.array(direct, dtype=np.float32, order="C")
-    got = solve_indirect(g, albedo, mine, 40, 1e-6, method=method, first_bounce=extra,
-                         out=mine, order=order)[0]
+    got = solve_indirect(permute_csr(g, order), albedo, mine, 40, 1e-6, method=method,
+                         first_bounce=extra, out=mine, order=order)[0]
     assert got is mine
     np.testing.assert_allclose(got, want, rtol=2e-5, atol=1e-6 * np.abs(want).max())
     assert not np.array_equal(order, np.arange(t))

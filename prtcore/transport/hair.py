@@ -18,6 +18,7 @@ from prtcore.core.fibres import DEFAULT_SIDES, fibre_tubes
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
+from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
@@ -97,21 +98,27 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     t = space.count
     if everything:
         stacked = np.concatenate([direct.mean, direct.harmonics[0], direct.harmonics[1]])
+        order = np.concatenate([space.morton + b * t for b in range(3)])
+        with timer.stage("indirect solve"):  # its rows in Morton order (solve_indirect)
+            block, fibre_stats = permute_csr(term.block, order), term.stats
+        del term  # the operator in strand order goes before the solve's arrays come
         indirect, bounces, resid, solve_stats = solve_indirect(
-            term.block, np.tile(space.albedo, (3, 1)), stacked, spec.max_bounces,
-            spec.tolerance, timer, method="neumann", threads=tracer.threads,
-            order=np.concatenate([space.morton + b * t for b in range(3)]))
+            block, np.tile(space.albedo, (3, 1)), stacked, spec.max_bounces,
+            spec.tolerance, timer, method="neumann", threads=tracer.threads, order=order)
         # the truncated azimuthal series of a noisy gather can dip below zero at a few
         # texels; light cannot: clamped, and counted
         negative = int((indirect[:t] < 0).sum())
         indirect = np.maximum(indirect[:t], np.float32(0))
         solve_stats["negative_clamped"] = negative
     else:
+        with timer.stage("indirect solve"):  # its rows in Morton order (solve_indirect)
+            matrix, fibre_stats = permute_csr(term.matrix, space.morton), term.stats
+        del term  # the operator in strand order goes before the solve's arrays come
         indirect, bounces, resid, solve_stats = solve_indirect(
-            term.matrix, space.albedo, direct_mean, spec.max_bounces, spec.tolerance, timer,
+            matrix, space.albedo, direct_mean, spec.max_bounces, spec.tolerance, timer,
             threads=tracer.threads, first_bounce=first,
             out=None if keep_direct_texels else direct_mean, order=space.morton)
-    stats = {"train": len(lights_train), "fibre": term.stats, "harmonics": harmonics,
+    stats = {"train": len(lights_train), "fibre": fibre_stats, "harmonics": harmonics,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,
                       "direct_fibres": rays3 - rays2}, "solve": solve_stats}
     return Dataset(lights=lights, direct_points=direct_points,

@@ -36,6 +36,7 @@ from prtcore.core.fibres import FibreMesh, transported_frames
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
+from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
@@ -231,9 +232,13 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     fibre_stats = term.stats
     mesh_hits = term.mesh_hits
     del term, mh
+    n = 2 * orders + 1 if everything else 1  # state rows per strand texel
+    order = state_order(texels, space, n)
+    with timer.stage("indirect solve"):  # the solve's operator in Morton order, made
+        # before the direct light's arrays exist (solve_indirect's order)
+        matrix = permute_csr(matrix, order)
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     r3 = tracer.rays_traced
-    n = 2 * orders + 1 if everything else 1  # state rows per strand texel
     rows = t_m + n * t_h
     direct = np.empty((rows, len(lights), 3), dtype=np.float32)
     with timer.stage("direct texels"):
@@ -277,7 +282,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     indirect, bounces, resid, solve_stats = solve_indirect(
         matrix, albedo, direct, spec.max_bounces, spec.tolerance, timer,
         method="neumann" if everything else "chebyshev", threads=tracer.threads,
-        first_bounce=first, out=direct, order=state_order(texels, space, n))
+        first_bounce=first, out=direct, order=order)
     if everything:  # a truncated azimuthal series can dip below zero: clamped, counted
         indirect = indirect[:t_m + t_h]
         solve_stats["negative_clamped"] = int((indirect < 0).sum())

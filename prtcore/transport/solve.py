@@ -196,14 +196,16 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
     ``matrix`` and ``channel_matrices`` (then None); no coarse grid, and the Neumann series
     whatever ``method`` says (the fused Chebyshev step reads CSR arrays).
 
-    order : (T,) int64, a permutation of the rows, or None: the system is solved with its
-    rows and columns in this order (``P G Pᵀ``; each block of ``direct`` read and the
-    result written through it), the result in the caller's order. Rows of spatial
+    order : (T,) int64, a permutation of the rows, or None: ``matrix`` is given with its
+    rows and columns in this order (``P G Pᵀ``, :func:`prtcore.core.sparse.permute_csr`)
+    while albedo, direct, first_bounce and out stay in the caller's order; each block of
+    ``direct`` is read and the result written through the permutation. Rows of spatial
     neighbours side by side let a product's gathered rows share the cache: the 10k
     hairball's strand texels in Morton order (:attr:`prtcore.receivers.strands.
     StrandSpace.morton`) solve about twice as fast as strand by strand (docs/hair.md).
-    The same numbers up to float32 summation order. Not with channel_matrices, coarse or
-    product.
+    The caller permutes, so that it can let the original go before the solve's working
+    arrays exist (its peak then holds one operator). The same numbers up to float32
+    summation order. Not with channel_matrices, coarse or product.
 
     Returns the indirect outgoing radiance ρ/π·E_ind (T, K, 3) float32, the number of
     products (bounces), the residual (the largest last relative change; 1.0 after a single
@@ -221,8 +223,6 @@ def solve_indirect(matrix: sp.csr_matrix, albedo: np.ndarray, direct: np.ndarray
             order = np.asarray(order, dtype=np.int64)
             inv = np.empty_like(order)
             inv[order] = np.arange(len(order))
-            matrix = sp.csr_matrix(matrix)[order][:, order].tocsr()
-            matrix.sort_indices()
             albedo = np.asarray(albedo)[order]
             if first_bounce is not None:
                 first_bounce = (inv[np.asarray(first_bounce[0])], first_bounce[1])
