@@ -16,9 +16,12 @@ its tube's circumscribed cylinder, so they never hit their own segment.
 :func:`hair_tracer` builds the one tracer of a hair bake: the scene's triangles (a head,
 when hair and mesh are baked together) first, then the fibre tubes.
 
-**Direct light** (:func:`fibre_direct`): per texel, J points on the fibre surface,
-stratified in azimuth and jittered in arc length, each with its radial normal; the mean of
-their shadowed irradiance is Ē (the same light evaluation as surfaces,
+**Direct light** (:func:`fibre_direct`, ``hair.direct``): by default ("facing",
+:mod:`prtcore.transport.fibre_facing`) per texel and light one shadow ray per arc sample,
+from a point across the fibre's projected width, with the azimuthal mean and harmonics of
+the clamped cosine in closed form; or ("sampled") J points on the fibre surface,
+stratified in azimuth and jittered in arc length, each with its radial normal, the mean of
+their shadowed irradiance Ē (the same light evaluation as surfaces,
 :func:`prtcore.emitters.punctual.irradiance` through
 :func:`prtcore.transport.direct.direct_radiance`).
 
