@@ -783,6 +783,10 @@ def _parse(data: Any) -> BakeSpec:
                                     lo=1, hi=256),
         chiang=_chiang(hs.get("chiang", {})),
     )
+    if hair.fibre == "chiang" and (hair.direct != "facing" or hair.direct_samples != "auto"):
+        key = "hair.direct" if hair.direct != "facing" else "hair.direct_samples"
+        raise SpecError(key, "the direct-light estimator belongs to the diffuse fibre; the "
+                        "'chiang' fibre samples its own (transport.direct_samples)")
     if hair.fibre == "chiang" and hair.harmonics != "auto":
         raise SpecError("hair.harmonics", "the azimuthal harmonics belong to the diffuse "
                         "fibre; the 'chiang' fibre averages over every direction (leave "

@@ -104,7 +104,8 @@ DOCS: dict[str, str] = {
     "hair.direct": "the diffuse fibre's direct light: `facing` (one shadow ray per arc "
                    "sample and light, from a point across the fibre's projected width; "
                    "the azimuth integrated in closed form) · `sampled` (J stratified "
-                   "azimuths per texel, each shaded); docs/hair.md",
+                   "azimuths per texel, each shaded); refused with the `chiang` fibre, "
+                   "which samples its own; docs/hair.md",
     "hair.direct_samples": "`auto` (2 arc samples for `facing`, max(4, "
                            "`transport.direct_samples`) points for `sampled`), or 1–256; "
                            "`facing` with 1 traces half the shadow rays (the 10k "

@@ -175,9 +175,15 @@ def draw_direct(space: StrandSpace, samples: int, seed: int, estimator: str,
                          f"(expected one of {', '.join(DIRECT_ESTIMATORS)})")
     if estimator == "sampled":
         return None, direct_samples(space, samples, seed)
-    rowless = any(emitter_for(light).kernel_row(light) is None for light in lights)
     return (facing_samples(space, samples, seed),
-            direct_samples(space, max(4, 2 * samples), seed) if rowless else None)
+            direct_samples(space, max(4, 2 * samples), seed) if _rowless(lights) else None)
+
+
+def _rowless(lights: Sequence[Light]) -> list[int]:
+    """Indices of the lights without a compiled row (an environment): the facing
+    estimator leaves them to the sampled one."""
+    return [i for i, light in enumerate(lights)
+            if emitter_for(light).kernel_row(light) is None]
 
 
 def direct_of_draw(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
@@ -188,8 +194,7 @@ def direct_of_draw(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light
         return direct_of_samples(space, tracer, lights, sampled, harmonics, 1 << 14,
                                  progress)
     mean, harm = facing_direct(space, tracer, lights, facing, harmonics, progress)
-    rest = [i for i, light in enumerate(lights)
-            if emitter_for(light).kernel_row(light) is None]
+    rest = _rowless(lights)
     if rest:
         part = direct_of_samples(space, tracer, [lights[i] for i in rest], sampled,
                                  harmonics, 1 << 14, progress=False)

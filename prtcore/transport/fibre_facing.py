@@ -135,19 +135,15 @@ def _facing_points(row, axis, tangent, u, offset, lateral, origin, normal, cs
 
 
 def facing_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
-                  drawn: FacingSamples, harmonics: int, progress: bool = True,
-                  mean: np.ndarray | None = None, harm: np.ndarray | None = None
+                  drawn: FacingSamples, harmonics: int, progress: bool = True
                   ) -> tuple[np.ndarray, np.ndarray]:
     """The direct light of every strand texel for every light with a compiled row (see
     the module docstring): ``mean`` (T, K, 3) float32 and ``harm`` (2H, T, K, 3) float32
-    (rows cos φ, sin φ, cos 2φ, …, :class:`prtcore.transport.fibre.FibreDirect`),
-    written into the given arrays when passed. Columns of lights without a row are left
-    untouched (the caller fills them); returns (mean, harm)."""
+    (rows cos φ, sin φ, cos 2φ, …, :class:`prtcore.transport.fibre.FibreDirect`).
+    Columns of lights without a row are left unwritten (the caller fills them)."""
     t, k, j = space.count, len(lights), drawn.per
-    if mean is None:
-        mean = np.empty((t, k, 3), dtype=np.float32)
-    if harm is None:
-        harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
+    mean = np.empty((t, k, 3), dtype=np.float32)
+    harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
     rho, _ = clamp_albedo(np.asarray(space.albedo, dtype=np.float64))
     scale = rho / math.pi
     c_h = harmonic_weights(harmonics)
