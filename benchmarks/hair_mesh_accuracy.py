@@ -22,6 +22,8 @@ Printed and written to benchmarks/results/hair_mesh_accuracy.json.
 
 Usage: python benchmarks/hair_mesh_accuracy.py [--strands 2000] [--rays 256]
        [--paths 1024] [--texels 300] [--resolution 64] [--texels-per-strand 8]
+       [--seed 0] [--bake-seeds 0,1,2,3] [--variants mesh_bounces] [--near-only]
+       [--no-alone] [--atlas-radii 0.75,1.5,2.5]
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
 from prtcore.intake.hair import hair_scene  # noqa: E402
 from prtcore.intake.points import place_measurement_points  # noqa: E402
 from prtcore.pipeline import run_intake  # noqa: E402
+from prtcore.receivers.smoothing import smooth_texels, smoothing_operators  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
 from prtcore.reference.hair_mesh import hair_mesh_reference  # noqa: E402
@@ -82,7 +85,26 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--direct", choices=("facing", "sampled"), default="facing",
                     help="the hair's direct-light estimator (hair.direct; facing takes "
                          "its default arc samples)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0,
+                    help="draws the head of hair, the compared texels and (without "
+                         "--bake-seeds) the bake's transport.seed")
+    ap.add_argument("--bake-seeds", default=None,
+                    help="comma-separated transport seeds: each variant is baked once per "
+                         "seed against one reference, and a row '…, mean of N bake seeds' "
+                         "compares their mean (the bias that does not average out over "
+                         "bakes, from the bias of one bake, whose noise the solve and the "
+                         "denoiser correlate over neighbouring texels)")
+    ap.add_argument("--variants", default="first_bounce,mesh_bounces,all_bounces",
+                    help="comma-separated hair.harmonics variants to bake")
+    ap.add_argument("--atlas-radii", default="",
+                    help="comma-separated radii (texels) of the surface pipeline's "
+                         "seam-aware lightmap filter applied to the atlas rows after the "
+                         "strand texels' denoising (variants '…, atlas smoothed r')")
+    ap.add_argument("--near-only", action="store_true",
+                    help="skip the variants without the hair's near field")
+    ap.add_argument("--no-alone", action="store_true",
+                    help="skip the hair-alone and head-alone bakes (what each receiver "
+                         "brings the other)")
     ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS,
                     help="k of the strand texels' denoising (variants '…, denoised')")
     ap.add_argument("--max-bounces", type=int, default=64,
@@ -98,8 +120,10 @@ def main(argv: list[str] | None = None) -> dict:
     tracer, fibres = hair_tracer(space, scene)
     points = place_measurement_points(hair_scene(hair), parse_spec(
         {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
-    spec = TransportSpec(gather_rays=a.rays, direct_samples=a.samples, seed=a.seed,
-                         max_bounces=a.max_bounces)
+    seeds = [a.seed] if a.bake_seeds is None else [int(x) for x in a.bake_seeds.split(",")]
+    specs = {s: TransportSpec(gather_rays=a.rays, direct_samples=a.samples, seed=s,
+                              max_bounces=a.max_bounces) for s in seeds}
+    spec = specs[seeds[0]]
     t_m, t_h = texels.count, space.count
     rng = np.random.default_rng(a.seed + 11)
     mesh_rows = np.sort(rng.choice(t_m, min(a.texels, t_m), replace=False))
@@ -116,7 +140,7 @@ def main(argv: list[str] | None = None) -> dict:
     big = texels.coverage[mesh_rows] >= COVERED
     result = {"strands": a.strands, "mesh_texels": t_m, "strand_texels": t_h,
               "rays": a.rays, "direct_samples": a.samples, "direct": a.direct,
-              "paths": a.paths,
+              "paths": a.paths, "seed": a.seed, "bake_seeds": seeds,
               "reference_seconds": ref_s, "variants": {}}
     def errors(values: np.ndarray, seconds: float) -> dict:
         """A variant's rows: its (T, K, 3) indirect light at the sampled texels against
@@ -129,29 +153,53 @@ def main(argv: list[str] | None = None) -> dict:
                 "hair": noise_corrected_error(fast[nm:], ra[nm:], rb[nm:]),
                 "all": noise_corrected_error(fast, ra, rb)}
 
-    for harmonics in ("first_bounce", "mesh_bounces", "all_bounces"):
-        for near in (1.0, 0.0):
-            t0 = time.perf_counter()
-            data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
-                                          LIGHTS, spec=spec, harmonics=harmonics,
-                                          hair_near=near, orders=a.orders,
-                                          direct_estimator=a.direct)
-            name = f"{harmonics}{'' if near else ', no hair near field'}"
-            result["variants"][name] = errors(data.indirect, time.perf_counter() - t0)
-            if near:  # and after the bake's denoising of the strand texels
-                den = denoise_dataset(dataclasses.replace(data, indirect=data.indirect.copy()),
-                                      space, a.neighbours, first_row=t_m)
-                result["variants"][f"{harmonics}, denoised"] = errors(
-                    den.indirect, time.perf_counter() - t0)
-            if harmonics == "mesh_bounces" and near:  # the bake's default with a mesh
-                kept = data
-    # what the other receiver brings: the same receivers without it
-    alone_h = _hair_alone(space, points, spec)
-    alone_m = _head_alone(scene, texels, points, spec)
-    both = kept.indirect.astype(np.float64)
-    result["hair_indirect_from_head"] = float(1 - alone_h.mean() / both[t_m:].mean())
-    # a convex head alone has no indirect light: all of it then comes off the hair
-    result["head_indirect_from_hair"] = float(1 - alone_m.mean() / both[:t_m].mean())
+    radii = [float(r) for r in a.atlas_radii.split(",") if r]
+    smoothers = smoothing_operators(texels, tuple(radii)) if radii else []
+    kept = None
+    for harmonics in a.variants.split(","):
+        sums: dict[str, np.ndarray] = {}
+        for seed in seeds:
+            tag = f" (bake seed {seed})" if len(seeds) > 1 else ""
+            for near in (1.0,) if a.near_only else (1.0, 0.0):
+                t0 = time.perf_counter()
+                data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
+                                              LIGHTS, spec=specs[seed], harmonics=harmonics,
+                                              hair_near=near, orders=a.orders,
+                                              direct_estimator=a.direct)
+                name = f"{harmonics}{'' if near else ', no hair near field'}"
+                result["variants"][name + tag] = errors(data.indirect,
+                                                        time.perf_counter() - t0)
+                sums[name] = sums.get(name, 0) + data.indirect[rows].astype(np.float64)
+                if near:  # and after the bake's denoising of the strand texels
+                    den = denoise_dataset(dataclasses.replace(
+                        data, indirect=data.indirect.copy()), space, a.neighbours,
+                        first_row=t_m)
+                    result["variants"][f"{harmonics}, denoised{tag}"] = errors(
+                        den.indirect, time.perf_counter() - t0)
+                    sums[f"{harmonics}, denoised"] = sums.get(
+                        f"{harmonics}, denoised", 0) + den.indirect[rows].astype(np.float64)
+                    for r, w in zip(radii, smoothers, strict=True):
+                        sm = den.indirect.copy()
+                        sm[:t_m] = smooth_texels(texels, den.indirect[:t_m], operator=w)
+                        name_r = f"{harmonics}, denoised, atlas smoothed {r:g}"
+                        result["variants"][name_r + tag] = errors(sm, time.perf_counter() - t0)
+                        sums[name_r] = sums.get(name_r, 0) + sm[rows].astype(np.float64)
+                if harmonics == "mesh_bounces" and near and kept is None:  # the default
+                    kept = data
+        if len(seeds) > 1:
+            for name, total in sums.items():
+                mean = np.zeros((rows.max() + 1, *total.shape[1:]))
+                mean[rows] = total / len(seeds)
+                result["variants"][f"{name}, mean of {len(seeds)} bake seeds"] = errors(
+                    mean, 0.0)
+    if not a.no_alone and kept is not None:  # what the other receiver brings: the
+        # same receivers without it
+        alone_h = _hair_alone(space, points, spec)
+        alone_m = _head_alone(scene, texels, points, spec)
+        both = kept.indirect.astype(np.float64)
+        result["hair_indirect_from_head"] = float(1 - alone_h.mean() / both[t_m:].mean())
+        # a convex head alone has no indirect light: all of it then comes off the hair
+        result["head_indirect_from_hair"] = float(1 - alone_m.mean() / both[:t_m].mean())
     print(f"{a.strands} strands × {a.texels_per_strand} texels, {t_m} atlas texels, "
           f"M = {a.rays}, J = {a.samples}; {len(mesh_rows)} + {len(hair_rows)} texels × "
           f"{a.paths} reference paths ({ref_s:.1f} s)")
@@ -164,8 +212,9 @@ def main(argv: list[str] | None = None) -> dict:
                  f"{100 * v[k]['bias_se']:.1f} %" for k in ("mesh", "mesh_covered", "hair")]
         print(f"{name:34s} {cells[0]:>22s} {cells[1]:>22s} {cells[2]:>22s}  "
               f"({v['seconds']:.1f} s)")
-    print(f"hair indirect from the head: {100 * result['hair_indirect_from_head']:.1f} %, "
-          f"head indirect from the hair: {100 * result['head_indirect_from_hair']:.1f} %")
+    if "hair_indirect_from_head" in result:
+        print(f"hair indirect from the head: {100 * result['hair_indirect_from_head']:.1f} "
+              f"%, head indirect from the hair: {100 * result['head_indirect_from_hair']:.1f} %")
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(result, indent=1))
     return result
