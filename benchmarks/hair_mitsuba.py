@@ -21,11 +21,19 @@ fibre's diameter, rays leaving from its circumradius):
 ``--scene hairball``: the bake's 10k hairball under ``hairball_lights`` instead of the
 tangle (``--rays 64 --samples 4 --texels-per-strand 10``: the bake's defaults).
 
+``--scene head``: the 10k curly head of hair (``head_hair(10000, "curly", seed=0)``, one
+colour) on the head mesh (``write_head``, its 64² unwrapped atlas), under ``head_lights``;
+Mitsuba's scene holds the head too (:func:`mitsuba_fibre_indirect`'s ``scene=``). Rows:
+``pathtracer`` (prtcore.reference.hair_mesh, ``--paths``), and with ``--fast`` the hair +
+mesh bake's transport at its defaults (``hair.harmonics = "mesh_bounces"``, the facing
+direct light, ``--rays`` M, ``--samples`` J of the mesh) as traced (``mesh_bounces``) and
+denoised as a bake ships it (``mesh_bounces_denoised``). Strand texels only.
+
 The path tracer's row isolates what the tubes cost: both sides trace the same diffuse-fibre
 model, so the difference is the geometry (prism vs round, and where rays leave a fibre).
 Prints a table and writes benchmarks/results/hair_mitsuba_<texels per strand>.json.
 
-Usage: python benchmarks/hair_mitsuba.py [--scene tangle|hairball] [--texels 600]
+Usage: python benchmarks/hair_mitsuba.py [--scene tangle|hairball|head] [--texels 600]
        [--mitsuba-rays 2048] [--texels-per-strand 12] [--sides 3,6] [--paths 2048]
        [--rays 256] [--samples 16] [--fast]
 """
@@ -87,7 +95,7 @@ def fast_path(space, tracer, mesh, lights, rays: int, samples: int,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", choices=("tangle", "hairball"), default="tangle")
+    ap.add_argument("--scene", choices=("tangle", "hairball", "head"), default="tangle")
     ap.add_argument("--texels", type=int, default=600)
     ap.add_argument("--mitsuba-rays", type=int, default=2048)
     ap.add_argument("--texels-per-strand", type=int, default=12)
@@ -103,6 +111,8 @@ def main() -> None:
     ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS,
                     help="k of the denoised rows")
     args = ap.parse_args()
+    if args.scene == "head":
+        return head(args)
     hair, lights = ((hairball(10_000), hairball_lights()) if args.scene == "hairball"
                     else (tangle(1000), tangle_lights()))
     hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
@@ -134,6 +144,63 @@ def main() -> None:
     out = ROOT / "benchmarks" / "results" / (
         f"hair_mitsuba_{args.texels_per_strand}.json" if args.scene == "tangle"
         else f"hair_mitsuba_{args.scene}_{args.texels_per_strand}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"args": vars(args), "rows": rows,
+                               "load": os.getloadavg()[0]}, indent=1))
+    print(f"wrote {out} (load {os.getloadavg()[0]:.1f})")
+
+
+def head(args) -> None:
+    """``--scene head``: the hair + mesh transport's strand texels against Mitsuba with
+    the head in its scene."""
+    import tempfile
+
+    from prtcore.core.spec import TransportSpec, parse_spec
+    from prtcore.intake.hair import hair_scene
+    from prtcore.intake.points import place_measurement_points
+    from prtcore.pipeline import run_intake
+    from prtcore.reference.hair_mesh import hair_mesh_reference
+    from prtcore.scenes.hair import head_hair, head_lights, write_head
+    from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
+    from prtcore.transport.strand_denoise import denoise_dataset
+
+    lights = head_lights()
+    with tempfile.TemporaryDirectory() as tmp:
+        intake = run_intake(write_head(Path(tmp) / "head.glb"), parse_spec(
+            {"atlas": {"resolution": 64}, "measurement_points": {"count": 32}}), quiet=True)
+    scene, texels = intake.scene, intake.texels
+    hair = head_hair(10_000, "curly", seed=0)
+    hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
+    space = build_strand_space(hair, args.texels_per_strand)
+    sel = np.sort(np.random.default_rng(0).choice(space.count, args.texels, replace=False))
+    t0 = time.perf_counter()
+    mit = mitsuba_fibre_indirect(space, lights, sel, args.mitsuba_rays, seed=9, scene=scene)
+    print(f"Mitsuba: {args.texels} strand texels × {args.mitsuba_rays} rays in "
+          f"{time.perf_counter() - t0:.1f} s ({space.count} strand texels, "
+          f"{texels.count} atlas texels)")
+    t_m = texels.count
+    tracer, fibres = hair_tracer(space, scene)
+    t0 = time.perf_counter()
+    found = {"pathtracer": hair_mesh_reference(scene, texels, space, tracer, fibres, lights,
+                                               t_m + sel, args.paths, seed=7)}
+    print(f"  path tracer {time.perf_counter() - t0:.1f} s")
+    if args.fast:
+        points = place_measurement_points(hair_scene(hair), parse_spec(
+            {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
+        spec = TransportSpec(gather_rays=args.rays, direct_samples=args.samples, seed=0)
+        data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer, lights,
+                                      (), spec=spec, harmonics="mesh_bounces",
+                                      direct_estimator=args.direct)
+        found["mesh_bounces"] = data.indirect[t_m + sel].astype(np.float64)
+        den = denoise_dataset(data, space, args.neighbours, first_row=t_m)
+        found["mesh_bounces_denoised"] = den.indirect[t_m + sel].astype(np.float64)
+    rows = []
+    for name, est in found.items():
+        e = noise_corrected_error(est, *mit)
+        rows.append({"estimate": name, **e})
+        print(f"{name:24} against Mitsuba: rRMSE {100 * e['rrmse']:5.2f} %  bias "
+              f"{100 * e['bias']:+5.2f} ± {100 * e['bias_se']:.2f} %")
+    out = ROOT / "benchmarks" / "results" / f"hair_mitsuba_head_{args.texels_per_strand}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args), "rows": rows,
                                "load": os.getloadavg()[0]}, indent=1))

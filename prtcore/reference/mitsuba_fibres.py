@@ -20,10 +20,14 @@ cubic B-spline that is the polyline itself. Its texel is the radiance averaged o
 directions, so the query rays come from directions with density cos θ / π² at a uniform
 offset across the fibre (:func:`_chiang_queries`).
 
-Shared with prtcore: the hair (polylines and radii), the lights' meaning (point: intensity
-as radiant intensity, directional: illuminance as irradiance), the texels' arc intervals.
-Not shared: geometry (round curves with round joints, not triangulated tubes), ray
-tracing, sampling, shading normals.
+A mesh baked with the hair (``scene=``, a head) joins Mitsuba's scene as an OBJ with the
+scene's vertex normals (Mitsuba interpolates them, as prtcore's shading normals) and a
+``diffuse`` BSDF of its one material's base colour.
+
+Shared with prtcore: the hair (polylines and radii), the mesh's triangles and vertex
+normals, the lights' meaning (point: intensity as radiant intensity, directional:
+illuminance as irradiance), the texels' arc intervals. Not shared: fibre geometry (round
+curves with round joints, not triangulated tubes), ray tracing, sampling, ray offsets.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams
-from prtcore.core.scene import Light
+from prtcore.core.scene import Light, Scene
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 
 #: where the query rays start, in fibre radii from the axis
@@ -56,6 +60,26 @@ def _write_curves(space: StrandSpace, path: Path, repeat: int = 1) -> None:
             f.write("\n")
 
 
+def _write_obj(scene: Scene, path: Path) -> None:
+    """The scene's triangles as an OBJ with its vertex normals (``f a//a b//b c//c``)."""
+    with open(path, "w") as f:
+        f.writelines(f"v {p[0]!r} {p[1]!r} {p[2]!r}\n" for p in scene.positions.tolist())
+        f.writelines(f"vn {n[0]!r} {n[1]!r} {n[2]!r}\n" for n in scene.normals.tolist())
+        f.writelines(f"f {a}//{a} {b}//{b} {c}//{c}\n" for a, b, c in (scene.faces + 1).tolist())
+
+
+def _mesh_shape(scene: Scene, path: Path) -> dict:
+    """Mitsuba's shape of ``scene`` (one base colour, untextured: a diffuse BSDF)."""
+    used = np.unique(scene.face_material)
+    colours = {tuple(scene.materials[m].base_color_factor[:3]) for m in used}
+    if len(colours) != 1 or any(scene.materials[m].texture >= 0 for m in used):
+        raise ValueError("mitsuba_fibre_indirect: the mesh must have one untextured colour")
+    _write_obj(scene, path)
+    return {"type": "obj", "filename": str(path), "face_normals": False,
+            "bsdf": {"type": "diffuse", "reflectance": {
+                "type": "rgb", "value": np.clip(colours.pop(), 0, 0.99).tolist()}}}
+
+
 def _emitter(light: Light) -> dict:
     rgb = {"type": "rgb", "value": (np.asarray(light.color) * light.intensity).tolist()}
     if light.type == "point":
@@ -69,7 +93,7 @@ def _emitter(light: Light) -> dict:
 
 def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: np.ndarray,
                            samples: int, seed: int, max_depth: int = 64,
-                           chiang: ChiangParams | None = None
+                           chiang: ChiangParams | None = None, scene: Scene | None = None
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Indirect outgoing radiance of ``texels`` (n,) for each light, as two independent
     halves of ``samples`` // 2 rays each: (a, b), each (n, K, 3) float64. The hair must
@@ -80,7 +104,9 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
         averaged over view directions with the fibre's projected width: each query ray
         comes from a direction with density cos θ / π² (a cosine direction about a
         uniformly random radial normal) and meets the fibre at a uniform offset h across
-        it, so the mean of what the path integrator returns is the texel's value."""
+        it, so the mean of what the path integrator returns is the texel's value.
+    scene : a mesh baked with the hair (one untextured colour), which shadows the fibres
+        and reflects light onto them."""
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
@@ -121,20 +147,20 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
                     "azimuthal_roughness": chiang.beta_n,
                     "scale_tilt": float(np.degrees(chiang.alpha)),
                     "int_ior": chiang.eta, "ext_ior": 1.0}
+        shapes = {"hair": {"type": shape, "filename": str(curves), "bsdf": bsdf}}
+        if scene is not None:
+            shapes["mesh"] = _mesh_shape(scene, Path(tmp) / "mesh.obj")
         full_i = mi.load_dict({"type": "path", "max_depth": max_depth})
         direct_i = mi.load_dict({"type": "path", "max_depth": 2})
         sampler = mi.load_dict({"type": "independent"})
         for k, light in enumerate(lights):
-            scene = mi.load_dict({"type": "scene", "hair": {"type": shape,
-                                                            "filename": str(curves),
-                                                            "bsdf": bsdf},
-                                  "light": _emitter(light)})
+            world = mi.load_dict({"type": "scene", **shapes, "light": _emitter(light)})
             for i in range(len(origin)):
                 ray = mi.Ray3f(mi.Point3f(*origin[i]), mi.Vector3f(*direction[i]))
                 sampler.seed(int(seed) * 1_000_003 + i)
-                full, _, _ = full_i.sample(scene, sampler, ray)
+                full, _, _ = full_i.sample(world, sampler, ray)
                 sampler.seed(int(seed) * 1_000_003 + i)
-                direct, _, _ = direct_i.sample(scene, sampler, ray)
+                direct, _, _ = direct_i.sample(world, sampler, ray)
                 out[i, k] = np.array(full) - np.array(direct)
     out = out.reshape(n, 2, half, len(lights), 3)
     return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
