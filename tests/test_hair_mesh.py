@@ -218,6 +218,53 @@ def test_bundle_holds_the_lightmap_and_the_strand_texture(bundle):
     atlas_cov = read_image(bundle / "coverage.exr")[:, :, 0]
     assert int(atlas_cov.sum()) == m["atlas"]["covered_texels"]
     assert m["verdict"]["ratio"] <= 1.25, m["verdict"]
+    # the atlas rows went through the surfaces' lightmap filter at the "auto" radius
+    assert m["validation"]["reference"].endswith("denoised (radius 1.5 texels)")
+    report = json.loads((bundle / "report.json").read_text())
+    assert report["transport"]["atlas_denoise"]["radius_texels"] == 1.5
+
+
+def test_the_atlas_rows_alone_are_filtered_at_the_spec_s_radius(head):
+    """denoise_atlas: the first T_m rows of the dataset become the seam-aware filter of the
+    mesh's texels (the surface pipeline's denoise_lightmaps), the strand rows stay bit for
+    bit; hair_spec resolves fit.denoise "auto" to DENOISE_FALLBACK with a mesh and to 0
+    without one, keeps a radius given, and gives "auto" lights MESH_FIXED_LIGHTS with a
+    mesh."""
+    import dataclasses
+
+    from prtcore.core.progress import StageTimer
+    from prtcore.hairbake import CHIANG_FIXED_LIGHTS, MESH_FIXED_LIGHTS, denoise_atlas
+    from prtcore.receivers.smoothing import denoise_lightmaps
+    from prtcore.transport.dataset import Dataset
+    from prtcore.transport.noise import DENOISE_FALLBACK
+
+    auto = hair_spec(parse_spec({}), with_mesh=True)
+    assert auto.fit.denoise == DENOISE_FALLBACK
+    # with the filter the head needs more lights than hair alone (docs/hair.md)
+    assert auto.lights.count == MESH_FIXED_LIGHTS > hair_spec(parse_spec({})).lights.count
+    assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True
+                     ).lights.count == CHIANG_FIXED_LIGHTS
+    assert hair_spec(parse_spec({}), with_mesh=False).fit.denoise == 0.0
+    assert hair_spec(parse_spec({"fit": {"denoise": 0.75}}), with_mesh=True
+                     ).fit.denoise == 0.75
+    texels = head[1]
+    t_m, t_h = texels.count, 500
+    rng = np.random.default_rng(3)
+    values = rng.uniform(0.5, 1.5, (t_m + t_h, 4, 3)).astype(np.float32)
+    data = Dataset(lights=(), direct_points=np.zeros((1, 4, 3), np.float32),
+                   direct_texels=None, indirect=values.copy(), iterations=0, residual=0.0,
+                   stats={})
+    out = denoise_atlas(data, texels, 1.5, StageTimer(quiet=True))
+    assert out.stats["atlas_denoise"]["radius_texels"] == 1.5
+    np.testing.assert_array_equal(out.indirect[t_m:], values[t_m:])
+    np.testing.assert_allclose(out.indirect[:t_m], denoise_lightmaps(
+        texels, values[:t_m], 1.5), rtol=1e-6)
+    # a filter: the noise's spread falls, its mean does not move
+    assert out.indirect[:t_m].std() < 0.6 * values[:t_m].std()
+    assert abs(out.indirect[:t_m].mean() / values[:t_m].mean() - 1) < 0.02
+    same = denoise_atlas(dataclasses.replace(data, indirect=values.copy()), texels, 0.0,
+                         StageTimer(quiet=True))
+    np.testing.assert_array_equal(same.indirect, values)
 
 
 def test_relight_writes_both_textures(bundle, tmp_path):

@@ -9,7 +9,7 @@ import pytest
 from render_passes import render_passes
 
 from prtcore.cli import main as cli_main
-from prtcore.core.errors import SpecError
+from prtcore.core.errors import LimitExceeded, SpecError
 from prtcore.core.spec import parse_spec
 from prtcore.intake.hair import hair_scene
 from prtcore.intake.points import place_measurement_points
@@ -246,6 +246,28 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
     est = check_hair_memory(asset, space, s, 1 << 62)
     print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
     assert peak <= est <= 1.6 * peak, (peak, est)
+
+
+def test_the_140k_hairball_fits_the_default_memory_limit_and_k_scales_the_estimate():
+    """The issue's 140k-strand hairball at K = 128 + 16 is baked with the default limits
+    (its peak RSS measured 13.25 GiB, in the fibre gather; docs/hair.md): its estimate
+    (14.8 GiB) fits the default ``max_bake_bytes``, and a bake with more lights, which
+    does not fit, is refused by a one-line error naming the file and the limit. The
+    phases are not summed: the gather's triples are gone before the solve's arrays exist
+    (summed, the estimate was 17.1 GiB)."""
+    from prtcore.core.limits import IntakeLimits
+    from prtcore.hairbake import check_hair_memory, hair_spec
+    from prtcore.scenes.hair import hairball
+
+    space = build_strand_space(hairball(140000), 10)
+    limit = IntakeLimits().max_bake_bytes
+    spec = hair_spec(parse_spec({"lights": {"count": 128, "holdout": 16}}))
+    est = check_hair_memory("ball.hair", space, spec, limit)
+    assert 12 * 2**30 < est < limit
+    more = hair_spec(parse_spec({"lights": {"count": 256, "holdout": 16}}))
+    with pytest.raises(LimitExceeded, match=r"ball.hair: .*1400000 strand texels and 272 "
+                       r"lights needs about .* GiB.*max_bake_bytes="):
+        check_hair_memory("ball.hair", space, more, limit)
 
 
 CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}

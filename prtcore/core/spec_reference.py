@@ -46,7 +46,7 @@ DOCS: dict[str, str] = {
     "lights.count": "K, training lighting configurations, 1–65536, or `auto`: start at "
                     "`sizing.lights_start` and double (tracing only the new lights) while "
                     "the verdict's target is not met, within `sizing`'s budget (hair "
-                    "bakes: 128, or 512 with the Chiang fibre; docs/hair.md)",
+                    "bakes: 128, 256 with a mesh, 512 with the Chiang fibre; docs/hair.md)",
     "lights.holdout": "held-out validation configurations, 0–65536",
     "lights.seed": "seed of the light draws (training and held-out streams are "
                    "independent)",
@@ -119,7 +119,8 @@ DOCS: dict[str, str] = {
                    "fitted (0: off). `auto` traces the first 8 held-out lights a second "
                    "time with an independent seed and ships the radius of 0, 0.75, 1.5, "
                    "2.5 with the least estimated error against the noiseless lightmaps (manifest "
-                   "`transport_noise`); keyframe bakes take 1.5",
+                   "`transport_noise`); keyframe bakes take 1.5, and so do hair + mesh bakes "
+                   "(their atlas rows only; hair alone: 0)",
     "fit.transfer": "`ridge` (linear, paper 4.3) · `mlp` (the ridge plus a learnt "
                     "residual network trained on its leave-one-out errors; "
                     "docs/bundle.md)",

@@ -83,11 +83,15 @@ from prtcore.transport.fibre_facing import facing_direct, facing_samples
 #: rays per intersect call of the fibre gather
 FIBRE_BATCH = 1 << 18
 #: Memory of the fibre gather (bytes): per texel and gather ray (where its sample lies,
-#: arc and azimuth, 16, from :meth:`StrandSpace.surface_sample_params`; the (row, column,
-#: azimuth) triples before they are summed into CSR, and the CSR matrices, 24), and per
-#: ray in flight (the batch's origins, normals and axis points, directions, hit records).
-#: The samples' points were made for all rays at once until 2026-12-04 (80 bytes a ray).
-MEM_PER_TEXEL_RAY = 40
+#: arc and azimuth, from :meth:`StrandSpace.surface_sample_params`; the (row, column,
+#: azimuth) triples before they are summed, their sorting permutation, scipy's COO → CSR
+#: copies, and the three CSR matrices), and per ray in flight (the batch's origins,
+#: normals and axis points, directions, hit records). Measured (benchmarks/stage_memory.py,
+#: the hairball, M = 64, 2026-12-05): the gather stage's peak RSS less the RSS with the
+#: tubes built is 60, 79 and 78 bytes a ray at 10k, 40k and 140k strands; 96 covers that
+#: with a margin. (40 until then, when the gather was counted on top of the solve's
+#: arrays, which it never meets: :func:`prtcore.hairbake.check_hair_memory`'s phases.)
+MEM_PER_TEXEL_RAY = 96
 MEM_PER_RAY_IN_FLIGHT = 300
 #: Memory of the fibre tubes per polyline segment (bytes): prtcore's float64 vertices,
 #: faces and face normals plus Embree's copies and BVH, measured at 10k strands × 16
@@ -95,6 +99,9 @@ MEM_PER_RAY_IN_FLIGHT = 300
 #: in two (DEFAULT_PIECES = 2) raised the 10k bake's peak by 0.15 GiB (≈ 1000 bytes a
 #: segment), so 2400.
 MEM_PER_FIBRE_SEGMENT = 2400
+#: Memory of one entry of a fibre operator's CSR matrix (bytes): a float32 value and an
+#: int32 column; the gather makes at most one entry per ray and matrix
+MEM_PER_OPERATOR_ENTRY = 8
 
 
 def hair_tracer(space: StrandSpace, scene: Scene | None = None, sides: int = DEFAULT_SIDES,
