@@ -144,8 +144,8 @@ CHIANG_FIXED_LIGHTS = 512
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
 #: 1.25× its projection bound, on the gate; with its atlas rows filtered (``fit.denoise``,
 #: :func:`denoise_atlas`) the bound falls and 128 lights fail at 1.28× (128 points: 1.32×),
-#: while 256 pass at 1.09× (12.0 %; 236 s instead of 163–241 s, peak 4.6 GiB instead of
-#: 4.0; docs/hair.md, "One head, several bake seeds")
+#: while 256 pass at 1.09× (12.0 %; 236 s instead of 163–241 s, peak 4.4 GiB instead of
+#: 3.8; docs/hair.md, "One head, several bake seeds")
 MESH_FIXED_LIGHTS = 256
 
 
