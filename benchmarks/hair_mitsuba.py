@@ -27,7 +27,9 @@ Mitsuba's scene holds the head too (:func:`mitsuba_fibre_indirect`'s ``scene=``)
 ``pathtracer`` (prtcore.reference.hair_mesh, ``--paths``), and with ``--fast`` the hair +
 mesh bake's transport at its defaults (``hair.harmonics = "mesh_bounces"``, the facing
 direct light, ``--rays`` M, ``--samples`` J of the mesh) as traced (``mesh_bounces``) and
-denoised as a bake ships it (``mesh_bounces_denoised``). Strand texels only.
+denoised as a bake ships it (``mesh_bounces_denoised``). ``--atlas-texels N``: N of the
+head's atlas texels too (:func:`mitsuba_mesh_indirect`), the fast path's as traced and
+through the bake's atlas filter (``fit.denoise`` 1.5 texels).
 
 The path tracer's row isolates what the tubes cost: both sides trace the same diffuse-fibre
 model, so the difference is the geometry (prism vs round, and where rays leave a fibre).
@@ -97,6 +99,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", choices=("tangle", "hairball", "head"), default="tangle")
     ap.add_argument("--texels", type=int, default=600)
+    ap.add_argument("--atlas-texels", type=int, default=0,
+                    help="--scene head: also this many of the head's atlas texels")
     ap.add_argument("--mitsuba-rays", type=int, default=2048)
     ap.add_argument("--texels-per-strand", type=int, default=12)
     ap.add_argument("--sides", type=lambda s: [int(x) for x in s.split(",")],
@@ -159,9 +163,12 @@ def head(args) -> None:
     from prtcore.intake.hair import hair_scene
     from prtcore.intake.points import place_measurement_points
     from prtcore.pipeline import run_intake
+    from prtcore.receivers.smoothing import denoise_lightmaps
     from prtcore.reference.hair_mesh import hair_mesh_reference
+    from prtcore.reference.mitsuba_fibres import mitsuba_mesh_indirect
     from prtcore.scenes.hair import head_hair, head_lights, write_head
     from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
+    from prtcore.transport.noise import DENOISE_FALLBACK
     from prtcore.transport.strand_denoise import denoise_dataset
 
     lights = head_lights()
@@ -179,10 +186,21 @@ def head(args) -> None:
           f"{time.perf_counter() - t0:.1f} s ({space.count} strand texels, "
           f"{texels.count} atlas texels)")
     t_m = texels.count
+    mesh_rows = np.sort(np.random.default_rng(1).choice(
+        t_m, min(args.atlas_texels, t_m), replace=False))
+    if len(mesh_rows):
+        t0 = time.perf_counter()
+        mit_m = mitsuba_mesh_indirect(space, scene, texels, lights, mesh_rows,
+                                      args.mitsuba_rays, seed=10)
+        print(f"Mitsuba: {len(mesh_rows)} atlas texels × {args.mitsuba_rays} rays in "
+              f"{time.perf_counter() - t0:.1f} s")
     tracer, fibres = hair_tracer(space, scene)
     t0 = time.perf_counter()
-    found = {"pathtracer": hair_mesh_reference(scene, texels, space, tracer, fibres, lights,
-                                               t_m + sel, args.paths, seed=7)}
+    nm = len(mesh_rows)
+    pa, pb = hair_mesh_reference(scene, texels, space, tracer, fibres, lights,
+                                 np.concatenate([mesh_rows, t_m + sel]), args.paths, seed=7)
+    found = {"pathtracer": (pa[nm:], pb[nm:])}
+    found_m = {"pathtracer": (pa[:nm], pb[:nm])}
     print(f"  path tracer {time.perf_counter() - t0:.1f} s")
     if args.fast:
         points = place_measurement_points(hair_scene(hair), parse_spec(
@@ -192,14 +210,21 @@ def head(args) -> None:
                                       (), spec=spec, harmonics="mesh_bounces",
                                       direct_estimator=args.direct)
         found["mesh_bounces"] = data.indirect[t_m + sel].astype(np.float64)
+        found_m["mesh_bounces"] = data.indirect[mesh_rows].astype(np.float64)
+        atlas = denoise_lightmaps(texels, data.indirect[:t_m], DENOISE_FALLBACK)
+        found_m["mesh_bounces_filtered"] = atlas[mesh_rows].astype(np.float64)
         den = denoise_dataset(data, space, args.neighbours, first_row=t_m)
         found["mesh_bounces_denoised"] = den.indirect[t_m + sel].astype(np.float64)
     rows = []
-    for name, est in found.items():
-        e = noise_corrected_error(est, *mit)
-        rows.append({"estimate": name, **e})
-        print(f"{name:24} against Mitsuba: rRMSE {100 * e['rrmse']:5.2f} %  bias "
-              f"{100 * e['bias']:+5.2f} ± {100 * e['bias_se']:.2f} %")
+    for kind, table, ref in (("strand", found, mit), ("atlas", found_m,
+                                                      mit_m if nm else None)):
+        if ref is None:
+            continue
+        for name, est in table.items():
+            e = noise_corrected_error(est, *ref)
+            rows.append({"receiver": kind, "estimate": name, **e})
+            print(f"{kind:6} {name:24} against Mitsuba: rRMSE {100 * e['rrmse']:5.2f} %  "
+                  f"bias {100 * e['bias']:+5.2f} ± {100 * e['bias_se']:.2f} %")
     out = ROOT / "benchmarks" / "results" / f"hair_mitsuba_head_{args.texels_per_strand}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args), "rows": rows,

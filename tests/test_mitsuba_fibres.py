@@ -132,3 +132,32 @@ def test_mitsuba_with_a_mesh_lights_a_fibre_from_below_as_the_closed_form(tmp_pa
         got = (ma[i, 0] + mb[i, 0]) / 2
         se = np.abs(ma[i, 0] - mb[i, 0]) / 2 + 1e-12  # ≈ the mean's standard error
         assert np.all(np.abs(got / expect - 1) < 0.03 + 3 * se / expect), (i, got, expect)
+
+
+def test_mitsuba_on_the_scalp_agrees_with_the_hair_mesh_path_tracer(tmp_path):
+    """mitsuba_mesh_indirect: atlas texels of the test head under 2000 curly strands, whose
+    indirect light all comes off the hair (the head alone is convex), against prtcore's
+    hair + mesh path tracer, both sides' noise removed. A query that misses its texel,
+    starts under the surface or takes the wrong albedo is off by far more (a query pointed
+    away from its surface reads +45 %)."""
+    from prtcore.core.spec import parse_spec
+    from prtcore.pipeline import run_intake
+    from prtcore.reference.hair_mesh import hair_mesh_reference
+    from prtcore.reference.mitsuba_fibres import mitsuba_mesh_indirect
+    from prtcore.scenes.hair import head_hair, head_lights, write_head
+
+    intake = run_intake(write_head(tmp_path / "head.glb"), parse_spec(
+        {"atlas": {"resolution": 32}, "measurement_points": {"count": 8}}), quiet=True)
+    scene, texels = intake.scene, intake.texels
+    hair = head_hair(2000, "curly", seed=0)
+    hair = dataclasses.replace(hair, color=np.tile([0.8, 0.6, 0.4], (hair.point_count, 1)))
+    space = build_strand_space(hair, 8)
+    lights = head_lights()
+    rows = np.sort(np.random.default_rng(2).choice(texels.count, 60, replace=False))
+    mit = mitsuba_mesh_indirect(space, scene, texels, lights, rows, 1024, seed=4)
+    tracer, fibres = hair_tracer(space, scene)
+    ours = hair_mesh_reference(scene, texels, space, tracer, fibres, lights, rows, 1024,
+                               seed=6)
+    e = noise_corrected_error(ours, *mit)
+    assert abs(e["bias"]) < 0.03 + 3 * e["bias_se"], e
+    assert e["rrmse"] < 0.15, e

@@ -41,9 +41,12 @@ import numpy as np
 from prtcore.core.bcsdf import ChiangParams
 from prtcore.core.scene import Light, Scene
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
+from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
 
 #: where the query rays start, in fibre radii from the axis
 START_RADII = 1.02
+#: where a mesh texel's query rays start above its surface (metres)
+MESH_START = 1e-5
 
 
 def _write_curves(space: StrandSpace, path: Path, repeat: int = 1) -> None:
@@ -107,13 +110,7 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
         it, so the mean of what the path integrator returns is the texel's value.
     scene : a mesh baked with the hair (one untextured colour), which shadows the fibres
         and reflects light onto them."""
-    import mitsuba as mi
-
-    mi.set_variant("scalar_rgb")
     hair = space.hair
-    color = hair.color[0]
-    if chiang is None and not np.allclose(hair.color, color):
-        raise ValueError("mitsuba_fibre_indirect: the hair must have one colour")
     texels = np.asarray(texels, dtype=np.int64)
     rng = np.random.default_rng(seed)
     half = samples // 2
@@ -130,7 +127,50 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
         origin, direction = axis + (START_RADII * radius)[:, None] * normal, -normal
     else:
         origin, direction = _chiang_queries(axis, tangent, normal, radius, rng)
-    out = np.zeros((n * 2 * half, len(lights), 3))
+    out = _trace(space, lights, origin, direction, seed, max_depth, chiang, scene)
+    out = out.reshape(n, 2, half, len(lights), 3)
+    return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
+
+
+def mitsuba_mesh_indirect(space: StrandSpace, scene: Scene, texels: TexelSpace,
+                          lights: Sequence[Light], rows: np.ndarray, samples: int,
+                          seed: int, max_depth: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Indirect outgoing radiance of the mesh's atlas texels ``rows`` (n,) under the hair,
+    as :func:`mitsuba_fibre_indirect` gives it for strand texels: two halves (a, b), each
+    (n, K, 3) float64. Each query ray starts at a point uniform over the texel's part of
+    its triangle (:func:`~prtcore.receivers.texels.sample_texel_regions`, as the path
+    tracer's texels), 10 µm above it, and points down its face normal: for a Lambertian
+    surface what the integrator returns is the outgoing radiance ρ/π·E there."""
+    rows = np.asarray(rows, dtype=np.int64)
+    rng = np.random.default_rng(seed)
+    half = samples // 2
+    n = len(rows)
+    local = np.repeat(np.arange(n), 2 * half)
+    bary = sample_texel_regions(texel_regions(scene, texels, rows), local, rng)
+    tri = scene.faces[texels.triangle[rows[local]]]
+    corners = scene.positions[tri].astype(np.float64)  # (m, 3, 3)
+    point = np.einsum("mi,mij->mj", bary, corners)
+    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    face /= np.linalg.norm(face, axis=1, keepdims=True)
+    out = _trace(space, lights, point + MESH_START * face, -face, seed, max_depth, None,
+                 scene)
+    out = out.reshape(n, 2, half, len(lights), 3)
+    return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
+
+
+def _trace(space: StrandSpace, lights: Sequence[Light], origin: np.ndarray,
+           direction: np.ndarray, seed: int, max_depth: int, chiang: ChiangParams | None,
+           scene: Scene | None) -> np.ndarray:
+    """Mitsuba's indirect radiance along each query ray, (m, K, 3) float64: its ``path``
+    integrator's estimate minus the ``max_depth = 2`` one with the same sampler seed,
+    against the hair (and ``scene``'s mesh) under each light in turn."""
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    color = space.hair.color[0]
+    if chiang is None and not np.allclose(space.hair.color, color):
+        raise ValueError("mitsuba_fibre_indirect: the hair must have one colour")
+    out = np.zeros((len(origin), len(lights), 3))
     with tempfile.TemporaryDirectory() as tmp:
         curves = Path(tmp) / "hair.txt"
         # Mitsuba's hair BSDF reads the fibre's direction from the shading frame, which
@@ -162,8 +202,7 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
                 sampler.seed(int(seed) * 1_000_003 + i)
                 direct, _, _ = direct_i.sample(world, sampler, ray)
                 out[i, k] = np.array(full) - np.array(direct)
-    out = out.reshape(n, 2, half, len(lights), 3)
-    return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
+    return out
 
 
 def _chiang_queries(axis: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
