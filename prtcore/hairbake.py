@@ -280,13 +280,19 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     hairball's estimate (17.1 GiB) was 1.30× its measured peak (13.2 GiB), over the
     default limit; docs/hair.md has the stage peaks this model was checked against.
 
-    The other variants add their own arrays to both phases (conservatively):
-    ``hair.harmonics = "all_bounces"``: the (3T, 3T) operator's nine blocks (20 bytes per
-    gather ray and block before they are summed; "mesh_bounces": three, the mean rows')
-    and a solve over 3T rows (the stacked direct light and five working arrays of
-    (3T, K, 3) float32); the Chiang fibre: each hit's data. ``mesh_texels`` T_m > 0 (a
-    hair + mesh bake): plus the surface bake's estimate of T_m texels and the stacked
-    direct light's and the solve's (T_m + nT, K, 3) float32 rows."""
+    The other variants add their own arrays to both phases (conservatively). Stacked
+    harmonics (``hair.harmonics`` "all_bounces" or "mesh_bounces"): the (3T, 3T)
+    operator's blocks before they are summed (20 bytes per gather ray and block; nine, or
+    three for mesh_bounces' mean rows), the stacked (3T, K, 3) float32 direct light in
+    place of the T rows, the direct light's mean and harmonics beside it and, for hair
+    alone, the solve's result (with a mesh the solve writes over the direct light); the
+    solve's working arrays over 3T rows, bounded alike. The Chiang fibre: each hit's data.
+    ``mesh_texels`` T_m > 0 (a hair + mesh bake): the surface bake's estimate of T_m
+    texels less its process and its solve (one of each, counted above: the solve's rows
+    include the atlas), and the atlas rows of the direct light. Measured
+    (benchmarks/stage_memory.py, the 10k head + mesh at the bake's 139k-texel atlas):
+    K = 144 peak 3.78 GiB against 6.08 GiB (9.66 until 2026-12-05, whose stacked and
+    solve terms were counted twice or three times), K = 272 4.45 against 7.74 (15.41)."""
     k = spec.lights.count + spec.lights.holdout
     t = space.count
     m = spec.transport.gather_rays
@@ -298,7 +304,9 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     gather = operator_for("fibre").estimate_bytes(t, k, spec.transport)
     entries = t * m * MEM_PER_OPERATOR_ENTRY  # one operator matrix
     light = t * k * (MEM_PER_TEXEL_CONFIG - (0 if everything else 12))
-    solve = min(SOLVE_WORK_ARRAYS * t * k * 12, SOLVE_BLOCK_BYTES)
+    # one solve over the strand rows (three with stacked harmonics) and the atlas rows
+    solve = min(SOLVE_WORK_ARRAYS * ((3 if everything else 1) * t + mesh_texels) * k * 12,
+                SOLVE_BLOCK_BYTES)
     after = light + max((1 + 2 * HARMONICS) * entries + 2 * t * held * 12,
                         (2 + 2 * HARMONICS) * entries, entries + solve)
     est = whole + max(gather, after)
@@ -308,11 +316,17 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         f = EXITANCE_TERMS[spec.hair.chiang.exitance]
         est += t * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
             spec.hair.chiang.exitance] + (2 * f * t * k * 12 if f > 1 else 0)
-    if everything:
-        est += t * spec.transport.gather_rays * blocks * 20 + 6 * 3 * t * k * 12
-    if mesh_texels:
+    if everything:  # the operator's blocks before they are summed; beside the stacked
+        # (3T, K, 3) direct light (``light``) the direct light's mean and harmonics, and
+        # for hair alone the solve's result (with a mesh it is written over the direct)
+        est += t * m * blocks * 20 + (3 if mesh_texels else 6) * t * k * 12
+    if mesh_texels:  # the surface gather of the atlas (one process and one solve: its
+        # MEM_PROCESS and working arrays are counted above), and the atlas rows of the
+        # direct light the solve works in (its strand rows are ``light``'s; the Chiang
+        # fibre's transport holds its own)
         est += estimate_bake_bytes(mesh_texels, k, spec.transport, ("surface",)) \
-            + (mesh_texels + (3 if everything else 1) * t) * k * 12
+            - MEM_PROCESS - min(SOLVE_WORK_ARRAYS * mesh_texels * k * 12, SOLVE_BLOCK_BYTES) \
+            + (mesh_texels + (t if spec.hair.fibre == "chiang" else 0)) * k * 12
         if spec.hair.fibre == "chiang":  # the mesh rows again, as rays of the product,
             # and with F > 1 coefficients their stacked rows in the solve
             f = EXITANCE_TERMS[spec.hair.chiang.exitance]

@@ -215,18 +215,28 @@ def test_all_bounce_harmonics_bake_and_agree_with_the_first_bounce_variant(tmp_p
 
 
 @pytest.mark.slow
-def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
+@pytest.mark.parametrize("with_mesh", [False, True], ids=["hair", "hair+mesh"])
+def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, with_mesh):
     """check_hair_memory against the peak RSS of a whole hair bake in a fresh process (the
-    hairball at 4000 strands, K = 64 + 16: several light blocks of the first bounce)."""
+    hairball at 4000 strands, K = 64 + 16: several light blocks of the first bounce; or
+    4000 curly strands on the test head, baked together: mesh_bounces' stacked state).
+    Measured: hair 739–774 MiB, estimate 882 MiB (1.2×); hair + mesh 2.27 GiB, estimate
+    3.70 GiB (1.63×: mesh_bounces' stacked terms are counted on both phases; at 10k
+    strands 1.61–1.74×, docs/hair.md), so its looseness is held to 1.8×."""
     import subprocess
     import sys
 
     from prtcore.core.limits import IntakeLimits
     from prtcore.core.progress import StageTimer
     from prtcore.hairbake import check_hair_memory, hair_spec, run_hair_intake
-    from prtcore.scenes.hair import hairball
+    from prtcore.pipeline import run_intake
+    from prtcore.scenes.hair import hairball, head_hair, write_head
 
-    asset = write_hair(tmp_path / "ball.hair", hairball(4000))
+    if with_mesh:
+        asset = write_hair(tmp_path / "hair.hair", head_hair(4000, "curly", seed=0))
+        mesh = write_head(tmp_path / "head.glb")
+    else:
+        asset, mesh = write_hair(tmp_path / "ball.hair", hairball(4000)), None
     spec = {"lights": {"count": 64, "holdout": 16, "seed": 2}}
     # the child's own peak is VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss
     # over execve, so a child started from this (large) pytest process would report the
@@ -235,17 +245,20 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path):
             f"from prtcore.core.spec import parse_spec\n"
             f"from prtcore.pipeline import bake\n"
             f"bake(pathlib.Path({str(asset)!r}), parse_spec({spec!r}), "
-            f"pathlib.Path({str(tmp_path / 'b')!r}), quiet=True)\n"
+            f"pathlib.Path({str(tmp_path / 'b')!r}), quiet=True, "
+            f"mesh={str(mesh) if mesh else None!r})\n"
             f"hwm = re.search(r'VmHWM:\\s+(\\d+) kB', open('/proc/self/status').read())\n"
             f"print(int(hwm.group(1)) * 1024)\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     peak = int(res.stdout.strip().splitlines()[-1])
-    s = hair_spec(parse_spec(spec))
-    space = run_hair_intake(asset, s, StageTimer(quiet=True), IntakeLimits()).texels
-    est = check_hair_memory(asset, space, s, 1 << 62)
+    s = hair_spec(parse_spec(spec), with_mesh=with_mesh)
+    intake = run_hair_intake(asset, s, StageTimer(quiet=True), IntakeLimits(), mesh,
+                             run_intake)
+    est = check_hair_memory(asset, intake.strands, s, 1 << 62,
+                            mesh_texels=intake.texels.mesh.count if with_mesh else 0)
     print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
-    assert peak <= est <= 1.6 * peak, (peak, est)
+    assert peak <= est <= (1.8 if with_mesh else 1.6) * peak, (peak, est)
 
 
 def test_the_140k_hairball_fits_the_default_memory_limit_and_k_scales_the_estimate():
