@@ -159,16 +159,16 @@ def head(args) -> None:
     the head in its scene."""
     import tempfile
 
+    from prtcore.core.progress import StageTimer
     from prtcore.core.spec import TransportSpec, parse_spec
+    from prtcore.hairbake import atlas_radius, denoise_atlas
     from prtcore.intake.hair import hair_scene
     from prtcore.intake.points import place_measurement_points
     from prtcore.pipeline import run_intake
-    from prtcore.receivers.smoothing import denoise_lightmaps
     from prtcore.reference.hair_mesh import hair_mesh_reference
     from prtcore.reference.mitsuba_fibres import mitsuba_mesh_indirect
     from prtcore.scenes.hair import head_hair, head_lights, write_head
     from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
-    from prtcore.transport.noise import DENOISE_FALLBACK
     from prtcore.transport.strand_denoise import denoise_dataset
 
     lights = head_lights()
@@ -211,8 +211,9 @@ def head(args) -> None:
                                       direct_estimator=args.direct)
         found["mesh_bounces"] = data.indirect[t_m + sel].astype(np.float64)
         found_m["mesh_bounces"] = data.indirect[mesh_rows].astype(np.float64)
-        atlas = denoise_lightmaps(texels, data.indirect[:t_m], DENOISE_FALLBACK)
-        found_m["mesh_bounces_filtered"] = atlas[mesh_rows].astype(np.float64)
+        data = denoise_atlas(data, texels, atlas_radius(parse_spec({}), with_mesh=True),
+                             StageTimer(quiet=True))  # as a bake does, in place
+        found_m["mesh_bounces_filtered"] = data.indirect[mesh_rows].astype(np.float64)
         den = denoise_dataset(data, space, args.neighbours, first_row=t_m)
         found["mesh_bounces_denoised"] = den.indirect[t_m + sel].astype(np.float64)
     rows = []

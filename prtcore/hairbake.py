@@ -314,8 +314,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         # (F T, K, 3) direct light the solve works in (its working arrays are bounded by
         # SOLVE_BLOCK_BYTES) and the clamped result beside it, twice for the temporaries
         f = EXITANCE_TERMS[spec.hair.chiang.exitance]
-        est += t * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
-            spec.hair.chiang.exitance] + (2 * f * t * k * 12 if f > 1 else 0)
+        est += t * m * CHIANG_BYTES_PER_RAY[spec.hair.chiang.exitance] \
+            + (2 * f * t * k * 12 if f > 1 else 0)
     if everything:  # the operator's blocks before they are summed; beside the stacked
         # (3T, K, 3) direct light (``light``) the direct light's mean and harmonics, and
         # for hair alone the solve's result (with a mesh it is written over the direct)
@@ -330,7 +330,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         if spec.hair.fibre == "chiang":  # the mesh rows again, as rays of the product,
             # and with F > 1 coefficients their stacked rows in the solve
             f = EXITANCE_TERMS[spec.hair.chiang.exitance]
-            est += mesh_texels * spec.transport.gather_rays * CHIANG_BYTES_PER_RAY[
+            est += mesh_texels * m * CHIANG_BYTES_PER_RAY[
                 spec.hair.chiang.exitance] + (2 * f * mesh_texels * k * 12 if f > 1 else 0)
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels"

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams
+from prtcore.core.geometry import face_normals
 from prtcore.core.scene import Light, Scene
 from prtcore.receivers.strands import StrandSpace, axis_frame, interp_points
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
@@ -76,7 +77,7 @@ def _mesh_shape(scene: Scene, path: Path) -> dict:
     used = np.unique(scene.face_material)
     colours = {tuple(scene.materials[m].base_color_factor[:3]) for m in used}
     if len(colours) != 1 or any(scene.materials[m].texture >= 0 for m in used):
-        raise ValueError("mitsuba_fibre_indirect: the mesh must have one untextured colour")
+        raise ValueError("mitsuba_fibres: the mesh must have one untextured colour")
     _write_obj(scene, path)
     return {"type": "obj", "filename": str(path), "face_normals": False,
             "bsdf": {"type": "diffuse", "reflectance": {
@@ -127,9 +128,7 @@ def mitsuba_fibre_indirect(space: StrandSpace, lights: Sequence[Light], texels: 
         origin, direction = axis + (START_RADII * radius)[:, None] * normal, -normal
     else:
         origin, direction = _chiang_queries(axis, tangent, normal, radius, rng)
-    out = _trace(space, lights, origin, direction, seed, max_depth, chiang, scene)
-    out = out.reshape(n, 2, half, len(lights), 3)
-    return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
+    return _trace(space, lights, origin, direction, n, seed, max_depth, chiang, scene)
 
 
 def mitsuba_mesh_indirect(space: StrandSpace, scene: Scene, texels: TexelSpace,
@@ -147,23 +146,23 @@ def mitsuba_mesh_indirect(space: StrandSpace, scene: Scene, texels: TexelSpace,
     n = len(rows)
     local = np.repeat(np.arange(n), 2 * half)
     bary = sample_texel_regions(texel_regions(scene, texels, rows), local, rng)
-    tri = scene.faces[texels.triangle[rows[local]]]
-    corners = scene.positions[tri].astype(np.float64)  # (m, 3, 3)
+    triangle = texels.triangle[rows[local]]
+    corners = scene.positions[scene.faces[triangle]].astype(np.float64)  # (m, 3, 3)
     point = np.einsum("mi,mij->mj", bary, corners)
-    face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    face /= np.linalg.norm(face, axis=1, keepdims=True)
-    out = _trace(space, lights, point + MESH_START * face, -face, seed, max_depth, None,
-                 scene)
-    out = out.reshape(n, 2, half, len(lights), 3)
-    return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
+    face = face_normals(scene, triangle)
+    return _trace(space, lights, point + MESH_START * face, -face, n, seed, max_depth,
+                  None, scene)
 
 
 def _trace(space: StrandSpace, lights: Sequence[Light], origin: np.ndarray,
-           direction: np.ndarray, seed: int, max_depth: int, chiang: ChiangParams | None,
-           scene: Scene | None) -> np.ndarray:
-    """Mitsuba's indirect radiance along each query ray, (m, K, 3) float64: its ``path``
+           direction: np.ndarray, n: int, seed: int, max_depth: int,
+           chiang: ChiangParams | None, scene: Scene | None
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Mitsuba's indirect radiance along the query rays of ``n`` receivers (m = n · 2 ·
+    half rays, receiver by receiver, each's first half then its second): its ``path``
     integrator's estimate minus the ``max_depth = 2`` one with the same sampler seed,
-    against the hair (and ``scene``'s mesh) under each light in turn."""
+    against the hair (and ``scene``'s mesh) under each light in turn. Returns the two
+    halves' means (a, b), each (n, K, 3) float64."""
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
@@ -202,7 +201,8 @@ def _trace(space: StrandSpace, lights: Sequence[Light], origin: np.ndarray,
                 sampler.seed(int(seed) * 1_000_003 + i)
                 direct, _, _ = direct_i.sample(world, sampler, ray)
                 out[i, k] = np.array(full) - np.array(direct)
-    return out
+    out = out.reshape(n, 2, -1, len(lights), 3)
+    return out[:, 0].mean(axis=1), out[:, 1].mean(axis=1)
 
 
 def _chiang_queries(axis: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
