@@ -1,7 +1,8 @@
 """Benchmark: the hair + mesh transport against the project's hair + mesh path tracer.
 
 A head (prtcore.scenes.hair.write_head: an icosphere of 10 cm, through the glTF intake and
-its lightmap unwrap) with curly hair (head_hair), under a sun and a point light. The fast
+its lightmap unwrap) with curly or straight hair (head_hair, ``--style``), under a sun and
+a point light. The fast
 path (prtcore.transport.hair_mesh: the surface gather whose rays reach the strand texels,
 the fibre gather whose rays reach the atlas texels, one solve) is compared on random
 subsets of the atlas texels and of the strand texels with
@@ -23,7 +24,7 @@ Printed and written to benchmarks/results/hair_mesh_accuracy.json.
 Usage: python benchmarks/hair_mesh_accuracy.py [--strands 2000] [--rays 256]
        [--paths 1024] [--texels 300] [--resolution 64] [--texels-per-strand 8]
        [--seed 0] [--bake-seeds 0,1,2,3] [--variants mesh_bounces] [--near-only]
-       [--no-alone] [--atlas-radii 0.75,1.5,2.5]
+       [--no-alone] [--atlas-radii 0.75,1.5,2.5] [--style straight]
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--texels", type=int, default=300, help="of each kind")
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--texels-per-strand", type=int, default=8)
+    ap.add_argument("--style", choices=("curly", "straight"), default="curly",
+                    help="the head's hair (scenes.hair.head_hair)")
     ap.add_argument("--samples", type=int, default=8,
                     help="the mesh's direct samples J (transport.direct_samples), and the "
                          "hair's with --direct sampled")
@@ -95,7 +98,10 @@ def main(argv: list[str] | None = None) -> dict:
                          "bakes, from the bias of one bake, whose noise the solve and the "
                          "denoiser correlate over neighbouring texels)")
     ap.add_argument("--variants", default="first_bounce,mesh_bounces,all_bounces",
-                    help="comma-separated hair.harmonics variants to bake")
+                    help="comma-separated hair.harmonics variants to bake, each with optional "
+                    "tags: +texel_mean (the mesh rows read a fibre hit as its texel's mean, "
+                    "as before 2026-12-05), +clamp (between texel centres, "
+                    "held at the root's)")
     ap.add_argument("--atlas-radii", default="",
                     help="comma-separated radii (texels) of the surface pipeline's "
                          "seam-aware lightmap filter applied to the atlas rows after the "
@@ -115,7 +121,7 @@ def main(argv: list[str] | None = None) -> dict:
     a = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         scene, texels = head_scene(Path(tmp), a.resolution)
-    hair = head_hair(a.strands, "curly", seed=a.seed)
+    hair = head_hair(a.strands, a.style, seed=a.seed)
     space = build_strand_space(hair, a.texels_per_strand)
     tracer, fibres = hair_tracer(space, scene)
     points = place_measurement_points(hair_scene(hair), parse_spec(
@@ -156,7 +162,10 @@ def main(argv: list[str] | None = None) -> dict:
     radii = [float(r) for r in a.atlas_radii.split(",") if r]
     smoothers = smoothing_operators(texels, tuple(radii)) if radii else []
     kept = None
-    for harmonics in a.variants.split(","):
+    for variant in a.variants.split(","):
+        harmonics, *tags = variant.split("+")  # +texel_mean, +clamp
+        arc_reads = ("clamp" if "clamp" in tags else None if "texel_mean" in tags
+                     else "extrapolate")
         sums: dict[str, np.ndarray] = {}
         for seed in seeds:
             tag = f" (bake seed {seed})" if len(seeds) > 1 else ""
@@ -165,8 +174,9 @@ def main(argv: list[str] | None = None) -> dict:
                 data = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer,
                                               LIGHTS, spec=specs[seed], harmonics=harmonics,
                                               hair_near=near, orders=a.orders,
-                                              direct_estimator=a.direct)
-                name = f"{harmonics}{'' if near else ', no hair near field'}"
+                                              direct_estimator=a.direct,
+                                              arc_reads=arc_reads)
+                name = f"{variant}{'' if near else ', no hair near field'}"
                 result["variants"][name + tag] = errors(data.indirect,
                                                         time.perf_counter() - t0)
                 sums[name] = sums.get(name, 0) + data.indirect[rows].astype(np.float64)
@@ -174,14 +184,14 @@ def main(argv: list[str] | None = None) -> dict:
                     den = denoise_dataset(dataclasses.replace(
                         data, indirect=data.indirect.copy()), space, a.neighbours,
                         first_row=t_m)
-                    result["variants"][f"{harmonics}, denoised{tag}"] = errors(
+                    result["variants"][f"{variant}, denoised{tag}"] = errors(
                         den.indirect, time.perf_counter() - t0)
-                    sums[f"{harmonics}, denoised"] = sums.get(
-                        f"{harmonics}, denoised", 0) + den.indirect[rows].astype(np.float64)
+                    sums[f"{variant}, denoised"] = sums.get(
+                        f"{variant}, denoised", 0) + den.indirect[rows].astype(np.float64)
                     for r, w in zip(radii, smoothers, strict=True):
                         sm = den.indirect.copy()
                         sm[:t_m] = smooth_texels(texels, den.indirect[:t_m], operator=w)
-                        name_r = f"{harmonics}, denoised, atlas smoothed {r:g}"
+                        name_r = f"{variant}, denoised, atlas smoothed {r:g}"
                         result["variants"][name_r + tag] = errors(sm, time.perf_counter() - t0)
                         sums[name_r] = sums.get(name_r, 0) + sm[rows].astype(np.float64)
                 if harmonics == "mesh_bounces" and near and kept is None:  # the default

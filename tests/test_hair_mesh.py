@@ -73,6 +73,35 @@ def test_the_operator_carries_light_both_ways_and_creates_none(head):
     np.testing.assert_allclose(h[:t_m, :t_m + t_h].toarray(), g.matrix.toarray(), atol=0)
 
 
+def test_mesh_rows_read_a_fibre_between_its_texel_centres(head):
+    """StrandHits.interpolated: each hit's 1/M (times its harmonic) is split between the
+    two texel centres about it on its own strand, so every row keeps its sum and no
+    column leaves the strand hit; it moves weight toward the root (the scalp's rays hit
+    near it) and, unlike the texel mean, puts negative weight on the root's neighbour."""
+    scene, texels, space, tracer, fibres, _ = head
+    f, t_m = scene.triangle_count, texels.count
+    strands = StrandHits(space, fibres, f, seed=1)
+    g = gather_operator(scene, texels, tracer, 64, 1, foreign=strands)
+    mean_block = g.matrix[:, t_m:].tocsr()
+    plain = strands.harmonics(g.valid_rays)
+    read = strands.interpolated(g.valid_rays, 1, "extrapolate")
+    assert len(read) == 3 and all(b.shape == mean_block.shape for b in read)
+    for before, after in zip((mean_block, *plain), read, strict=True):
+        np.testing.assert_allclose(np.asarray(after.sum(axis=1)).ravel(),
+                                   np.asarray(before.sum(axis=1)).ravel(), atol=1e-6)
+    n = space.texels_per_strand
+    rows, cols = mean_block.nonzero()
+    strand_of = dict()  # each receiving row's strands before and after
+    for r, c in zip(rows, cols, strict=True):
+        strand_of.setdefault(r, set()).add(c // n)
+    r2, c2 = read[0].nonzero()
+    assert all(c // n in strand_of[r] for r, c in zip(r2, c2, strict=True))
+    assert read[0].data.min() < 0 and mean_block.data.min() > 0
+    assert abs(read[0] - mean_block).max() > 1e-3
+    held = strands.interpolated(g.valid_rays, 1, "clamp")[0]
+    assert held.data.min() >= 0
+
+
 def test_white_head_under_white_hair_converges(head):
     """Albedo 1 everywhere (clamped to 0.99 for transport): the solve converges to a
     finite, non-negative solution; no energy is created."""

@@ -161,6 +161,35 @@ def test_hits_map_to_the_texel_of_their_arc_length(kind):
     np.testing.assert_array_equal(texel, expect)
 
 
+def test_arc_weights_read_a_linear_profile_exactly_and_the_root_s_slope():
+    """StrandSpace.arc_weights: a value linear in arc length, stored at the texel centres,
+    is read back exactly anywhere between the first and last centre, and before the
+    root's centre too (extrapolated along the first two); past the last centre it is
+    held (the manifest's rule). "clamp" holds at the root as well."""
+    h = make_hair([np.array([[0, 0, 0], [0, 0, 2.0]]), np.array([[1, 0, 0], [1, 0, 1.0]])],
+                  0.02)
+    s = build_strand_space(h, 4)
+    centre = (np.arange(8) % 4 + 0.5) / 4  # arc fraction of every texel's centre
+    value = np.where(np.arange(8) < 4, 1.0 + 3.0 * centre, 5.0 - 2.0 * centre)
+    frac = np.array([0.0, 0.05, 0.125, 0.3, 0.5, 0.8, 0.875, 0.95, 1.0])
+    for strand, (a, b) in enumerate(((1.0, 3.0), (5.0, -2.0))):
+        texel = s.texel_of(np.full(len(frac), strand), frac * h.strand_length[strand])
+        cols, w = s.arc_weights(texel, frac)
+        assert (cols // 4 == strand).all()  # never another strand's texels
+        np.testing.assert_allclose(w.sum(axis=1), 1.0)
+        got = (w * value[cols]).sum(axis=1)
+        expect = a + b * np.minimum(frac, 0.875)  # held past the last centre
+        np.testing.assert_allclose(got, expect, atol=1e-12)
+        assert w.min() >= -0.5 - 1e-12
+        cols, w = s.arc_weights(texel, frac, root="clamp")
+        np.testing.assert_allclose((w * value[cols]).sum(axis=1),
+                                   a + b * np.clip(frac, 0.125, 0.875), atol=1e-12)
+    one = build_strand_space(h, 1)  # a single texel per strand: its own value
+    cols, w = one.arc_weights(np.array([0, 1]), np.array([0.0, 0.7]))
+    np.testing.assert_array_equal(cols[:, 0], [0, 1])
+    np.testing.assert_allclose(w, [[1, 0], [1, 0]])
+
+
 def test_segments_cut_into_pieces_are_the_same_tubes():
     """Cutting each segment into collinear sub-prisms (for the BVH) keeps the surface: rays
     through a mitred hairball hit at the same distance, on the same segment, at the same

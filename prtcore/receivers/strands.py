@@ -127,6 +127,28 @@ class StrandSpace:
         j = np.floor(np.divide(arc, length, out=np.zeros_like(arc), where=length > 0) * n)
         return strand * n + np.clip(j, 0, n - 1).astype(np.int64)
 
+    def arc_weights(self, texel: np.ndarray, frac: np.ndarray, root: str = "extrapolate"
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """A point at arc fraction ``frac`` (n,) of the strand of ``texel`` (n,) as a linear
+        combination of the two texel centres about it: columns (n, 2) int64, weights (n, 2)
+        float64 summing to 1. Beyond the last centre the value is held (the manifest's
+        sampling rule); before the root's centre it is held too (``root="clamp"``) or
+        extrapolated along the first two centres (``"extrapolate"``: weights down to
+        −1/2), so that a hit just above the root reads the radiance's slope there."""
+        n = self.texels_per_strand
+        texel = np.asarray(texel, np.int64)
+        base = texel - texel % n
+        if n == 1:
+            return (np.stack([texel, texel], axis=1),
+                    np.stack([np.ones(len(texel)), np.zeros(len(texel))], axis=1))
+        x = np.asarray(frac, np.float64) * n - 0.5
+        j0 = np.clip(np.floor(x), 0, n - 2)
+        f = np.minimum(x - j0, 1.0)
+        if root == "clamp":
+            f = np.maximum(f, 0.0)
+        cols = base[:, None] + np.stack([j0, j0 + 1], axis=1).astype(np.int64)
+        return cols, np.stack([1.0 - f, f], axis=1)
+
     def layout(self) -> dict:
         """The manifest's description of the layout and of the sampling rule."""
         n, r = self.texels_per_strand, self.strands_per_row

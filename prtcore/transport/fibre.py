@@ -55,6 +55,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -367,11 +368,11 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                 mesh_rw.append(ray_data(ray[on] // rays, sample_arc[ray[on]],
                                         d[on]).astype(np.float32))
         del origin
-        texel, cs = fibre_hits(space, mesh, hits.triangle[fib] - mesh_faces,
-                               hits.barycentric[fib], d[fib], rng, frame_u)
+        fh = fibre_hits(space, mesh, hits.triangle[fib] - mesh_faces,
+                        hits.barycentric[fib], d[fib], rng, frame_u)
         rows_all.append((ray[fib] // rays).astype(np.int32))
-        cols_all.append(texel.astype(np.int32))
-        cs_all.append(cs.astype(np.float32))
+        cols_all.append(fh.texel.astype(np.int32))
+        cs_all.append(fh.cs.astype(np.float32))
         if ray_data is not None:
             rw_all.append(ray_data(ray[fib] // rays, sample_arc[ray[fib]],
                                    d[fib]).astype(np.float32))
@@ -441,12 +442,23 @@ def _by_row(parts: list) -> tuple[np.ndarray, np.ndarray]:
     return rows[perm], perm
 
 
+class FibreHits(NamedTuple):
+    """Rays that hit fibres (:func:`fibre_hits`): the strand texel hit ``texel`` (n,)
+    int64, the azimuth ψ of the point hit in the fibre's frame ``cs`` (cos ψ, sin ψ)
+    (n, 2) float64 and its arc fraction along the strand ``arc`` (n,) float64 in
+    [0, 1]."""
+
+    texel: np.ndarray
+    cs: np.ndarray
+    arc: np.ndarray
+
+
 def fibre_hits(space: StrandSpace, mesh: FibreMesh, triangle: np.ndarray,
                barycentric: np.ndarray, direction: np.ndarray, rng: np.random.Generator,
-               frame_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               frame_u: np.ndarray) -> FibreHits:
     """Rays that hit fibres: the tubes' own triangle indices (n,), barycentrics (n, 3) and
-    the rays' directions (n, 3) → the strand texel hit (n,) int64 and (cos ψ, sin ψ) (n, 2)
-    of the azimuth ψ of the point hit in the fibre's frame, with the normal a round fibre
+    the rays' directions (n, 3) → :class:`FibreHits`, the azimuth of the point hit in the
+    fibre's frame with the normal a round fibre
     presents to the ray (:func:`prtcore.core.fibres.cylinder_normal`, impact parameters
     drawn from ``rng``). ``frame_u``: :func:`prtcore.core.fibres.transported_frames`'
     second array, computed once per hair."""
@@ -461,7 +473,9 @@ def fibre_hits(space: StrandSpace, mesh: FibreMesh, triangle: np.ndarray,
     normal_hit = cylinder_normal(axis, direction, 2 * rng.random(len(p0)) - 1)
     centre = a0 + along[:, None] * (b0 - a0)
     _, _, cs = azimuth_frame(hair, strand, arc, centre + normal_hit, frame_u)
-    return space.texel_of(strand, arc), cs
+    length = hair.strand_length[strand]
+    frac = np.divide(arc, length, out=np.zeros_like(arc), where=length > 0)
+    return FibreHits(space.texel_of(strand, arc), cs, np.clip(frac, 0.0, 1.0))
 
 
 def fourier_rows(angle: np.ndarray, orders: int, scale: float = 1.0) -> np.ndarray:

@@ -26,6 +26,7 @@ every shadow ray is traced against both.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections.abc import Sequence
 
@@ -70,25 +71,57 @@ class StrandHits:
         self.columns = space.count
         self.frame_u = transported_frames(space.hair)[1]
         self._parts: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._arc: dict[int, np.ndarray] = {}
         self._lock = threading.Lock()
 
     def __call__(self, batch: int, rows: np.ndarray, triangle: np.ndarray,
                  barycentric: np.ndarray, direction: np.ndarray) -> np.ndarray:
         rng = np.random.default_rng([self.seed, 5, batch])
-        texel, cs = fibre_hits(self.space, self.fibres, triangle - self.first, barycentric,
-                               direction.astype(np.float64), rng, self.frame_u)
+        fh = fibre_hits(self.space, self.fibres, triangle - self.first, barycentric,
+                        direction.astype(np.float64), rng, self.frame_u)
         with self._lock:
-            self._parts[batch] = (rows, texel, cs.astype(np.float32))
-        return texel
+            self._parts[batch] = (rows, fh.texel, fh.cs.astype(np.float32))
+            self._arc[batch] = fh.arc.astype(np.float32)
+        return fh.texel
+
+    def _hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every hit, in batch order: receiving atlas texel (n,) int64, strand texel hit
+        (n,) int64, (cos ψ, sin ψ) (n, 2) float32, arc fraction (n,) float64."""
+        keys = sorted(self._parts)
+        if not keys:
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64),
+                    np.zeros((0, 2), np.float32), np.zeros(0))
+        return (np.concatenate([self._parts[k][0] for k in keys]).astype(np.int64),
+                np.concatenate([self._parts[k][1] for k in keys]).astype(np.int64),
+                np.concatenate([self._parts[k][2] for k in keys]),
+                np.concatenate([self._arc[k] for k in keys]).astype(np.float64))
+
+    def interpolated(self, valid_rays: np.ndarray, orders: int, root: str
+                     ) -> tuple[sp.csr_matrix, ...]:
+        """The mesh rows' strand block G_mh and its 2H harmonics (as :meth:`harmonics`)
+        with each hit read between the two texel centres about it along its strand
+        (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights`), not as its texel's
+        mean: 2H + 1 matrices (T_m, T_h) float32 CSR."""
+        rows, texel, cs, frac = self._hits()
+        cols, aw = self.space.arc_weights(texel, frac, root)
+        w = 1.0 / np.maximum(valid_rays[rows], 1)
+        v = fourier_rows(np.arctan2(cs[:, 1], cs[:, 0]).astype(np.float64), orders)
+        shape = (len(valid_rays), self.columns)
+        out = []
+        for vb in v:
+            data = (aw * (vb * w)[:, None]).astype(np.float32)
+            m = sp.csr_matrix((data.ravel(), (np.repeat(rows, 2), cols.ravel())), shape=shape)
+            m.sum_duplicates()
+            m.eliminate_zeros()
+            m.sort_indices()
+            out.append(m)
+        return tuple(out)
 
     def harmonics(self, valid_rays: np.ndarray, orders: int = 1) -> tuple[sp.csr_matrix, ...]:
         """(cos ψ, sin ψ, cos 2ψ, …)-weighted G_mh up to order H (``orders``), 2H matrices
         (T_m, T_h) float32 CSR, with the gather's weights 1/M_valid of the receiving texel
         (``valid_rays`` (T_m,), :attr:`prtcore.transport.gather.Gather.valid_rays`)."""
-        parts = [self._parts[k] for k in sorted(self._parts)]
-        rows = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
-        cols = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int64)
-        cs = np.concatenate([p[2] for p in parts]) if parts else np.zeros((0, 2), np.float32)
+        rows, cols, cs, _ = self._hits()
         w = (1.0 / np.maximum(valid_rays[rows], 1)).astype(np.float32)
         v = fourier_rows(np.arctan2(cs[:, 1], cs[:, 0]), orders)[1:]
         shape = (len(valid_rays), self.columns)
@@ -132,12 +165,13 @@ def hair_near_field(hits: MeshHits, texels: TexelSpace, t_m: int, reach: float,
     scalp sees the scalp in its own shadow, which the texel's mean does not hold (the
     surface gather's near field, for the hair's rows).
 
-    Not for the harmonic rows of ``all_bounces``: correcting them as well (weights
-    (2 cos φ_o, 2 sin φ_o)/M) took the scalp's indirect light from −1.7 % to −9.3 %
-    against the path tracer at two bounces (``benchmarks/hair_mesh_accuracy.py
-    --strands 500 --resolution 32 --max-bounces 2``), while the mean rows alone leave it
-    at −1.8 % and bring the hair's from +1.7 % to +1.4 %; why the harmonic rows' correction
-    overshoots is not understood yet."""
+    Not for the harmonic rows of the stacked variants. Correcting them as well (weights
+    (2 cos φ_o, 2 sin φ_o)/M, every row a near hit's ray fed) was measured twice: on the
+    10k curly and straight heads it takes 2 points of brightness off the scalp, on the
+    sparse 2000-strand head it reads the scalp 3.4 points darker (all_bounces, covered
+    texels −0.6 → −4.0 %) and doubles its per-texel error (4.0 → 8.9 %); on 500 strands
+    at two bounces, −1.7 → −9.3 % (docs/hair.md, "Reading the hair from the scalp"). Why
+    it overshoots where the hair is sparse is not understood, so it is not done."""
     close = np.flatnonzero(hits.t < near_field_reach(texels, reach)[hits.col])
     return NearField(row=t_m + hits.row[close], col=hits.col[close],
                      triangle=hits.triangle[close], barycentric=hits.barycentric[close],
@@ -183,7 +217,8 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            timer: StageTimer | None = None,
                            harmonics: str = "first_bounce", orders: int = 1,
                            hair_near: float | None = None, direct_estimator: str = "facing",
-                           direct_samples: int | str = "auto") -> Dataset:
+                           direct_samples: int | str = "auto",
+                           arc_reads: str | None = "extrapolate") -> Dataset:
     """The lighting database of a hair + mesh bake (``Dataset``: direct at the points,
     indirect at the T_m + T_h texels, mesh first; training lights first; the texels'
     direct light is not kept — the solve writes over it). ``tracer`` and ``fibres``:
@@ -203,7 +238,14 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     texel's harmonics take light from the mesh (and the direct light) only, never from
     other fibres: later fibre-to-fibre bounces stay radially constant, as in
     first_bounce, while the head → hair → head light keeps its side (docs/hair.md,
-    "Which harmonics with a mesh")."""
+    "Which harmonics with a mesh").
+
+    arc_reads : how a mesh row reads a fibre it hits (:meth:`StrandHits.interpolated`):
+    "extrapolate" (between the two texel centres about the hit along its strand, the
+    root's slope continued below its first centre), "clamp" (held at the root's first
+    centre), or None (the texel's mean, as before 2026-12-05). A scalp's rays hit the
+    strands near their roots, where the light falls toward the scalp within a texel
+    (docs/hair.md, "Reading the hair from the scalp")."""
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
@@ -222,6 +264,12 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                             mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
     r2 = tracer.rays_traced
     mh = strands.harmonics(gather.valid_rays, orders if everything else 1)
+    if arc_reads is not None:  # the mesh rows' strand columns, read along the arc
+        blocks = strands.interpolated(gather.valid_rays, orders if everything else 1,
+                                      arc_reads)
+        gather = dataclasses.replace(gather, matrix=sp.hstack(
+            [gather.matrix[:, :t_m], blocks[0]], format="csr", dtype=np.float32))
+        mh = blocks[1:]
     if everything:
         matrix = harmonic_operator(gather.matrix, mh, term)
     else:
