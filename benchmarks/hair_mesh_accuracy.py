@@ -98,10 +98,10 @@ def main(argv: list[str] | None = None) -> dict:
                          "bakes, from the bias of one bake, whose noise the solve and the "
                          "denoiser correlate over neighbouring texels)")
     ap.add_argument("--variants", default="first_bounce,mesh_bounces,all_bounces",
-                    help="comma-separated hair.harmonics variants to bake, each with optional "
-                    "tags: +texel_mean (the mesh rows read a fibre hit as its texel's mean, "
-                    "as before 2026-12-05), +clamp (between texel centres, "
-                    "held at the root's)")
+                    help="comma-separated hair.harmonics variants to bake, each with "
+                    "optional tags: +turnDEG (turn_bounces' threshold, degrees), "
+                    "+texel_mean (the mesh rows read a fibre hit as its texel's mean, as "
+                    "before 2026-12-05), +clamp (between texel centres, held at the root's)")
     ap.add_argument("--atlas-radii", default="",
                     help="comma-separated radii (texels) of the surface pipeline's "
                          "seam-aware lightmap filter applied to the atlas rows after the "
@@ -163,7 +163,8 @@ def main(argv: list[str] | None = None) -> dict:
     smoothers = smoothing_operators(texels, tuple(radii)) if radii else []
     kept = None
     for variant in a.variants.split(","):
-        harmonics, *tags = variant.split("+")  # +texel_mean, +clamp
+        harmonics, *tags = variant.split("+")  # +texel_mean, +clamp, +turnDEG
+        turn = dict(("straight_turn", float(x[4:])) for x in tags if x.startswith("turn"))
         arc_reads = ("clamp" if "clamp" in tags else None if "texel_mean" in tags
                      else "extrapolate")
         sums: dict[str, np.ndarray] = {}
@@ -175,7 +176,7 @@ def main(argv: list[str] | None = None) -> dict:
                                               LIGHTS, spec=specs[seed], harmonics=harmonics,
                                               hair_near=near, orders=a.orders,
                                               direct_estimator=a.direct,
-                                              arc_reads=arc_reads)
+                                              arc_reads=arc_reads, **turn)
                 name = f"{variant}{'' if near else ', no hair near field'}"
                 result["variants"][name + tag] = errors(data.indirect,
                                                         time.perf_counter() - t0)

@@ -69,7 +69,7 @@ from prtcore.io.imageio import write_exr
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.smoothing import denoise_lightmaps
-from prtcore.receivers.strands import StrandSpace, build_strand_space
+from prtcore.receivers.strands import StrandSpace, build_strand_space, texel_turn
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import (
@@ -85,6 +85,7 @@ from prtcore.transport.fibre import (
     MEM_PER_FIBRE_SEGMENT,
     MEM_PER_OPERATOR_ENTRY,
     STACKED_HARMONICS,
+    STRAIGHT_TURN_DEG,
     direct_sample_count,
     hair_tracer,
 )
@@ -156,8 +157,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
     Chiang fibre), ``hair.direct_samples = "auto"`` resolved for the diffuse fibre
     (:func:`prtcore.transport.fibre.direct_sample_count`), ``hair.harmonics = "auto"``
-    resolved (mesh_bounces with a mesh: the
+    resolved (turn_bounces with a mesh: the
     light that goes head → hair → head needs the side of the fibre that faced the head,
+    and the fibre-to-fibre harmonics hold where the fibre is straight along a texel,
     docs/hair.md; mesh_bounces without a mesh is exactly first_bounce, and says so),
     "auto" light counts fixed (:data:`CHIANG_FIXED_LIGHTS` for the Chiang fibre,
     :data:`MESH_FIXED_LIGHTS` with a mesh);
@@ -179,7 +181,7 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.hair.fibre == "chiang":
         harmonics = "auto"  # the Chiang fibre carries no harmonics (its own transport)
     elif harmonics == "auto":
-        harmonics = "mesh_bounces" if with_mesh else "first_bounce"
+        harmonics = "turn_bounces" if with_mesh else "first_bounce"
     elif harmonics == "mesh_bounces" and not with_mesh:
         harmonics = "first_bounce"  # no mesh light for the harmonics to carry
     samples = spec.hair.direct_samples
@@ -281,9 +283,10 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     default limit; docs/hair.md has the stage peaks this model was checked against.
 
     The other variants add their own arrays to both phases (conservatively). Stacked
-    harmonics (``hair.harmonics`` "all_bounces" or "mesh_bounces"): the (3T, 3T)
-    operator's blocks before they are summed (20 bytes per gather ray and block; nine, or
-    three for mesh_bounces' mean rows), the stacked (3T, K, 3) float32 direct light in
+    harmonics (``hair.harmonics`` "all_bounces", "mesh_bounces", "turn_bounces"): the
+    (3T, 3T) operator's blocks before they are summed (20 bytes per gather ray and block;
+    nine, three for mesh_bounces' mean rows, 3 + 6 × the straight texels' share for
+    turn_bounces), the stacked (3T, K, 3) float32 direct light in
     place of the T rows, the direct light's mean and harmonics beside it and, for hair
     alone, the solve's result (with a mesh the solve writes over the direct light); the
     solve's working arrays over 3T rows, bounded alike. The Chiang fibre: each hit's data.
@@ -299,6 +302,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     segments = space.hair.point_count - space.hair.strand_count
     everything = spec.hair.harmonics in STACKED_HARMONICS
     blocks = 9 if spec.hair.harmonics == "all_bounces" else 3
+    if spec.hair.harmonics == "turn_bounces" and t:  # all nine on the straight texels
+        blocks = 3 + 6 * float((texel_turn(space) < STRAIGHT_TURN_DEG).mean())
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     whole = MEM_PROCESS + t * MEM_PER_TEXEL + segments * MEM_PER_FIBRE_SEGMENT
     gather = operator_for("fibre").estimate_bytes(t, k, spec.transport)

@@ -21,12 +21,12 @@ from prtcore.io.bundle import is_hair_mesh, read_manifest, verify_bundle
 from prtcore.io.hair import write_hair
 from prtcore.io.imageio import read_image
 from prtcore.pipeline import bake, run_intake
-from prtcore.receivers.strands import build_strand_space
+from prtcore.receivers.strands import build_strand_space, texel_turn
 from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.dataset import bake_dataset
-from prtcore.transport.fibre import fibre_gather, hair_tracer
+from prtcore.transport.fibre import STRAIGHT_TURN_DEG, fibre_gather, hair_tracer
 from prtcore.transport.gather import HitMapper, gather_operator
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import (
@@ -120,9 +120,10 @@ def test_white_head_under_white_hair_converges(head):
 
 def test_fast_path_agrees_with_the_hair_mesh_path_tracer(head):
     """The hair + mesh transport against the path tracer through the same head and hair,
-    its noise removed: 150 atlas and 150 strand texels × 1024 paths, for mesh_bounces
-    (what the bake uses with a mesh) and all_bounces. Measured (this scene, 2026-12-05):
-    mesh_bounces atlas −1.8 ± 2.8 %, strand texels −1.8 ± 1.6 %; all_bounces −0.7 ± 2.8 %,
+    its noise removed: 150 atlas and 150 strand texels × 1024 paths, for turn_bounces
+    (what the bake uses with a mesh), mesh_bounces and all_bounces. Measured (this scene,
+    2026-12-05, before the mesh rows read fibres between texel centres): mesh_bounces
+    atlas −1.8 ± 2.8 %, strand texels −1.8 ± 1.6 %; all_bounces −0.7 ± 2.8 %,
     −1.5 ± 1.6 %. first_bounce, which loses the side of the fibre that faced the head,
     reads the atlas 12–13 % dark on sparse hair (docs/hair.md)."""
     scene, texels, space, tracer, fibres, points = head
@@ -132,7 +133,7 @@ def test_fast_path_agrees_with_the_hair_mesh_path_tracer(head):
                            np.sort(t_m + rng.choice(space.count, 150, replace=False))])
     a, b = hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, rows, 1024,
                                101)
-    for harmonics in ("mesh_bounces", "all_bounces"):
+    for harmonics in ("turn_bounces", "mesh_bounces", "all_bounces"):
         d = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer, LIGHTS,
                                    spec=TransportSpec(gather_rays=256, direct_samples=8,
                                                       seed=0),
@@ -162,6 +163,30 @@ def test_mesh_bounces_harmonics_take_the_mesh_s_light_not_the_fibres(head):
     assert (abs(every.block[:t] - mesh_only.block[:t]) > 0).nnz == 0
     assert mesh_only.mesh_block[t:].nnz > 0  # head → hair still has a side
     assert (abs(every.mesh_block - mesh_only.mesh_block) > 0).nnz == 0
+
+
+def test_turn_bounces_harmonics_take_the_fibres_light_on_straight_texels_only(head):
+    """turn_bounces: the harmonic rows of the texels whose fibre turns less than the
+    threshold are all_bounces' exactly, the others' mesh_bounces' (no light from other
+    fibres); the mean rows and the mesh block are the same in all three."""
+    scene, texels, space, tracer, fibres, _ = head
+    f, t = scene.triangle_count, space.count
+    straight = texel_turn(space) < STRAIGHT_TURN_DEG
+    assert 0 < straight.sum() < t  # the curly test hair has both
+    terms = {name: fibre_gather(space, tracer, fibres, f, 16, 3, all_bounces=True,
+                                mesh_texels=HitMapper(scene, texels, tracer),
+                                mesh_columns=texels.count, harmonic_rows=rows)
+             for name, rows in (("all", True), ("mesh", False), ("turn", straight))}
+    rows = np.concatenate([np.arange(t), t + np.arange(t), 2 * t + np.arange(t)])
+    for b in (1, 2):
+        own = b * t + np.flatnonzero(straight)
+        other = b * t + np.flatnonzero(~straight)
+        assert terms["turn"].block[own].nnz > 0
+        assert (abs(terms["turn"].block[own] - terms["all"].block[own]) > 0).nnz == 0
+        assert terms["turn"].block[other].nnz == 0 == terms["mesh"].block[other].nnz
+    assert (abs(terms["turn"].block[:t] - terms["all"].block[:t]) > 0).nnz == 0
+    assert (abs(terms["turn"].mesh_block - terms["all"].mesh_block) > 0).nnz == 0
+    assert len(rows) == 3 * t
 
 
 def test_the_state_is_solved_in_an_order_that_keeps_its_blocks(head):
@@ -202,10 +227,12 @@ def test_each_receiver_gets_light_from_the_other(head):
     assert both.indirect[t_m:].mean() > 1.2 * hair_alone.indirect.mean()
 
 
-def test_harmonics_auto_means_mesh_bounces_with_a_mesh():
+def test_harmonics_auto_means_turn_bounces_with_a_mesh():
     assert hair_spec(parse_spec({})).hair.harmonics == "first_bounce"
-    assert hair_spec(parse_spec({}), with_mesh=True).hair.harmonics == "mesh_bounces"
-    for h in ("first_bounce", "all_bounces"):
+    assert hair_spec(parse_spec({}), with_mesh=True).hair.harmonics == "turn_bounces"
+    alone = parse_spec({"hair": {"harmonics": "turn_bounces"}})
+    assert hair_spec(alone).hair.harmonics == "turn_bounces"  # hair alone has it too
+    for h in ("first_bounce", "all_bounces", "mesh_bounces"):
         explicit = parse_spec({"hair": {"harmonics": h}})
         assert hair_spec(explicit, with_mesh=True).hair.harmonics == h
     # without a mesh there is no mesh light for the harmonics to carry
@@ -238,7 +265,7 @@ def test_bundle_holds_the_lightmap_and_the_strand_texture(bundle):
     m = read_manifest(bundle)
     assert is_hair_mesh(m)
     assert m["asset"]["file"] == "asset.glb" and m["asset"]["hair"]["file"] == "asset.hair"
-    assert m["atlas"]["uv"] == "TEXCOORD_1" and m["fibre"]["harmonics"] == "mesh_bounces"
+    assert m["atlas"]["uv"] == "TEXCOORD_1" and m["fibre"]["harmonics"] == "turn_bounces"
     s = m["strands"]
     assert (s["strand_count"], s["texels_per_strand"]) == (300, 6)
     assert len(s["basis_files"]) == len(m["basis"]["files"])

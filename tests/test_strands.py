@@ -18,7 +18,12 @@ from prtcore.core.fibres import (
 from prtcore.core.hair import make_hair
 from prtcore.core.raytrace import RayTracer
 from prtcore.receivers.base import Receiver
-from prtcore.receivers.strands import build_strand_space, strands_per_row, texel_of_hit
+from prtcore.receivers.strands import (
+    build_strand_space,
+    strands_per_row,
+    texel_of_hit,
+    texel_turn,
+)
 from prtcore.scenes.hair import hairball
 
 
@@ -188,6 +193,22 @@ def test_arc_weights_read_a_linear_profile_exactly_and_the_root_s_slope():
     cols, w = one.arc_weights(np.array([0, 1]), np.array([0.0, 0.7]))
     np.testing.assert_array_equal(cols[:, 0], [0, 1])
     np.testing.assert_allclose(w, [[1, 0], [1, 0]])
+
+
+def test_texel_turn_is_the_angle_between_the_texel_s_end_tangents():
+    """A straight strand turns 0°; one bent by 90° inside its single texel turns 90°; a
+    helix of pitch angle α turns by its tangent's angle over the texel's arc."""
+    h = make_hair([np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2.0]]),
+                   np.array([[0, 0, 0], [0, 0, 1], [1, 0, 1.0]])], 0.02)
+    np.testing.assert_allclose(texel_turn(build_strand_space(h, 1)), [0.0, 90.0],
+                               atol=1e-9)
+    two = texel_turn(build_strand_space(h, 2))  # the bend at the texels' shared end
+    assert two[0] == two[1] == 0.0 and two[2] + two[3] <= 90 + 1e-9
+    s = np.linspace(0, 4 * np.pi, 2001)  # a helix of radius 1, pitch 1 per radian
+    helix = make_hair([np.stack([np.cos(s), np.sin(s), s], axis=1)], 0.02)
+    turn = texel_turn(build_strand_space(helix, 8))  # each texel a quarter turn
+    # tangents (−sin, cos, 1)/√2 a quarter turn apart: cos θ = 1/2
+    np.testing.assert_allclose(turn, 60.0, atol=0.5)  # the tip: its last chord's
 
 
 def test_segments_cut_into_pieces_are_the_same_tubes():

@@ -344,6 +344,15 @@ def azimuth_frame(hair: Hair, strand: np.ndarray, arc: np.ndarray, points: np.nd
     return axis, radial, cs
 
 
+def texel_turn(space: StrandSpace) -> np.ndarray:
+    """How far each texel's fibre turns along it: the angle between its unit tangents at
+    the texel's two ends, (T,) float64 degrees (0 on a straight piece; the 10k curly
+    head's median is 60°, the straight head's 11°)."""
+    _, t0, _ = axis_frame(space.hair, space.strand, space.arc[:, 0])
+    _, t1, _ = axis_frame(space.hair, space.strand, space.arc[:, 1])
+    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", t0, t1), -1.0, 1.0)))
+
+
 def strands_per_row(strands: int, texels_per_strand: int) -> int:
     """Strands per row for a near-square texture no wider than MAX_WIDTH."""
     r = max(1, math.ceil(math.sqrt(strands / texels_per_strand)))

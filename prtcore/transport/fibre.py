@@ -310,7 +310,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                  all_bounces: bool = False, mesh_texels: Callable | None = None,
                  mesh_columns: int = 0, orders: int = 1,
                  ray_data: Callable | None = None,
-                 harmonic_rows: bool = True) -> FibreTerm:
+                 harmonic_rows: bool | np.ndarray = True) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
     mesh_texels : the mesh receives too (a hair + mesh bake): a
@@ -320,7 +320,8 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     all_bounces : also build :attr:`FibreTerm.block`, the gather on the (mean, cos, sin)
     harmonics of every texel (:func:`harmonic_block`), up to order ``orders``;
     ``harmonic_rows=False``: its harmonic rows take nothing from other fibres (the mesh
-    block's still take the mesh's light).
+    block's still take the mesh's light); a (T,) bool array: only the marked texels'
+    do.
     ray_data : what another fibre needs of every ray that hits a fibre, ``ray_data(texel
     (n,), arc (n,), d (n, 3))`` → (n, F): kept in :attr:`FibreTerm.rays`
     (:mod:`prtcore.transport.fibre_chiang` weights the rays with it)."""
@@ -489,13 +490,22 @@ def fourier_rows(angle: np.ndarray, orders: int, scale: float = 1.0) -> np.ndarr
 
 
 #: the ``hair.harmonics`` variants whose state stacks every strand texel's (mean, cos, sin)
-#: and whose operator is :func:`harmonic_block` (mesh_bounces: its mean rows only)
-STACKED_HARMONICS = ("all_bounces", "mesh_bounces")
+#: and whose operator is :func:`harmonic_block` (mesh_bounces: its mean rows only;
+#: turn_bounces: every row of the texels whose fibre turns less than
+#: :data:`STRAIGHT_TURN_DEG`, the mean rows of the others)
+STACKED_HARMONICS = ("all_bounces", "mesh_bounces", "turn_bounces")
+
+#: ``hair.harmonics = "turn_bounces"``: a texel's harmonics take light from other fibres
+#: when its fibre turns less than this along it (:func:`~prtcore.receivers.strands.
+#: texel_turn`). Between the 10k heads' medians, straight 11° and curly 60°, where
+#: all_bounces and mesh_bounces are the accurate ones (docs/hair.md, "Harmonics by how far
+#: the fibre turns")
+STRAIGHT_TURN_DEG = 30.0
 
 
 def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
                    phi_o: np.ndarray, psi: np.ndarray, orders: int = 1,
-                   harmonic_rows: bool = True) -> sp.csr_matrix:
+                   harmonic_rows: bool | np.ndarray = True) -> sp.csr_matrix:
     """The gather on the azimuthal harmonics of every texel up to order H (``orders``),
     (nT, nT) float32 CSR with n = 2H + 1: row block a ∈ (mean, cos φ, sin φ, cos 2φ, …)
     of the receiving texel, column block b of the source. A ray leaving texel i at
@@ -505,17 +515,23 @@ def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,
     ``v = (1, cos ψ, sin ψ, …)`` (the source's outgoing radiance at the point hit).
     ``harmonic_rows=False`` (``hair.harmonics = "mesh_bounces"``): only the mean rows
     receive, so a texel's harmonics never take light from other fibres (they hold what
-    the direct light and the mesh give them); the harmonic row blocks stay, empty."""
+    the direct light and the mesh give them); the harmonic row blocks stay, empty. A (T,)
+    bool array (``"turn_bounces"``): the harmonic rows of the texels it marks receive,
+    the others' stay empty."""
     n = 2 * orders + 1
     w = fourier_rows(phi_o, orders, 2)
     v = fourier_rows(psi, orders)
-    receiving = range(n) if harmonic_rows else range(1)
-    r = np.concatenate([rows.astype(np.int64) + a * t for a in receiving
+    if isinstance(harmonic_rows, np.ndarray):  # per receiving texel
+        keep = np.asarray(harmonic_rows, bool)[rows]
+    else:
+        keep = np.full(len(rows), bool(harmonic_rows))
+    sel = [slice(None)] + [np.flatnonzero(keep)] * (n - 1)  # the mean rows take every ray
+    r = np.concatenate([rows[sel[a]].astype(np.int64) + a * t for a in range(n)
                         for _ in range(n)])
-    c = np.concatenate([cols.astype(np.int64) + b * t for _ in receiving
+    c = np.concatenate([cols[sel[a]].astype(np.int64) + b * t for a in range(n)
                         for b in range(n)])
-    d = np.concatenate([(w[a] * v[b]).astype(np.float32) / np.float32(rays)
-                        for a in receiving for b in range(n)])
+    d = np.concatenate([(w[a][sel[a]] * v[b][sel[a]]).astype(np.float32) / np.float32(rays)
+                        for a in range(n) for b in range(n)])
     m = sp.csr_matrix((d, (r, c)), shape=(n * t, n * t))
     m.sum_duplicates()
     m.sort_indices()

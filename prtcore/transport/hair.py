@@ -21,9 +21,10 @@ from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
-from prtcore.receivers.strands import StrandSpace
+from prtcore.receivers.strands import StrandSpace, texel_turn
 from prtcore.transport.dataset import Dataset, direct_at_points
 from prtcore.transport.fibre import (
+    STRAIGHT_TURN_DEG,
     direct_and_first_bounce,
     direct_sample_count,
     fibre_direct,
@@ -59,7 +60,10 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     harmonic rides the first bounce, later bounces are radially constant; "all_bounces" —
     every texel carries (mean, cos, sin) through every bounce
     (:func:`prtcore.transport.fibre.harmonic_block`: 9× the operator, solved by the
-    Neumann series; docs/hair.md has the measured gain and cost).
+    Neumann series; docs/hair.md has the measured gain and cost); "turn_bounces" — the
+    same state, but only the texels whose fibre turns less than
+    :data:`~prtcore.transport.fibre.STRAIGHT_TURN_DEG` along them take other fibres'
+    light in their harmonics (the others' harmonics hold the direct light's).
 
     keep_direct_texels : False — the solve writes the indirect light over the texels' direct
     light (``Dataset.direct_texels`` is then None; the fit never reads it), which saves one
@@ -76,13 +80,15 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
-    everything = harmonics == "all_bounces"
+    everything = harmonics in ("all_bounces", "turn_bounces")
     samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples)
     rays0 = tracer.rays_traced
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
                             scene.triangle_count if scene is not None else 0,
-                            spec.gather_rays, spec.seed, all_bounces=everything)
+                            spec.gather_rays, spec.seed, all_bounces=everything,
+                            harmonic_rows=(texel_turn(space) < STRAIGHT_TURN_DEG
+                                           if harmonics == "turn_bounces" else True))
     rays1 = tracer.rays_traced
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced

@@ -40,12 +40,13 @@ from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
-from prtcore.receivers.strands import StrandSpace
+from prtcore.receivers.strands import StrandSpace, texel_turn
 from prtcore.receivers.texels import TexelSpace, morton_order
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import (
     STACKED_HARMONICS,
+    STRAIGHT_TURN_DEG,
     FibreTerm,
     MeshHits,
     direct_and_first_bounce,
@@ -104,13 +105,17 @@ class StrandHits:
         mean: 2H + 1 matrices (T_m, T_h) float32 CSR."""
         rows, texel, cs, frac = self._hits()
         cols, aw = self.space.arc_weights(texel, frac, root)
-        w = 1.0 / np.maximum(valid_rays[rows], 1)
-        v = fourier_rows(np.arctan2(cs[:, 1], cs[:, 0]).astype(np.float64), orders)
+        del texel, frac
+        # float32 entries and int32 indices, (n, 2) each, n the gather's rays that met a
+        # fibre
+        aw = aw.astype(np.float32) * (1 / np.maximum(valid_rays[rows], 1)).astype(
+            np.float32)[:, None]
+        r2, c2 = np.repeat(rows.astype(np.int32), 2), cols.ravel().astype(np.int32)
+        del rows, cols
         shape = (len(valid_rays), self.columns)
         out = []
-        for vb in v:
-            data = (aw * (vb * w)[:, None]).astype(np.float32)
-            m = sp.csr_matrix((data.ravel(), (np.repeat(rows, 2), cols.ravel())), shape=shape)
+        for vb in fourier_rows(np.arctan2(cs[:, 1], cs[:, 0]), orders):
+            m = sp.csr_matrix(((aw * vb[:, None]).ravel(), (r2, c2)), shape=shape)
             m.sum_duplicates()
             m.eliminate_zeros()
             m.sort_indices()
@@ -218,7 +223,8 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            harmonics: str = "first_bounce", orders: int = 1,
                            hair_near: float | None = None, direct_estimator: str = "facing",
                            direct_samples: int | str = "auto",
-                           arc_reads: str | None = "extrapolate") -> Dataset:
+                           arc_reads: str | None = "extrapolate",
+                           straight_turn: float = STRAIGHT_TURN_DEG) -> Dataset:
     """The lighting database of a hair + mesh bake (``Dataset``: direct at the points,
     indirect at the T_m + T_h texels, mesh first; training lights first; the texels'
     direct light is not kept — the solve writes over it). ``tracer`` and ``fibres``:
@@ -238,7 +244,10 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     texel's harmonics take light from the mesh (and the direct light) only, never from
     other fibres: later fibre-to-fibre bounces stay radially constant, as in
     first_bounce, while the head → hair → head light keeps its side (docs/hair.md,
-    "Which harmonics with a mesh").
+    "Which harmonics with a mesh"); "turn_bounces" — all_bounces' rows for the texels
+    whose fibre turns less than ``straight_turn`` degrees along them
+    (:func:`~prtcore.receivers.strands.texel_turn`), mesh_bounces' for the others
+    (docs/hair.md, "Harmonics by how far the fibre turns").
 
     arc_reads : how a mesh row reads a fibre it hits (:meth:`StrandHits.interpolated`):
     "extrapolate" (between the two texel centres about the hit along its strand, the
@@ -260,16 +269,20 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
                             all_bounces=everything, orders=orders,
-                            harmonic_rows=harmonics == "all_bounces",
+                            harmonic_rows=(texel_turn(space) < straight_turn
+                                           if harmonics == "turn_bounces"
+                                           else harmonics == "all_bounces"),
                             mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
     r2 = tracer.rays_traced
-    mh = strands.harmonics(gather.valid_rays, orders if everything else 1)
-    if arc_reads is not None:  # the mesh rows' strand columns, read along the arc
-        blocks = strands.interpolated(gather.valid_rays, orders if everything else 1,
-                                      arc_reads)
+    if arc_reads is None:
+        mh = strands.harmonics(gather.valid_rays, orders if everything else 1)
+    else:  # the mesh rows' strand columns, read along the arc
+        read = strands.interpolated(gather.valid_rays, orders if everything else 1,
+                                    arc_reads)
         gather = dataclasses.replace(gather, matrix=sp.hstack(
-            [gather.matrix[:, :t_m], blocks[0]], format="csr", dtype=np.float32))
-        mh = blocks[1:]
+            [gather.matrix[:, :t_m], read[0]], format="csr", dtype=np.float32))
+        mh = read[1:]
+        del read
     if everything:
         matrix = harmonic_operator(gather.matrix, mh, term)
     else:
