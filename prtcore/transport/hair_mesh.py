@@ -11,7 +11,8 @@ the hair and the mesh: the mesh's triangles [0, F), then the fibre tubes.
 The operator is four blocks::
 
     G = | G_mm  G_mh |   mesh rows: the surface gather's rays (gather_operator), a hit on a
-        | G_hm  G_hh |   tube goes to the strand texel hit (:class:`StrandHits`);
+        | G_hm  G_hh |   tube goes to the two texel centres about it on its strand
+                         (:class:`StrandHits`, :meth:`StrandHits.interpolated`);
                          hair rows: the fibre gather's rays (fibre_gather), a hit on the
                          front of the mesh goes to its atlas texel (the surface gather's
                          HitMapper: the same TEXCOORD_1 lookup)
@@ -20,8 +21,10 @@ solved once by :func:`prtcore.transport.solve.solve_indirect` with the albedos s
 The first bounce carries the hair's direct light's first azimuthal harmonic into every row
 that sees a fibre — the mesh's rows too (a scalp under hair sees the hair's unlit
 underside, not its mean) — and the mesh rows' near field. Later bounces are radially
-constant, as for hair alone. The hair shadows the head and the head shadows the hair:
-every shadow ray is traced against both.
+constant, as for hair alone, unless the strand texels stack their harmonics
+(``harmonics`` all_bounces, mesh_bounces, turn_bounces: :func:`bake_hair_mesh_dataset`).
+The hair shadows the head and the head shadows the hair: every shadow ray is traced
+against both.
 """
 
 from __future__ import annotations
