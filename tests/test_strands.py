@@ -258,3 +258,7 @@ def test_degenerate_strands_give_finite_texels_and_tubes():
     np.testing.assert_allclose(np.linalg.norm(normal, axis=2), 1.0)
     mesh = fibre_tubes(s.hair)
     assert np.isfinite(mesh.positions).all()
+    turn = texel_turn(s)  # turn_bounces' rule: a zero-length strand does not turn
+    assert np.isfinite(turn).all() and (turn[:3] == 0).all()
+    cols, w = s.arc_weights(np.arange(9), np.zeros(9))
+    assert np.isfinite(w).all() and (cols // 3 == np.arange(9)[:, None] // 3).all()
