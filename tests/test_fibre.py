@@ -10,8 +10,12 @@ import pytest
 
 from prtcore.core.hair import make_hair
 from prtcore.core.scene import Light
+from prtcore.core.spec import TransportSpec, parse_spec
+from prtcore.intake.hair import hair_scene
+from prtcore.intake.points import place_measurement_points
 from prtcore.receivers.strands import build_strand_space
-from prtcore.scenes.hair import hairball
+from prtcore.scenes.hair import hairball, head_lights
+from prtcore.transport import hair as hair_transport
 from prtcore.transport.base import operator_for
 from prtcore.transport.fibre import fibre_direct, fibre_gather, hair_tracer
 
@@ -112,3 +116,27 @@ def test_harmonic_first_bounce_sums_the_harmonics_from_first():
     assert np.array_equal(rows, np.arange(s.count)) and np.abs(h2).max() > 0
     np.testing.assert_allclose(both, h1 + h2, rtol=1e-5, atol=1e-6 * np.abs(both).max())
     assert not harmonic_first_bounce(one, direct, first=2)[1].any()
+
+
+def test_turn_bounces_for_hair_alone_is_all_bounces_where_every_texel_is_straight(
+        monkeypatch):
+    """Hair alone with ``hair.harmonics = "turn_bounces"``: with a threshold every texel
+    passes it is all_bounces bit for bit; with one none passes, no harmonic row takes
+    other fibres' light, and the result differs."""
+    h = hairball(200, seed=0)
+    space = build_strand_space(h, 6)
+    points = place_measurement_points(hair_scene(h), parse_spec(
+        {"measurement_points": {"count": 8, "placement": "hull"}}).measurement_points)
+    spec = TransportSpec(gather_rays=32, seed=3)
+
+    def bake(harmonics):
+        return hair_transport.bake_hair_dataset(space, points, hair_tracer(space)[0],
+                                                head_lights(), (), spec,
+                                                harmonics=harmonics).indirect
+
+    every = bake("all_bounces")
+    monkeypatch.setattr(hair_transport, "STRAIGHT_TURN_DEG", 181.0)
+    np.testing.assert_array_equal(bake("turn_bounces"), every)
+    monkeypatch.setattr(hair_transport, "STRAIGHT_TURN_DEG", -1.0)
+    none = bake("turn_bounces")
+    assert np.isfinite(none).all() and np.abs(none - every).max() > 0
