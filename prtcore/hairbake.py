@@ -69,7 +69,7 @@ from prtcore.io.imageio import write_exr
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.smoothing import denoise_lightmaps
-from prtcore.receivers.strands import StrandSpace, build_strand_space, texel_turn
+from prtcore.receivers.strands import StrandSpace, build_strand_space
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import (
@@ -85,9 +85,9 @@ from prtcore.transport.fibre import (
     MEM_PER_FIBRE_SEGMENT,
     MEM_PER_OPERATOR_ENTRY,
     STACKED_HARMONICS,
-    STRAIGHT_TURN_DEG,
     direct_sample_count,
     hair_tracer,
+    harmonic_receivers,
 )
 from prtcore.transport.fibre_chiang import (
     CHIANG_BYTES_PER_RAY,
@@ -301,9 +301,10 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     m = spec.transport.gather_rays
     segments = space.hair.point_count - space.hair.strand_count
     everything = spec.hair.harmonics in STACKED_HARMONICS
-    blocks = 9 if spec.hair.harmonics == "all_bounces" else 3
-    if spec.hair.harmonics == "turn_bounces" and t:  # all nine on the straight texels
-        blocks = 3 + 6 * float((texel_turn(space) < STRAIGHT_TURN_DEG).mean())
+    # the mean rows' three blocks, and six more for the texels whose harmonic rows
+    # take other fibres' light
+    blocks = 3 + 6 * float(np.mean(harmonic_receivers(spec.hair.harmonics, space))) \
+        if everything and t else 3
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     whole = MEM_PROCESS + t * MEM_PER_TEXEL + segments * MEM_PER_FIBRE_SEGMENT
     gather = operator_for("fibre").estimate_bytes(t, k, spec.transport)
@@ -343,7 +344,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                             + " and "
                             f"{k} lights needs about {est / 2**30:.1f} GiB",
                             limit=f"max_bake_bytes={limit_bytes}")
-    return est
+    return int(est)
 
 
 def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFiles,

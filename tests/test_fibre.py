@@ -17,7 +17,12 @@ from prtcore.receivers.strands import build_strand_space
 from prtcore.scenes.hair import hairball, head_lights
 from prtcore.transport import hair as hair_transport
 from prtcore.transport.base import operator_for
-from prtcore.transport.fibre import fibre_direct, fibre_gather, hair_tracer
+from prtcore.transport.fibre import (
+    fibre_direct,
+    fibre_gather,
+    hair_tracer,
+    harmonic_receivers,
+)
 
 
 def _sun(direction, lux=3.0):
@@ -135,8 +140,10 @@ def test_turn_bounces_for_hair_alone_is_all_bounces_where_every_texel_is_straigh
                                                 harmonics=harmonics).indirect
 
     every = bake("all_bounces")
-    monkeypatch.setattr(hair_transport, "STRAIGHT_TURN_DEG", 181.0)
+    monkeypatch.setattr(hair_transport, "harmonic_receivers",
+                        lambda h, s: harmonic_receivers(h, s, straight_turn=181.0))
     np.testing.assert_array_equal(bake("turn_bounces"), every)
-    monkeypatch.setattr(hair_transport, "STRAIGHT_TURN_DEG", -1.0)
+    monkeypatch.setattr(hair_transport, "harmonic_receivers",
+                        lambda h, s: harmonic_receivers(h, s, straight_turn=-1.0))
     none = bake("turn_bounces")
     assert np.isfinite(none).all() and np.abs(none - every).max() > 0

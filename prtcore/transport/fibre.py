@@ -76,7 +76,7 @@ from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import SparseProduct
 from prtcore.core.spec import DIRECT_ESTIMATORS, TransportSpec
 from prtcore.emitters.base import emitter_for
-from prtcore.receivers.strands import StrandSpace, azimuth_frame
+from prtcore.receivers.strands import StrandSpace, azimuth_frame, texel_turn
 from prtcore.transport.base import TransportOperator, register
 from prtcore.transport.direct import direct_radiance
 from prtcore.transport.fibre_facing import facing_direct, facing_samples
@@ -501,6 +501,17 @@ STACKED_HARMONICS = ("all_bounces", "mesh_bounces", "turn_bounces")
 #: all_bounces and mesh_bounces are the accurate ones (docs/hair.md, "Harmonics by how far
 #: the fibre turns")
 STRAIGHT_TURN_DEG = 30.0
+
+
+def harmonic_receivers(harmonics: str, space: StrandSpace,
+                       straight_turn: float = STRAIGHT_TURN_DEG) -> bool | np.ndarray:
+    """Which strand texels' harmonic rows take other fibres' light under ``harmonics``
+    (:data:`STACKED_HARMONICS`; :func:`harmonic_block`'s ``harmonic_rows``): every
+    texel's (all_bounces, True), none (mesh_bounces, False), or those whose fibre turns
+    less than ``straight_turn`` degrees along them (turn_bounces, a (T,) bool array)."""
+    if harmonics == "turn_bounces":
+        return texel_turn(space) < straight_turn
+    return harmonics == "all_bounces"
 
 
 def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,

@@ -21,14 +21,14 @@ from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
-from prtcore.receivers.strands import StrandSpace, texel_turn
+from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.dataset import Dataset, direct_at_points
 from prtcore.transport.fibre import (
-    STRAIGHT_TURN_DEG,
     direct_and_first_bounce,
     direct_sample_count,
     fibre_direct,
     fibre_gather,
+    harmonic_receivers,
 )
 from prtcore.transport.fibre_chiang import (
     ChiangFibre,
@@ -63,7 +63,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     Neumann series; docs/hair.md has the measured gain and cost); "turn_bounces" — the
     same state, but only the texels whose fibre turns less than
     :data:`~prtcore.transport.fibre.STRAIGHT_TURN_DEG` along them take other fibres'
-    light in their harmonics (the others' harmonics hold the direct light's).
+    light in their harmonics, the others' hold the direct light's
+    (:func:`~prtcore.transport.fibre.harmonic_receivers`).
 
     keep_direct_texels : False — the solve writes the indirect light over the texels' direct
     light (``Dataset.direct_texels`` is then None; the fit never reads it), which saves one
@@ -87,8 +88,7 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
         term = fibre_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
                             scene.triangle_count if scene is not None else 0,
                             spec.gather_rays, spec.seed, all_bounces=everything,
-                            harmonic_rows=(texel_turn(space) < STRAIGHT_TURN_DEG
-                                           if harmonics == "turn_bounces" else True))
+                            harmonic_rows=harmonic_receivers(harmonics, space))
     rays1 = tracer.rays_traced
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced

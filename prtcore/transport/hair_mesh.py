@@ -43,7 +43,7 @@ from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import permute_csr
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
-from prtcore.receivers.strands import StrandSpace, texel_turn
+from prtcore.receivers.strands import StrandSpace
 from prtcore.receivers.texels import TexelSpace, morton_order
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
@@ -58,6 +58,7 @@ from prtcore.transport.fibre import (
     fibre_gather,
     fibre_hits,
     fourier_rows,
+    harmonic_receivers,
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.solve import solve_indirect
@@ -74,8 +75,8 @@ class StrandHits:
         self.space, self.fibres, self.first, self.seed = space, fibres, int(first), seed
         self.columns = space.count
         self.frame_u = transported_frames(space.hair)[1]
-        self._parts: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._arc: dict[int, np.ndarray] = {}
+        # batch → (receiving atlas texels, strand texels hit, (cos ψ, sin ψ), arc fraction)
+        self._parts: dict[int, tuple[np.ndarray, ...]] = {}
         self._lock = threading.Lock()
 
     def __call__(self, batch: int, rows: np.ndarray, triangle: np.ndarray,
@@ -84,36 +85,37 @@ class StrandHits:
         fh = fibre_hits(self.space, self.fibres, triangle - self.first, barycentric,
                         direction.astype(np.float64), rng, self.frame_u)
         with self._lock:
-            self._parts[batch] = (rows, fh.texel, fh.cs.astype(np.float32))
-            self._arc[batch] = fh.arc.astype(np.float32)
+            self._parts[batch] = (rows, fh.texel, fh.cs.astype(np.float32),
+                                  fh.arc.astype(np.float32))
         return fh.texel
 
-    def _hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Every hit, in batch order: receiving atlas texel (n,) int64, strand texel hit
-        (n,) int64, (cos ψ, sin ψ) (n, 2) float32, arc fraction (n,) float64."""
-        keys = sorted(self._parts)
-        if not keys:
-            return (np.zeros(0, np.int64), np.zeros(0, np.int64),
-                    np.zeros((0, 2), np.float32), np.zeros(0))
-        return (np.concatenate([self._parts[k][0] for k in keys]).astype(np.int64),
-                np.concatenate([self._parts[k][1] for k in keys]).astype(np.int64),
-                np.concatenate([self._parts[k][2] for k in keys]),
-                np.concatenate([self._arc[k] for k in keys]).astype(np.float64))
-
-    def interpolated(self, valid_rays: np.ndarray, orders: int, root: str
+    def interpolated(self, valid_rays: np.ndarray, orders: int, root: str | None
                      ) -> tuple[sp.csr_matrix, ...]:
-        """The mesh rows' strand block G_mh and its 2H harmonics (as :meth:`harmonics`)
-        with each hit read between the two texel centres about it along its strand
-        (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights`), not as its texel's
-        mean: 2H + 1 matrices (T_m, T_h) float32 CSR."""
-        rows, texel, cs, frac = self._hits()
-        cols, aw = self.space.arc_weights(texel, frac, root)
+        """The mesh rows' strand block G_mh and its 2H harmonics, 2H + 1 matrices
+        (T_m, T_h) float32 CSR: each hit weighs 1/M_valid of its receiving texel
+        (``valid_rays`` (T_m,), :attr:`prtcore.transport.gather.Gather.valid_rays`) times
+        (1, cos ψ, sin ψ, cos 2ψ, …) up to order H (``orders``), read between the two
+        texel centres about it along its strand
+        (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights` with ``root``), or
+        as its texel's mean (``root=None``)."""
+        keys = sorted(self._parts)
+        if keys:
+            rows, texel, cs, frac = (np.concatenate([self._parts[k][i] for k in keys])
+                                     for i in range(4))
+        else:
+            rows, texel = np.zeros(0, np.int64), np.zeros(0, np.int64)
+            cs, frac = np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+        if root is None:
+            cols, aw = texel[:, None], np.ones((len(texel), 1))
+        else:
+            cols, aw = self.space.arc_weights(texel, frac.astype(np.float64), root)
         del texel, frac
-        # float32 entries and int32 indices, (n, 2) each, n the gather's rays that met a
-        # fibre
+        # float32 entries and int32 indices, (n, 1 or 2) each, n the gather's rays that
+        # met a fibre
         aw = aw.astype(np.float32) * (1 / np.maximum(valid_rays[rows], 1)).astype(
             np.float32)[:, None]
-        r2, c2 = np.repeat(rows.astype(np.int32), 2), cols.ravel().astype(np.int32)
+        r2 = np.repeat(rows.astype(np.int32), cols.shape[1])
+        c2 = cols.ravel().astype(np.int32)
         del rows, cols
         shape = (len(valid_rays), self.columns)
         out = []
@@ -126,20 +128,10 @@ class StrandHits:
         return tuple(out)
 
     def harmonics(self, valid_rays: np.ndarray, orders: int = 1) -> tuple[sp.csr_matrix, ...]:
-        """(cos ψ, sin ψ, cos 2ψ, …)-weighted G_mh up to order H (``orders``), 2H matrices
-        (T_m, T_h) float32 CSR, with the gather's weights 1/M_valid of the receiving texel
-        (``valid_rays`` (T_m,), :attr:`prtcore.transport.gather.Gather.valid_rays`)."""
-        rows, cols, cs, _ = self._hits()
-        w = (1.0 / np.maximum(valid_rays[rows], 1)).astype(np.float32)
-        v = fourier_rows(np.arctan2(cs[:, 1], cs[:, 0]), orders)[1:]
-        shape = (len(valid_rays), self.columns)
-        out = []
-        for vb in v:
-            m = sp.csr_matrix((vb.astype(np.float32) * w, (rows, cols)), shape=shape)
-            m.sum_duplicates()
-            m.sort_indices()
-            out.append(m)
-        return tuple(out)
+        """(cos ψ, sin ψ, cos 2ψ, …)-weighted G_mh up to order H (``orders``), each hit
+        read as its texel's mean: 2H matrices (T_m, T_h) float32 CSR
+        (:meth:`interpolated` with ``root=None``, less its mean block)."""
+        return self.interpolated(valid_rays, orders, None)[1:]
 
 
 def combined_operator(mesh_rows: sp.csr_matrix, term: FibreTerm) -> sp.csr_matrix:
@@ -272,14 +264,14 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
                             all_bounces=everything, orders=orders,
-                            harmonic_rows=(texel_turn(space) < straight_turn
-                                           if harmonics == "turn_bounces"
-                                           else harmonics == "all_bounces"),
+                            harmonic_rows=harmonic_receivers(harmonics, space,
+                                                             straight_turn),
                             mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
     r2 = tracer.rays_traced
     if arc_reads is None:
         mh = strands.harmonics(gather.valid_rays, orders if everything else 1)
-    else:  # the mesh rows' strand columns, read along the arc
+    else:  # the mesh rows' strand columns, read along the arc (the gather's own strand
+        # columns hold each hit as its texel's mean)
         read = strands.interpolated(gather.valid_rays, orders if everything else 1,
                                     arc_reads)
         gather = dataclasses.replace(gather, matrix=sp.hstack(
