@@ -87,7 +87,7 @@ from prtcore.transport.fibre import (
     STACKED_HARMONICS,
     direct_sample_count,
     hair_tracer,
-    harmonic_receivers,
+    harmonic_blocks_bound,
 )
 from prtcore.transport.fibre_chiang import (
     CHIANG_BYTES_PER_RAY,
@@ -157,10 +157,11 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
     Chiang fibre), ``hair.direct_samples = "auto"`` resolved for the diffuse fibre
     (:func:`prtcore.transport.fibre.direct_sample_count`), ``hair.harmonics = "auto"``
-    resolved (turn_bounces with a mesh: the
+    resolved (adaptive with a mesh: the
     light that goes head → hair → head needs the side of the fibre that faced the head,
-    and the fibre-to-fibre harmonics hold where the fibre is straight along a texel,
-    docs/hair.md; mesh_bounces without a mesh is exactly first_bounce, and says so),
+    and the fibre-to-fibre harmonics hold where the fibre is straight along a texel or
+    the hair is sparse, docs/hair.md; mesh_bounces without a mesh is exactly first_bounce,
+    and says so),
     "auto" light counts fixed (:data:`CHIANG_FIXED_LIGHTS` for the Chiang fibre,
     :data:`MESH_FIXED_LIGHTS` with a mesh);
     keys a hair bake cannot honour yet are refused by name."""
@@ -181,7 +182,7 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.hair.fibre == "chiang":
         harmonics = "auto"  # the Chiang fibre carries no harmonics (its own transport)
     elif harmonics == "auto":
-        harmonics = "turn_bounces" if with_mesh else "first_bounce"
+        harmonics = "adaptive" if with_mesh else "first_bounce"
     elif harmonics == "mesh_bounces" and not with_mesh:
         harmonics = "first_bounce"  # no mesh light for the harmonics to carry
     samples = spec.hair.direct_samples
@@ -283,10 +284,12 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     default limit; docs/hair.md has the stage peaks this model was checked against.
 
     The other variants add their own arrays to both phases (conservatively). Stacked
-    harmonics (``hair.harmonics`` "all_bounces", "mesh_bounces", "turn_bounces"): the
+    harmonics (``hair.harmonics`` "all_bounces", "mesh_bounces", "turn_bounces",
+    "adaptive"): the
     (3T, 3T) operator's blocks before they are summed (20 bytes per gather ray and block;
     nine, three for mesh_bounces' mean rows, 3 + 6 × the straight texels' share for
-    turn_bounces), the stacked (3T, K, 3) float32 direct light in
+    turn_bounces, :func:`~prtcore.transport.fibre.harmonic_blocks_bound`), the stacked
+    (3T, K, 3) float32 direct light in
     place of the T rows, the direct light's mean and harmonics beside it and, for hair
     alone, the solve's result (with a mesh the solve writes over the direct light); the
     solve's working arrays over 3T rows, bounded alike. The Chiang fibre: each hit's data.
@@ -303,8 +306,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     everything = spec.hair.harmonics in STACKED_HARMONICS
     # the mean rows' three blocks, and six more for the texels whose harmonic rows
     # take other fibres' light
-    blocks = 3 + 6 * float(np.mean(harmonic_receivers(spec.hair.harmonics, space))) \
-        if everything and t else 3
+    blocks = harmonic_blocks_bound(spec.hair.harmonics, space) if everything and t else 3
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     whole = MEM_PROCESS + t * MEM_PER_TEXEL + segments * MEM_PER_FIBRE_SEGMENT
     gather = operator_for("fibre").estimate_bytes(t, k, spec.transport)

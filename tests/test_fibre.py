@@ -141,9 +141,9 @@ def test_turn_bounces_for_hair_alone_is_all_bounces_where_every_texel_is_straigh
 
     every = bake("all_bounces")
     monkeypatch.setattr(hair_transport, "harmonic_receivers",
-                        lambda h, s: harmonic_receivers(h, s, straight_turn=181.0))
+                        lambda h, s, *share: harmonic_receivers(h, s, 181.0, *share))
     np.testing.assert_array_equal(bake("turn_bounces"), every)
     monkeypatch.setattr(hair_transport, "harmonic_receivers",
-                        lambda h, s: harmonic_receivers(h, s, straight_turn=-1.0))
+                        lambda h, s, *share: harmonic_receivers(h, s, -1.0, *share))
     none = bake("turn_bounces")
     assert np.isfinite(none).all() and np.abs(none - every).max() > 0

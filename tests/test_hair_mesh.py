@@ -26,7 +26,14 @@ from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.dataset import bake_dataset
-from prtcore.transport.fibre import STRAIGHT_TURN_DEG, fibre_gather, hair_tracer
+from prtcore.transport.fibre import (
+    SPARSE_FIBRE_SHARE,
+    STRAIGHT_TURN_DEG,
+    fibre_gather,
+    hair_tracer,
+    harmonic_blocks_bound,
+    harmonic_receivers,
+)
 from prtcore.transport.gather import HitMapper, gather_operator
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import (
@@ -227,12 +234,53 @@ def test_each_receiver_gets_light_from_the_other(head):
     assert both.indirect[t_m:].mean() > 1.2 * hair_alone.indirect.mean()
 
 
-def test_harmonics_auto_means_turn_bounces_with_a_mesh():
+def test_adaptive_harmonics_are_all_bounces_on_sparse_hair_and_turn_bounces_on_dense(
+        head, monkeypatch):
+    """adaptive: every texel's harmonic rows take other fibres' light when fewer than
+    SPARSE_FIBRE_SHARE of the fibre gather's rays meet a fibre (the block is all_bounces'
+    bit for bit), only the straight texels' otherwise (turn_bounces'); the report says
+    which share of texels did. The memory estimate's bound holds in both cases."""
+    import functools
+
+    from prtcore.transport import fibre as fibre_module
+
+    scene, texels, space, tracer, fibres, _ = head
+    f, t = scene.triangle_count, space.count
+
+    def gather(rows):
+        return fibre_gather(space, tracer, fibres, f, 16, 3, all_bounces=True,
+                            mesh_texels=HitMapper(scene, texels, tracer),
+                            mesh_columns=texels.count, harmonic_rows=rows)
+
+    adaptive = functools.partial(harmonic_receivers, "adaptive", space, STRAIGHT_TURN_DEG)
+    sparse = gather(adaptive)
+    share = sparse.stats["fibre_hits"] / sparse.stats["rays"]
+    assert 0.05 < share < SPARSE_FIBRE_SHARE  # 500 strands on the test head: sparse
+    every = gather(True)
+    assert sparse.stats["harmonic_receivers"] == 1.0
+    assert (abs(sparse.block - every.block) > 0).nnz == 0
+    monkeypatch.setattr(fibre_module, "SPARSE_FIBRE_SHARE", share / 2)  # now dense
+    dense = gather(adaptive)
+    straight = texel_turn(space) < STRAIGHT_TURN_DEG
+    turn = gather(straight)
+    assert dense.stats["harmonic_receivers"] == pytest.approx(straight.mean())
+    assert (abs(dense.block - turn.block) > 0).nnz == 0
+    assert (abs(dense.block - every.block) > 0).nnz > 0
+    for term, threshold in ((sparse, SPARSE_FIBRE_SHARE), (dense, share / 2)):
+        monkeypatch.setattr(fibre_module, "SPARSE_FIBRE_SHARE", threshold)
+        bound = harmonic_blocks_bound("adaptive", space)
+        assert bound >= harmonic_blocks_bound("turn_bounces", space)
+        assert term.block.nnz <= bound * 16 * t
+    with pytest.raises(ValueError, match="fibre_share"):
+        harmonic_receivers("adaptive", space)
+
+
+def test_harmonics_auto_means_adaptive_with_a_mesh():
     assert hair_spec(parse_spec({})).hair.harmonics == "first_bounce"
-    assert hair_spec(parse_spec({}), with_mesh=True).hair.harmonics == "turn_bounces"
+    assert hair_spec(parse_spec({}), with_mesh=True).hair.harmonics == "adaptive"
     alone = parse_spec({"hair": {"harmonics": "turn_bounces"}})
     assert hair_spec(alone).hair.harmonics == "turn_bounces"  # hair alone has it too
-    for h in ("first_bounce", "all_bounces", "mesh_bounces"):
+    for h in ("first_bounce", "all_bounces", "mesh_bounces", "turn_bounces"):
         explicit = parse_spec({"hair": {"harmonics": h}})
         assert hair_spec(explicit, with_mesh=True).hair.harmonics == h
     # without a mesh there is no mesh light for the harmonics to carry
@@ -265,7 +313,7 @@ def test_bundle_holds_the_lightmap_and_the_strand_texture(bundle):
     m = read_manifest(bundle)
     assert is_hair_mesh(m)
     assert m["asset"]["file"] == "asset.glb" and m["asset"]["hair"]["file"] == "asset.hair"
-    assert m["atlas"]["uv"] == "TEXCOORD_1" and m["fibre"]["harmonics"] == "turn_bounces"
+    assert m["atlas"]["uv"] == "TEXCOORD_1" and m["fibre"]["harmonics"] == "adaptive"
     s = m["strands"]
     assert (s["strand_count"], s["texels_per_strand"]) == (300, 6)
     assert len(s["basis_files"]) == len(m["basis"]["files"])

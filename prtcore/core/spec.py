@@ -286,10 +286,12 @@ class HairSpec:
     #: the fibre scattering model ("diffuse": Lambertian fibre, radially averaged)
     fibre: str = "diffuse"
     #: azimuthal harmonics in transport: "first_bounce" | "all_bounces" | "mesh_bounces" |
-    #: "turn_bounces" | "auto" (docs/hair.md; "auto": first_bounce for hair alone,
-    #: turn_bounces for hair baked with a mesh; mesh_bounces without a mesh is
+    #: "turn_bounces" | "adaptive" | "auto" (docs/hair.md; "auto": first_bounce for hair
+    #: alone, adaptive for hair baked with a mesh; mesh_bounces without a mesh is
     #: first_bounce; turn_bounces: all_bounces on the texels whose fibre turns less than
-    #: 30° along them, mesh_bounces on the others)
+    #: 30° along them, mesh_bounces on the others; adaptive: all_bounces where fewer than
+    #: half of the fibre gather's rays meet another fibre (sparse hair), turn_bounces
+    #: otherwise)
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
@@ -778,7 +780,7 @@ def _parse(data: Any) -> BakeSpec:
         fibre=_choice(hs.get("fibre", "diffuse"), "hair.fibre", FIBRE_MODELS),
         harmonics=_choice(hs.get("harmonics", "auto"), "hair.harmonics",
                           ("auto", "first_bounce", "all_bounces", "mesh_bounces",
-                           "turn_bounces")),
+                           "turn_bounces", "adaptive")),
         denoise_neighbours=_int_or_auto(hs.get("denoise_neighbours", "auto"),
                                         "hair.denoise_neighbours", lo=0, hi=1024),
         direct=_choice(hs.get("direct", "facing"), "hair.direct", DIRECT_ESTIMATORS),

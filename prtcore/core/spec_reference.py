@@ -89,7 +89,7 @@ DOCS: dict[str, str] = {
                        "outgoing radiance, the paper's) · `linear` (plus a linear function "
                        "of direction: 16× the operator, docs/hair.md) · `quadratic` (plus "
                        "cos² θ (cos 2φ, sin 2φ)); with a `--mesh` too",
-    "hair.harmonics": "`auto` (`first_bounce` for hair alone, `turn_bounces` for hair "
+    "hair.harmonics": "`auto` (`first_bounce` for hair alone, `adaptive` for hair "
                       "baked with a mesh) · `first_bounce` (the direct light's first "
                       "azimuthal harmonic in the first bounce) · `all_bounces` (every "
                       "texel's mean, cos and sin through every bounce: 9× the operator, a "
@@ -97,7 +97,11 @@ DOCS: dict[str, str] = {
                       "carry the direct light and the mesh's through every bounce, not "
                       "other fibres'; without one it is `first_bounce`) · "
                       "`turn_bounces` (`all_bounces` on the texels whose fibre turns "
-                      "less than 30° along them, `mesh_bounces` on the others)",
+                      "less than 30° along them, `mesh_bounces` on the others) · "
+                      "`adaptive` (`all_bounces` for sparse hair, where fewer than half "
+                      "of the rays from the fibres meet another fibre, `turn_bounces` "
+                      "otherwise; the report's `transport.fibre.harmonic_receivers` "
+                      "says which texels took other fibres' light)",
     "hair.denoise_neighbours": "`auto` (64 for the diffuse fibre, 0 for `chiang`), or k "
                                "in 0–1024: every strand texel's indirect irradiance "
                                "taken from a local linear fit through its k nearest texels "

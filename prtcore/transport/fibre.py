@@ -310,7 +310,8 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                  all_bounces: bool = False, mesh_texels: Callable | None = None,
                  mesh_columns: int = 0, orders: int = 1,
                  ray_data: Callable | None = None,
-                 harmonic_rows: bool | np.ndarray = True) -> FibreTerm:
+                 harmonic_rows: bool | np.ndarray | Callable[[float], bool | np.ndarray]
+                 = True) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
     mesh_texels : the mesh receives too (a hair + mesh bake): a
@@ -321,7 +322,10 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     harmonics of every texel (:func:`harmonic_block`), up to order ``orders``;
     ``harmonic_rows=False``: its harmonic rows take nothing from other fibres (the mesh
     block's still take the mesh's light); a (T,) bool array: only the marked texels'
-    do.
+    do; a function: called with the share of the rays that met a fibre once they are
+    traced, it returns one of those (:func:`harmonic_receivers` for "adaptive").
+    ``stats["harmonic_receivers"]``: the share of texels whose harmonic rows take other
+    fibres' light.
     ray_data : what another fibre needs of every ray that hits a fibre, ``ray_data(texel
     (n,), arc (n,), d (n, 3))`` → (n, F): kept in :attr:`FibreTerm.rays`
     (:mod:`prtcore.transport.fibre_chiang` weights the rays with it)."""
@@ -395,7 +399,12 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     harm = tuple(csr(f((h + 1) * psi).astype(np.float32)) for h in range(harmonics)
                  for f in (np.cos, np.sin))
     block = None
+    stats = {"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
+             "misses": total - n_fibre - n_mesh}
     if all_bounces:
+        if callable(harmonic_rows):
+            harmonic_rows = harmonic_rows(n_fibre / max(total, 1))
+        stats["harmonic_receivers"] = float(np.mean(harmonic_rows))
         po = np.concatenate(po_all)[perm] if po_all else np.zeros(0, np.float32)
         block = harmonic_block(t, rays, rows, cols, po, psi, orders, harmonic_rows)
     to_mesh = mesh_block = mesh_hits = None
@@ -428,9 +437,7 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
                 np.zeros((0, 1), np.float32))
     return FibreTerm(matrix=csr(np.ones(len(rows), np.float32)), harmonics=harm,
                      block=block, mesh=to_mesh, mesh_block=mesh_block, mesh_hits=mesh_hits,
-                     rays=kept,
-                     stats={"rays": total, "fibre_hits": n_fibre, "mesh_hits": n_mesh,
-                            "misses": total - n_fibre - n_mesh})
+                     rays=kept, stats=stats)
 
 
 def _by_row(parts: list) -> tuple[np.ndarray, np.ndarray]:
@@ -492,8 +499,9 @@ def fourier_rows(angle: np.ndarray, orders: int, scale: float = 1.0) -> np.ndarr
 #: the ``hair.harmonics`` variants whose state stacks every strand texel's (mean, cos, sin)
 #: and whose operator is :func:`harmonic_block` (mesh_bounces: its mean rows only;
 #: turn_bounces: every row of the texels whose fibre turns less than
-#: :data:`STRAIGHT_TURN_DEG`, the mean rows of the others)
-STACKED_HARMONICS = ("all_bounces", "mesh_bounces", "turn_bounces")
+#: :data:`STRAIGHT_TURN_DEG`, the mean rows of the others; adaptive: all_bounces' or
+#: turn_bounces' by how sparse the hair is, :data:`SPARSE_FIBRE_SHARE`)
+STACKED_HARMONICS = ("all_bounces", "mesh_bounces", "turn_bounces", "adaptive")
 
 #: ``hair.harmonics = "turn_bounces"``: a texel's harmonics take light from other fibres
 #: when its fibre turns less than this along it (:func:`~prtcore.receivers.strands.
@@ -502,16 +510,46 @@ STACKED_HARMONICS = ("all_bounces", "mesh_bounces", "turn_bounces")
 #: the fibre turns")
 STRAIGHT_TURN_DEG = 30.0
 
+#: ``hair.harmonics = "adaptive"``: hair whose fibre gather's rays meet another fibre less
+#: often than this (sparse hair) is baked with all_bounces' rows, denser hair with
+#: turn_bounces'. Between the heads measured: the 2000-strand head 0.29, where all_bounces
+#: is the accurate variant, and the 10k heads 0.63–0.68, where turn_bounces is
+#: (docs/hair.md, "Sparse hair takes every fibre's harmonics")
+SPARSE_FIBRE_SHARE = 0.5
+
 
 def harmonic_receivers(harmonics: str, space: StrandSpace,
-                       straight_turn: float = STRAIGHT_TURN_DEG) -> bool | np.ndarray:
+                       straight_turn: float = STRAIGHT_TURN_DEG,
+                       fibre_share: float | None = None) -> bool | np.ndarray:
     """Which strand texels' harmonic rows take other fibres' light under ``harmonics``
     (:data:`STACKED_HARMONICS`; :func:`harmonic_block`'s ``harmonic_rows``): every
     texel's (all_bounces, True), none (mesh_bounces, False), or those whose fibre turns
-    less than ``straight_turn`` degrees along them (turn_bounces, a (T,) bool array)."""
+    less than ``straight_turn`` degrees along them (turn_bounces, a (T,) bool array).
+    adaptive: all_bounces' when ``fibre_share``, the share of the fibre gather's rays
+    that met another fibre, is below :data:`SPARSE_FIBRE_SHARE`, turn_bounces' otherwise
+    (:func:`fibre_gather` passes it once its rays are traced)."""
+    if harmonics == "adaptive":
+        if fibre_share is None:
+            raise ValueError("adaptive harmonics are chosen from the fibre gather's share "
+                             "of rays that met a fibre (fibre_share)")
+        if fibre_share < SPARSE_FIBRE_SHARE:
+            return True
+        harmonics = "turn_bounces"
     if harmonics == "turn_bounces":
         return texel_turn(space) < straight_turn
     return harmonics == "all_bounces"
+
+
+def harmonic_blocks_bound(harmonics: str, space: StrandSpace) -> float:
+    """Before the gather is traced (the memory estimate): an upper bound on the stacked
+    operator's entries per gather ray under ``harmonics`` (:data:`STACKED_HARMONICS`),
+    every ray counted as a fibre hit. A hit feeds the 3 (mean, cos, sin) columns of its
+    receiver's mean row, and 6 more where the receiver's harmonic rows take other fibres'
+    light (:func:`harmonic_receivers`). adaptive: turn_bounces' bound, or all_bounces' 9
+    over fewer than :data:`SPARSE_FIBRE_SHARE` of the rays, whichever is larger."""
+    if harmonics == "adaptive":
+        return max(harmonic_blocks_bound("turn_bounces", space), 9 * SPARSE_FIBRE_SHARE)
+    return 3 + 6 * float(np.mean(harmonic_receivers(harmonics, space)))
 
 
 def harmonic_block(t: int, rays: int, rows: np.ndarray, cols: np.ndarray,

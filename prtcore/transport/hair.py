@@ -10,6 +10,7 @@ the Chiang fibre (``hair.fibre = "chiang"``) the same stages go through
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -64,7 +65,9 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     same state, but only the texels whose fibre turns less than
     :data:`~prtcore.transport.fibre.STRAIGHT_TURN_DEG` along them take other fibres'
     light in their harmonics, the others' hold the direct light's
-    (:func:`~prtcore.transport.fibre.harmonic_receivers`).
+    (:func:`~prtcore.transport.fibre.harmonic_receivers`); "adaptive" — all_bounces when
+    fewer than :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` of the gather's rays
+    meet another fibre, turn_bounces otherwise.
 
     keep_direct_texels : False — the solve writes the indirect light over the texels' direct
     light (``Dataset.direct_texels`` is then None; the fit never reads it), which saves one
@@ -81,14 +84,15 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
-    everything = harmonics in ("all_bounces", "turn_bounces")
+    everything = harmonics in ("all_bounces", "turn_bounces", "adaptive")
     samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples)
     rays0 = tracer.rays_traced
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibre_tubes(space.hair, DEFAULT_SIDES),
                             scene.triangle_count if scene is not None else 0,
                             spec.gather_rays, spec.seed, all_bounces=everything,
-                            harmonic_rows=harmonic_receivers(harmonics, space))
+                            harmonic_rows=functools.partial(harmonic_receivers, harmonics,
+                                                            space))
     rays1 = tracer.rays_traced
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced

@@ -22,7 +22,8 @@ The first bounce carries the hair's direct light's first azimuthal harmonic into
 that sees a fibre — the mesh's rows too (a scalp under hair sees the hair's unlit
 underside, not its mean) — and the mesh rows' near field. Later bounces are radially
 constant, as for hair alone, unless the strand texels stack their harmonics
-(``harmonics`` all_bounces, mesh_bounces, turn_bounces: :func:`bake_hair_mesh_dataset`).
+(``harmonics`` all_bounces, mesh_bounces, turn_bounces, adaptive:
+:func:`bake_hair_mesh_dataset`).
 The hair shadows the head and the head shadows the hair: every shadow ray is traced
 against both.
 """
@@ -30,6 +31,7 @@ against both.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import threading
 from collections.abc import Sequence
 
@@ -242,7 +244,10 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     "Which harmonics with a mesh"); "turn_bounces" — all_bounces' rows for the texels
     whose fibre turns less than ``straight_turn`` degrees along them
     (:func:`~prtcore.receivers.strands.texel_turn`), mesh_bounces' for the others
-    (docs/hair.md, "Harmonics by how far the fibre turns").
+    (docs/hair.md, "Harmonics by how far the fibre turns"); "adaptive" — all_bounces' rows
+    when fewer than :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` of the fibre
+    gather's rays meet another fibre (sparse hair), turn_bounces' otherwise (docs/hair.md,
+    "Sparse hair takes every fibre's harmonics").
 
     arc_reads : how a mesh row reads a fibre it hits (:meth:`StrandHits.interpolated`):
     "extrapolate" (between the two texel centres about the hit along its strand, the
@@ -264,8 +269,8 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     with timer.stage("fibre gather"):
         term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
                             all_bounces=everything, orders=orders,
-                            harmonic_rows=harmonic_receivers(harmonics, space,
-                                                             straight_turn),
+                            harmonic_rows=functools.partial(harmonic_receivers, harmonics,
+                                                            space, straight_turn),
                             mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
     r2 = tracer.rays_traced
     if arc_reads is None:
