@@ -344,3 +344,54 @@ def test_a_chiang_bake_trains_on_more_lights_by_default():
     assert hair_spec(parse_spec({})).lights.count == 128
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang"},
                                  "lights": {"count": 40}})).lights.count == 40
+
+
+@pytest.mark.parametrize("case", ["auto", "explicit", "no memory"])
+def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkeypatch, case):
+    """``lights.count: "auto"``: a first pass whose verdict fails on the transfer's ratio
+    is baked once more with twice the lights, and ships the bundle a spec asking for 2K
+    asks for; the report lists both passes. An explicit count is kept whatever the
+    verdict, and so is K when the memory estimate at 2K is over the limit."""
+    import dataclasses
+
+    from prtcore import hairbake
+
+    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    first = hairbake._transport_and_fit
+    counts = []
+
+    def failing_first(spec, *args):
+        inputs, result = first(spec, *args)
+        counts.append(spec.lights.count)
+        if len(counts) == 1:  # as if the transfer were far from the bound
+            result = dataclasses.replace(result, verdict={**result.verdict,
+                                                          "status": "fail", "ratio": 9.9})
+        return inputs, result
+
+    monkeypatch.setattr(hairbake, "_transport_and_fit", failing_first)
+    if case == "no memory":
+        estimate = hairbake.check_hair_memory
+
+        def over_at_2k(asset, space, spec, limit, **kw):
+            if spec.lights.count > 128:
+                raise LimitExceeded(str(asset), "", "over the limit (the test's)")
+            return estimate(asset, space, spec, limit, **kw)
+
+        monkeypatch.setattr(hairbake, "check_hair_memory", over_at_2k)
+    spec = {**SPEC, "lights": {**SPEC["lights"],
+                               "count": 128 if case == "explicit" else "auto"}}
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    report = json.loads((out / "report.json").read_text())
+    if case != "auto":
+        assert counts == [128] and "lights_tried" not in report["transport"]
+        assert report["verdict"]["ratio"] == 9.9  # the failed verdict ships, and says so
+        return
+    assert counts == [128, 256]
+    assert [(t["lights"], t["status"]) for t in report["transport"]["lights_tried"]] == [
+        (128, "fail"), (256, report["verdict"]["status"])]
+    assert read_manifest(out)["spec"]["lights"]["count"] == 256
+    monkeypatch.setattr(hairbake, "_transport_and_fit", first)
+    asked = bake(asset, parse_spec({**SPEC, "lights": {**SPEC["lights"], "count": 256}}),
+                 tmp_path / "asked", quiet=True)
+    for name in ("transfer.bin", "basis_00.exr"):
+        assert sha256_file(out / name) == sha256_file(asked / name)

@@ -80,6 +80,11 @@ class StageTimer:
         self.skipped[name] = why
         self._say(f"[prtcore] {name:<18s}  skipped: {why}")
 
+    def note(self, line: str) -> None:
+        """A line of the run's own (a decision it took) among the stage lines, unless
+        quiet."""
+        self._say(line)
+
     def _say(self, line: str) -> None:
         """One line on stderr unless quiet; through tqdm so that an open bar is redrawn
         below it instead of being overwritten."""

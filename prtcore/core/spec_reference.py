@@ -46,7 +46,9 @@ DOCS: dict[str, str] = {
     "lights.count": "K, training lighting configurations, 1–65536, or `auto`: start at "
                     "`sizing.lights_start` and double (tracing only the new lights) while "
                     "the verdict's target is not met, within `sizing`'s budget (hair "
-                    "bakes: 128, 256 with a mesh, 512 with the Chiang fibre; docs/hair.md)",
+                    "bakes: 128, 256 with a mesh, 512 with the Chiang fibre, baked once "
+                    "more with twice that when the verdict fails on the transfer's ratio "
+                    "and the memory estimate allows; docs/hair.md)",
     "lights.holdout": "held-out validation configurations, 0–65536",
     "lights.seed": "seed of the light draws (training and held-out streams are "
                    "independent)",
