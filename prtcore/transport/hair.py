@@ -25,6 +25,7 @@ from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.transport.dataset import Dataset, direct_at_points
 from prtcore.transport.fibre import (
+    STACKED_HARMONICS,
     direct_and_first_bounce,
     direct_sample_count,
     fibre_direct,
@@ -84,7 +85,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
-    everything = harmonics in ("all_bounces", "turn_bounces", "adaptive")
+    # the stacked variants; mesh_bounces without a mesh is first_bounce
+    everything = harmonics in STACKED_HARMONICS and harmonics != "mesh_bounces"
     samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples)
     rays0 = tracer.rays_traced
     with timer.stage("fibre gather"):
