@@ -115,6 +115,9 @@ def main(argv: list[str] | None = None) -> dict:
                     help="k of the strand texels' denoising (variants '…, denoised')")
     ap.add_argument("--max-bounces", type=int, default=64,
                     help="the fast path's solve and the reference's paths stop after N")
+    ap.add_argument("--arc-subdivision", type=int, default=1,
+                    help="hair.arc_subdivision S: each strand texel transported as S "
+                         "pieces (the bake's default with a mesh is 2)")
     ap.add_argument("--orders", type=int, default=1,
                     help="azimuthal harmonics H carried by all_bounces")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/hair_mesh_accuracy.json"))
@@ -147,6 +150,7 @@ def main(argv: list[str] | None = None) -> dict:
     result = {"strands": a.strands, "mesh_texels": t_m, "strand_texels": t_h,
               "rays": a.rays, "direct_samples": a.samples, "direct": a.direct,
               "paths": a.paths, "seed": a.seed, "bake_seeds": seeds,
+              "arc_subdivision": a.arc_subdivision,
               "reference_seconds": ref_s, "variants": {}}
     def errors(values: np.ndarray, seconds: float) -> dict:
         """A variant's rows: its (T, K, 3) indirect light at the sampled texels against
@@ -176,7 +180,8 @@ def main(argv: list[str] | None = None) -> dict:
                                               LIGHTS, spec=specs[seed], harmonics=harmonics,
                                               hair_near=near, orders=a.orders,
                                               direct_estimator=a.direct,
-                                              arc_reads=arc_reads, **turn)
+                                              arc_reads=arc_reads,
+                                              arc_subdivision=a.arc_subdivision, **turn)
                 name = f"{variant}{'' if near else ', no hair near field'}"
                 result["variants"][name + tag] = errors(data.indirect,
                                                         time.perf_counter() - t0)

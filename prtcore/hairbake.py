@@ -69,7 +69,7 @@ from prtcore.io.imageio import write_exr
 from prtcore.methods.base import BakeInputs, Method, method
 from prtcore.receivers.combined import CombinedSpace
 from prtcore.receivers.smoothing import denoise_lightmaps
-from prtcore.receivers.strands import StrandSpace, build_strand_space
+from prtcore.receivers.strands import StrandSpace, build_strand_space, texel_turn
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import (
@@ -85,6 +85,7 @@ from prtcore.transport.fibre import (
     MEM_PER_FIBRE_SEGMENT,
     MEM_PER_OPERATOR_ENTRY,
     STACKED_HARMONICS,
+    STRAIGHT_TURN_DEG,
     direct_sample_count,
     hair_tracer,
     harmonic_blocks_bound,
@@ -148,6 +149,11 @@ CHIANG_FIXED_LIGHTS = 512
 #: while 256 pass at 1.09× (12.0 %; 236 s instead of 163–241 s, peak 4.4 GiB instead of
 #: 3.8; docs/hair.md, "One head, several bake seeds")
 MESH_FIXED_LIGHTS = 256
+#: pieces per strand texel in the transport of a hair + mesh bake with the diffuse fibre
+#: (``hair.arc_subdivision = "auto"``): on the 10k curly head the scalp's indirect light
+#: goes from +4.4 % to +2 % against the path tracer (filtered atlas, the mean of four
+#: bakes) with about the same rays (docs/hair.md, "Transporting each texel in pieces")
+MESH_ARC_SUBDIVISION = 2
 
 
 def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
@@ -161,7 +167,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     light that goes head → hair → head needs the side of the fibre that faced the head,
     and the fibre-to-fibre harmonics hold where the fibre is straight along a texel or
     the hair is sparse, docs/hair.md; mesh_bounces without a mesh is exactly first_bounce,
-    and says so),
+    and says so), ``hair.arc_subdivision = "auto"`` resolved to 1 without a mesh or with
+    the Chiang fibre (with a mesh and the diffuse fibre the hair's curl decides it,
+    :func:`arc_pieces`),
     "auto" light counts fixed (:data:`CHIANG_FIXED_LIGHTS` for the Chiang fibre,
     :data:`MESH_FIXED_LIGHTS` with a mesh);
     keys a hair bake cannot honour yet are refused by name."""
@@ -185,6 +193,13 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         harmonics = "adaptive" if with_mesh else "first_bounce"
     elif harmonics == "mesh_bounces" and not with_mesh:
         harmonics = "first_bounce"  # no mesh light for the harmonics to carry
+    pieces = spec.hair.arc_subdivision
+    if pieces == "auto" and not (with_mesh and spec.hair.fibre == "diffuse"):
+        pieces = 1  # with a mesh and the diffuse fibre, the hair decides (arc_pieces)
+    elif pieces != "auto" and pieces > 1 and not with_mesh:
+        raise SpecError("hair.arc_subdivision", f"{pieces} pieces per texel are "
+                        "transported for hair with a mesh only; hair alone is "
+                        "transported by whole texels (leave it 'auto' or 1)")
     samples = spec.hair.direct_samples
     if spec.hair.fibre == "diffuse":
         samples = direct_sample_count(spec.hair.direct, samples,
@@ -194,7 +209,25 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
                                                      placement="hull"),
         fit=dataclasses.replace(spec.fit, denoise=atlas_radius(spec, with_mesh)),
         hair=dataclasses.replace(spec.hair, harmonics=harmonics,
-                                 denoise_neighbours=denoise, direct_samples=samples))
+                                 denoise_neighbours=denoise, direct_samples=samples,
+                                 arc_subdivision=pieces))
+
+
+def arc_pieces(spec: BakeSpec, space: StrandSpace) -> BakeSpec:
+    """``hair.arc_subdivision = "auto"`` left by :func:`hair_spec` (the diffuse fibre with
+    a mesh) resolved by the hair: :data:`MESH_ARC_SUBDIVISION` pieces per texel where the
+    median texel's fibre turns at least
+    :data:`~prtcore.transport.fibre.STRAIGHT_TURN_DEG` along it
+    (:func:`~prtcore.receivers.strands.texel_turn`: curly hair, whose texels go in and out
+    of the hair), 1 where it is straighter. Measured (docs/hair.md, "Transporting each
+    texel in pieces"): the 10k curly head (median 60°) and the sparse 2000-strand curly
+    head (71°) within the bounds with two pieces, the straight 10k head (10°) with whole
+    texels and two pieces alike, for 1.33× the bake's time and 1.25× its peak."""
+    if spec.hair.arc_subdivision != "auto":
+        return spec
+    curly = space.count > 0 and float(np.median(texel_turn(space))) >= STRAIGHT_TURN_DEG
+    return dataclasses.replace(spec, hair=dataclasses.replace(
+        spec.hair, arc_subdivision=MESH_ARC_SUBDIVISION if curly else 1))
 
 
 def atlas_radius(spec: BakeSpec, with_mesh: bool) -> float:
@@ -298,10 +331,13 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     include the atlas), and the atlas rows of the direct light. Measured
     (benchmarks/stage_memory.py, the 10k head + mesh at the bake's 139k-texel atlas):
     K = 144 peak 3.78 GiB against 6.08 GiB (9.66 until 2026-12-05, whose stacked and
-    solve terms were counted twice or three times), K = 272 4.45 against 7.74 (15.41)."""
+    solve terms were counted twice or three times), K = 272 4.45 against 7.74 (15.41).
+    With ``hair.arc_subdivision`` S every strand term counts S·T pieces of ⌈M/S⌉ rays."""
     k = spec.lights.count + spec.lights.holdout
-    t = space.count
-    m = spec.transport.gather_rays
+    pieces = arc_pieces(spec, space).hair.arc_subdivision
+    space = space.subdivided(pieces)  # the texels the transport holds: S pieces each,
+    t = space.count  # ⌈M/S⌉ fibre-gather rays per piece
+    m = -(-spec.transport.gather_rays // pieces)
     segments = space.hair.point_count - space.hair.strand_count
     everything = spec.hair.harmonics in STACKED_HARMONICS
     # the mean rows' three blocks, and six more for the texels whose harmonic rows
@@ -309,7 +345,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     blocks = harmonic_blocks_bound(spec.hair.harmonics, space) if everything and t else 3
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     whole = MEM_PROCESS + t * MEM_PER_TEXEL + segments * MEM_PER_FIBRE_SEGMENT
-    gather = operator_for("fibre").estimate_bytes(t, k, spec.transport)
+    gather = operator_for("fibre").estimate_bytes(
+        t, k, dataclasses.replace(spec.transport, gather_rays=m))
     entries = t * m * MEM_PER_OPERATOR_ENTRY  # one operator matrix
     light = t * k * (MEM_PER_TEXEL_CONFIG - (0 if everything else 12))
     # one solve over the strand rows (three with stacked harmonics) and the atlas rows
@@ -376,6 +413,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     limits = limits or IntakeLimits.from_env()
     intake = run_hair_intake(asset, spec, timer, limits, mesh, mesh_intake)
     space, hair, scene = intake.strands, intake.hair, intake.scene
+    spec = arc_pieces(spec, space)
     mesh_texels = intake.texels.mesh.count if scene is not None else 0
     check_hair_memory(asset, space, spec, limits.max_bake_bytes, mesh_texels=mesh_texels)
     tracer, fibres = hair_tracer(space, scene)
@@ -483,7 +521,8 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                       tracer, train, hold, spec.transport, timer,
                                       harmonics=spec.hair.harmonics,
                                       direct_estimator=spec.hair.direct,
-                                      direct_samples=spec.hair.direct_samples)
+                                      direct_samples=spec.hair.direct_samples,
+                                      arc_subdivision=spec.hair.arc_subdivision)
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,

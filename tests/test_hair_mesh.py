@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from prtcore.cli import main as cli_main
-from prtcore.core.errors import PrtError
+from prtcore.core.errors import PrtError, SpecError
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.spec import TransportSpec, parse_spec
 from prtcore.hairbake import hair_spec
@@ -127,8 +127,10 @@ def test_white_head_under_white_hair_converges(head):
 
 def test_fast_path_agrees_with_the_hair_mesh_path_tracer(head):
     """The hair + mesh transport against the path tracer through the same head and hair,
-    its noise removed: 150 atlas and 150 strand texels × 1024 paths, for turn_bounces
-    (what the bake uses with a mesh), mesh_bounces and all_bounces. Measured (this scene,
+    its noise removed: 150 atlas and 150 strand texels × 1024 paths, for turn_bounces,
+    mesh_bounces, all_bounces, and adaptive with every texel transported as two pieces
+    (what the bake uses with a mesh: half the fibre gather's rays per piece, the pieces'
+    light averaged back into the texel). Measured (this scene,
     2026-12-05, before the mesh rows read fibres between texel centres): mesh_bounces
     atlas −1.8 ± 2.8 %, strand texels −1.8 ± 1.6 %; all_bounces −0.7 ± 2.8 %,
     −1.5 ± 1.6 %. first_bounce, which loses the side of the fibre that faced the head,
@@ -140,12 +142,17 @@ def test_fast_path_agrees_with_the_hair_mesh_path_tracer(head):
                            np.sort(t_m + rng.choice(space.count, 150, replace=False))])
     a, b = hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, rows, 1024,
                                101)
-    for harmonics in ("turn_bounces", "mesh_bounces", "all_bounces"):
+    for harmonics, pieces in (("turn_bounces", 1), ("mesh_bounces", 1),
+                              ("all_bounces", 1), ("adaptive", 2)):
         d = bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer, LIGHTS,
                                    spec=TransportSpec(gather_rays=256, direct_samples=8,
                                                       seed=0),
-                                   harmonics=harmonics)
+                                   harmonics=harmonics, arc_subdivision=pieces)
         assert d.stats["harmonics"] == harmonics
+        assert d.indirect.shape[0] == t_m + space.count
+        assert d.stats["arc_subdivision"] == {"pieces": pieces,
+                                              "rays_per_piece": 256 // pieces,
+                                              "direct_samples_per_piece": 2 // pieces}
         fast = d.indirect[rows].astype(np.float64)
         mesh = noise_corrected_error(fast[:150], a[:150], b[:150])
         hair = noise_corrected_error(fast[150:], a[150:], b[150:])
@@ -273,6 +280,59 @@ def test_adaptive_harmonics_are_all_bounces_on_sparse_hair_and_turn_bounces_on_d
         assert term.block.nnz <= bound * 16 * t
     with pytest.raises(ValueError, match="fibre_share"):
         harmonic_receivers("adaptive", space)
+
+
+def test_pieces_of_texels_trace_the_same_rays_and_average_back(head):
+    """arc_subdivision = 2 transports the strand texels cut in two with ⌈M/2⌉ fibre
+    rays and ⌈J/2⌉ arc samples per piece: exactly the fibre gather's and the direct
+    light's rays of the whole-texel bake, the atlas gather's own. Each texel is the mean
+    of its two pieces, so the hair's light is the whole-texel bake's within noise (a sum
+    of the pieces would be twice it), but not bit for bit."""
+    scene, texels, space, tracer, fibres, points = head
+    t_m = texels.count
+    spec = TransportSpec(gather_rays=32, seed=3)
+    fine = space.subdivided(2)
+    assert fine.count == 2 * space.count and space.subdivided(1) is space
+    np.testing.assert_allclose(fine.arc[0::2, 0], space.arc[:, 0], atol=1e-12)
+    np.testing.assert_allclose(fine.arc[1::2, 1], space.arc[:, 1], atol=1e-12)
+    bakes = {s: bake_hair_mesh_dataset(scene, texels, space, fibres, points, tracer, LIGHTS,
+                                       spec=spec, harmonics="adaptive", arc_subdivision=s)
+             for s in (1, 2)}
+    whole, two = bakes[1], bakes[2]
+    assert two.indirect.shape == whole.indirect.shape
+    for stage in ("gather", "fibre_gather", "direct_fibres"):
+        assert two.stats["rays"][stage] == whole.stats["rays"][stage], stage
+    assert two.stats["texels"]["strands"] == space.count
+    hair_two = two.indirect[t_m:].astype(np.float64).mean()
+    hair_whole = whole.indirect[t_m:].astype(np.float64).mean()
+    assert abs(hair_two / hair_whole - 1) < 0.05, (hair_two, hair_whole)
+    assert not np.array_equal(two.indirect, whole.indirect)
+
+
+def test_arc_subdivision_auto_is_two_pieces_for_curly_hair_on_a_mesh(head):
+    """"auto": two pieces per texel for the diffuse fibre with a mesh when the median
+    texel's fibre turns at least 30° (the test head's curls: about 70°), whole texels for
+    straight hair (about 11°), without a mesh and with the Chiang fibre; an explicit S
+    is kept with a mesh and refused where it is not baked."""
+    from prtcore.hairbake import MESH_ARC_SUBDIVISION, arc_pieces
+
+    space = head[2]
+    straight = build_strand_space(head_hair(500, "straight", seed=0), 8)
+    on_mesh = hair_spec(parse_spec({}), with_mesh=True)
+    assert on_mesh.hair.arc_subdivision == "auto"
+    assert arc_pieces(on_mesh, space).hair.arc_subdivision == MESH_ARC_SUBDIVISION == 2
+    assert arc_pieces(on_mesh, straight).hair.arc_subdivision == 1
+    assert hair_spec(parse_spec({})).hair.arc_subdivision == 1
+    chiang = parse_spec({"hair": {"fibre": "chiang"}})
+    assert hair_spec(chiang, with_mesh=True).hair.arc_subdivision == 1
+    three = parse_spec({"hair": {"arc_subdivision": 3}})
+    assert arc_pieces(hair_spec(three, with_mesh=True), straight).hair.arc_subdivision == 3
+    with pytest.raises(SpecError, match=r"hair\.arc_subdivision.*hair with a mesh only"):
+        hair_spec(three)
+    with pytest.raises(SpecError, match=r"hair\.arc_subdivision.*diffuse fibre only"):
+        parse_spec({"hair": {"fibre": "chiang", "arc_subdivision": 2}})
+    with pytest.raises(SpecError, match=r"hair\.arc_subdivision"):
+        parse_spec({"hair": {"arc_subdivision": 9}})
 
 
 def test_harmonics_auto_means_adaptive_with_a_mesh():

@@ -75,6 +75,26 @@ def test_texels_cover_equal_arc_intervals_on_the_polyline():
     np.testing.assert_array_equal(img[0, :, 1], 1)
 
 
+def test_pieces_tile_their_texel_and_average_back_into_it():
+    """subdivided(S): texel i's pieces are S·i … S·i + S − 1, S equal arc intervals of
+    its own; coarsen averages them (a value linear in arc length gives back the texel's
+    value at its middle), and refuses rows that are not whole texels."""
+    h = make_hair([np.array([[0, 0, 0], [0, 1, 0], [0, 1, 3]], float)], 0.02)
+    s = build_strand_space(h, 4)
+    assert s.subdivided(1) is s
+    f = s.subdivided(3)
+    assert f.count == 12 and f.texels_per_strand == 12
+    np.testing.assert_allclose(f.arc.reshape(4, 3, 2)[:, 0, 0], s.arc[:, 0])
+    np.testing.assert_allclose(f.arc.reshape(4, 3, 2)[:, 2, 1], s.arc[:, 1])
+    values = np.stack([f.arc.mean(axis=1), 2 * f.arc.mean(axis=1)], axis=1)
+    back = type(s).coarsen(values.astype(np.float32), 3)
+    assert back.dtype == np.float32
+    np.testing.assert_allclose(back[:, 0], s.arc.mean(axis=1), rtol=1e-6)
+    np.testing.assert_allclose(back[:, 1], 2 * s.arc.mean(axis=1), rtol=1e-6)
+    with pytest.raises(ValueError, match="not 3 pieces per texel"):
+        type(s).coarsen(values[:11], 3)
+
+
 def test_surface_samples_lie_on_the_circumscribed_cylinder():
     h = make_hair([np.array([[0, 0, 0], [0, 0, 1.0]])], 0.02)
     s = build_strand_space(h, 2)

@@ -306,6 +306,12 @@ class HairSpec:
     #: (facing) or surface points (sampled); "auto": FACING_SAMPLES (facing), or max(4,
     #: transport.direct_samples) (sampled; the Chiang fibre always takes that)
     direct_samples: int | str = "auto"
+    #: how many pieces each strand texel is transported as (the diffuse fibre with a
+    #: mesh): S pieces of 1/S the arc, ⌈M/S⌉ fibre-gather rays and ⌈J/S⌉ facing samples
+    #: each, averaged back into the texel after the solve; "auto": 2 with a mesh when the
+    #: hair is curly (the median texel turns ≥ 30°), else 1 (docs/hair.md, "Transporting
+    #: each texel in pieces")
+    arc_subdivision: int | str = "auto"
     #: the Chiang fibre's parameters (used with ``fibre = "chiang"``)
     chiang: ChiangSpec = ChiangSpec()
 
@@ -314,6 +320,8 @@ class HairSpec:
 FIBRE_MODELS = ("diffuse", "chiang")
 #: the diffuse fibre's direct-light estimators (``hair.direct``)
 DIRECT_ESTIMATORS = ("facing", "sampled")
+#: the most pieces ``hair.arc_subdivision`` cuts a strand texel into
+MAX_ARC_SUBDIVISION = 8
 
 
 @dataclass(frozen=True)
@@ -786,8 +794,14 @@ def _parse(data: Any) -> BakeSpec:
         direct=_choice(hs.get("direct", "facing"), "hair.direct", DIRECT_ESTIMATORS),
         direct_samples=_int_or_auto(hs.get("direct_samples", "auto"), "hair.direct_samples",
                                     lo=1, hi=256),
+        arc_subdivision=_int_or_auto(hs.get("arc_subdivision", "auto"),
+                                     "hair.arc_subdivision", lo=1, hi=MAX_ARC_SUBDIVISION),
         chiang=_chiang(hs.get("chiang", {})),
     )
+    if hair.fibre == "chiang" and hair.arc_subdivision not in ("auto", 1):
+        raise SpecError("hair.arc_subdivision", "pieces of texels are transported for the "
+                        "diffuse fibre only; the 'chiang' fibre's texels are transported "
+                        "whole (leave it 'auto' or 1)")
     if hair.fibre == "chiang" and (hair.direct != "facing" or hair.direct_samples != "auto"):
         key = "hair.direct" if hair.direct != "facing" else "hair.direct_samples"
         raise SpecError(key, "the direct-light estimator belongs to the diffuse fibre; the "

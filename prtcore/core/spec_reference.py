@@ -109,6 +109,17 @@ DOCS: dict[str, str] = {
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "
                                "docs/hair.md); 0 or 1: off",
+    "hair.arc_subdivision": "`auto` (2 for the diffuse fibre with a mesh when the hair is curly: "
+                            "the median texel's fibre turns 30° or more along it; 1 "
+                            "otherwise), or "
+                            "S in 1–8: each strand texel is transported as S pieces of "
+                            "1/S its arc (⌈M/S⌉ fibre-gather rays and ⌈J/S⌉ facing "
+                            "samples each, so about the same rays), averaged back into "
+                            "the texel after the solve; the strand texture's layout is "
+                            "unchanged. Under dense curls a whole texel's average read "
+                            "where another fibre or the scalp sees it is a few per cent "
+                            "bright (docs/hair.md); refused above 1 with the `chiang` "
+                            "fibre and with hair alone",
     "hair.direct": "the diffuse fibre's direct light: `facing` (one shadow ray per arc "
                    "sample and light, from a point across the fibre's projected width; "
                    "the azimuth integrated in closed form) · `sampled` (J stratified "

@@ -119,6 +119,31 @@ class StrandSpace:
         img[self.xy[:, 1], self.xy[:, 0], c] = 1.0
         return img
 
+    def subdivided(self, pieces: int) -> StrandSpace:
+        """The same hair with every texel cut into ``pieces`` (S) equal arc intervals:
+        texel i's pieces are the fine space's texels S·i … S·i + S − 1 (the layout is
+        strand-major), so :meth:`coarsen` averages them back. S = 1: ``self``."""
+        if pieces == 1:
+            return self
+        return build_strand_space(self.hair, self.texels_per_strand * int(pieces))
+
+    @staticmethod
+    def coarsen(values: np.ndarray, pieces: int) -> np.ndarray:
+        """Per-piece values (S·t, …) of :meth:`subdivided` → (t, …), each texel the
+        mean of its S pieces (equal arc lengths), in ``values``' dtype."""
+        if pieces == 1:
+            return values
+        n = values.shape[0] // pieces
+        if n * pieces != values.shape[0]:
+            raise ValueError(f"StrandSpace.coarsen: {values.shape[0]} rows are not "
+                             f"{pieces} pieces per texel")
+        v = values.reshape(n, pieces, *values.shape[1:])
+        out = v[:, 0].copy()  # summed in place: no (t, …) float64 temporary
+        for i in range(1, pieces):
+            out += v[:, i]
+        out /= pieces
+        return out
+
     def texel_of(self, strand: np.ndarray, arc: np.ndarray) -> np.ndarray:
         """(n,) int64 element index of the texel holding arc length ``arc`` (metres) of
         ``strand``."""

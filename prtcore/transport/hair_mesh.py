@@ -221,7 +221,8 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            hair_near: float | None = None, direct_estimator: str = "facing",
                            direct_samples: int | str = "auto",
                            arc_reads: str | None = "extrapolate",
-                           straight_turn: float = STRAIGHT_TURN_DEG) -> Dataset:
+                           straight_turn: float = STRAIGHT_TURN_DEG,
+                           arc_subdivision: int = 1) -> Dataset:
     """The lighting database of a hair + mesh bake (``Dataset``: direct at the points,
     indirect at the T_m + T_h texels, mesh first; training lights first; the texels'
     direct light is not kept — the solve writes over it). ``tracer`` and ``fibres``:
@@ -254,8 +255,26 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     root's slope continued below its first centre), "clamp" (held at the root's first
     centre), or None (the texel's mean, as before 2026-12-05). A scalp's rays hit the
     strands near their roots, where the light falls toward the scalp within a texel
-    (docs/hair.md, "Reading the hair from the scalp")."""
+    (docs/hair.md, "Reading the hair from the scalp").
+
+    arc_subdivision : S (``hair.arc_subdivision``): the strand texels are transported as
+    S pieces each (:meth:`~prtcore.receivers.strands.StrandSpace.subdivided`): the fibre
+    gather traces ⌈M/S⌉ rays per piece and the facing estimator ⌈J/S⌉ samples, so the
+    rays are about those of S = 1; everything reads and solves the pieces, and each
+    texel's indirect light is the mean of its pieces'
+    (:meth:`~prtcore.receivers.strands.StrandSpace.coarsen`). A whole texel's light
+    read where another fibre or the scalp sees it is bright under dense curls: the hits
+    fall on the deep part of a texel whose other end is lit (docs/hair.md, "Transporting
+    each texel in pieces"). The rows are ``space``'s either way."""
     spec = spec or TransportSpec()
+    pieces = int(arc_subdivision)
+    out_space, space = space, space.subdivided(pieces)
+    fibre_rays = -(-spec.gather_rays // pieces)  # ⌈M/S⌉ per piece
+    samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples,
+                                  orders if harmonics in STACKED_HARMONICS else 1)
+    if direct_estimator == "facing":  # arc samples: ⌈J/S⌉ per piece (the sampled
+        # estimator's J > 2H azimuths per piece keep its harmonics unaliased)
+        samples = -(-samples // pieces)
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
@@ -267,7 +286,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     r1 = tracer.rays_traced
     everything = harmonics in STACKED_HARMONICS
     with timer.stage("fibre gather"):
-        term = fibre_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed,
+        term = fibre_gather(space, tracer, fibres, f, fibre_rays, spec.seed,
                             all_bounces=everything, orders=orders,
                             harmonic_rows=functools.partial(harmonic_receivers, harmonics,
                                                             space, straight_turn),
@@ -314,17 +333,15 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     reach = spec.near_field if hair_near is None else hair_near
     if reach > 0 and mesh_hits.row.size:
         with timer.stage("near field"):
-            nf = hair_near_field(mesh_hits, texels, t_m, reach, spec.gather_rays)
+            nf = hair_near_field(mesh_hits, texels, t_m, reach, fibre_rays)
             if nf.count:
                 near = add_first_bounce(near, near_field_correction(
                     scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
     with timer.stage("direct fibres"):
         if everything:
-            d = fibre_direct(space, tracer, lights,
-                             direct_sample_count(direct_estimator, direct_samples,
-                                                 spec.direct_samples, orders),
-                             spec.seed + 1, harmonics=orders, estimator=direct_estimator)
+            d = fibre_direct(space, tracer, lights, samples, spec.seed + 1,
+                             harmonics=orders, estimator=direct_estimator)
             direct[t_m:t_m + t_h] = d.mean
             for b in range(2 * orders):
                 direct[t_m + (b + 1) * t_h:t_m + (b + 2) * t_h] = d.harmonics[b]
@@ -332,9 +349,8 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
             first = near
         else:
             direct[t_m:], first = direct_and_first_bounce(
-                space, tracer, lights,
-                direct_sample_count(direct_estimator, direct_samples, spec.direct_samples),
-                spec.seed + 1, both, estimator=direct_estimator)
+                space, tracer, lights, samples, spec.seed + 1, both,
+                estimator=direct_estimator)
             first = add_first_bounce(first, near)
     r6 = tracer.rays_traced
     rho_h = np.asarray(space.albedo, np.float64)
@@ -348,8 +364,13 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
         indirect = indirect[:t_m + t_h]
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
         np.maximum(indirect, np.float32(0), out=indirect)
-    stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,
-                            gather.stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
-                            solve_stats, harmonics=harmonics)
+    if pieces > 1:  # each texel the mean of its pieces
+        indirect = np.concatenate([indirect[:t_m],
+                                   StrandSpace.coarsen(indirect[t_m:t_m + t_h], pieces)])
+    stats = hair_mesh_stats(lights_train, lights_holdout, t_m, out_space.count,
+                            points.count, gather.stats, fibre_stats,
+                            (r0, r1, r2, r3, r4, r5, r6), solve_stats, harmonics=harmonics,
+                            arc_subdivision={"pieces": pieces, "rays_per_piece": fibre_rays,
+                                             "direct_samples_per_piece": samples})
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
