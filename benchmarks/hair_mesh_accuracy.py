@@ -185,6 +185,8 @@ def main(argv: list[str] | None = None) -> dict:
                 name = f"{variant}{'' if near else ', no hair near field'}"
                 result["variants"][name + tag] = errors(data.indirect,
                                                         time.perf_counter() - t0)
+                fs = data.stats["fibre"]  # how dense the hair is (adaptive's rule)
+                result["fibre_share"] = fs["fibre_hits"] / max(fs["rays"], 1)
                 sums[name] = sums.get(name, 0) + data.indirect[rows].astype(np.float64)
                 if near:  # and after the bake's denoising of the strand texels
                     den = denoise_dataset(dataclasses.replace(
@@ -228,6 +230,9 @@ def main(argv: list[str] | None = None) -> dict:
                  f"{100 * v[k]['bias_se']:.1f} %" for k in ("mesh", "mesh_covered", "hair")]
         print(f"{name:34s} {cells[0]:>22s} {cells[1]:>22s} {cells[2]:>22s}  "
               f"({v['seconds']:.1f} s)")
+    if "fibre_share" in result:
+        print(f"share of the fibre gather's rays that meet a fibre: "
+              f"{result['fibre_share']:.3f}")
     if "hair_indirect_from_head" in result:
         print(f"hair indirect from the head: {100 * result['hair_indirect_from_head']:.1f} "
               f"%, head indirect from the hair: {100 * result['head_indirect_from_hair']:.1f} %")

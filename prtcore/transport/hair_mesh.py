@@ -360,13 +360,14 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
         matrix, albedo, direct, spec.max_bounces, spec.tolerance, timer,
         method="neumann" if everything else "chebyshev", threads=tracer.threads,
         first_bounce=first, out=direct, order=order)
-    if everything:  # a truncated azimuthal series can dip below zero: clamped, counted
-        indirect = indirect[:t_m + t_h]
-        solve_stats["negative_clamped"] = int((indirect < 0).sum())
-        np.maximum(indirect, np.float32(0), out=indirect)
-    if pieces > 1:  # each texel the mean of its pieces
+    if pieces > 1:  # each texel the mean of its pieces (before the clamp below: a piece
+        # below zero beside a brighter one is not light to add)
         indirect = np.concatenate([indirect[:t_m],
                                    StrandSpace.coarsen(indirect[t_m:t_m + t_h], pieces)])
+    if everything:  # a truncated azimuthal series can dip below zero: clamped, counted
+        indirect = indirect[:t_m + out_space.count]
+        solve_stats["negative_clamped"] = int((indirect < 0).sum())
+        np.maximum(indirect, np.float32(0), out=indirect)
     stats = hair_mesh_stats(lights_train, lights_holdout, t_m, out_space.count,
                             points.count, gather.stats, fibre_stats,
                             (r0, r1, r2, r3, r4, r5, r6), solve_stats, harmonics=harmonics,
