@@ -389,10 +389,12 @@ def test_generate_box_uv1():
     assert c.texel_density ** 2 * 24.0 == pytest.approx(area.sum())
 
 
-def test_xatlas_killed_by_a_signal_is_run_again_and_an_error_is_not(monkeypatch):
+def test_xatlas_killed_by_a_signal_or_hung_is_run_again_and_an_error_is_not(monkeypatch):
     """A child killed by a signal (xatlas died once on the Cornell box, mapped every other
-    time) runs again and the result is the one of a clean run; a child that fails by
-    itself is refused at once, naming the asset and the exit status."""
+    time) or past its time limit (its threads deadlocked once in a test run) runs again
+    and the result is the one of a clean run; a child that fails by itself is refused at
+    once, naming the asset and the exit status; one that hangs every time is refused
+    naming the limit."""
     import subprocess
 
     from prtcore.core.errors import AssetError
@@ -425,6 +427,39 @@ def test_xatlas_killed_by_a_signal_is_run_again_and_an_error_is_not(monkeypatch)
         with pytest.raises(AssetError, match=f"exit status {code}, boom"):
             generate_uv1(s, 64, 2)
         assert len(calls) == runs
+
+    # a child that hangs (its threads deadlocked once) is killed at the time limit,
+    # which grows with the triangles, and run again; hanging every time refuses the asset
+    limits = []
+
+    def hangs(times):
+        def run(cmd, **kw):
+            calls.append(cmd)
+            limits.append(kw["timeout"])
+            if len(calls) <= times:
+                raise subprocess.TimeoutExpired(cmd, kw["timeout"])
+            return real(cmd, **kw)
+        return run
+
+    calls.clear()
+    monkeypatch.setattr(uv_module.subprocess, "run", hangs(1))
+    np.testing.assert_array_equal(generate_uv1(s, 64, 2).uv1, want)
+    assert len(calls) == 2
+    assert limits[0] == pytest.approx(uv_module.XATLAS_SECONDS
+                                      + uv_module.XATLAS_SECONDS_PER_TRIANGLE * len(m.faces))
+    calls.clear()
+    monkeypatch.setattr(uv_module.subprocess, "run", hangs(uv_module.XATLAS_TRIES))
+    with pytest.raises(AssetError, match=r"TEXCOORD_1.*did not finish .* in \d+ s "
+                       rf"\({uv_module.XATLAS_TRIES} tries\)"):
+        generate_uv1(s, 64, 2)
+    assert len(calls) == uv_module.XATLAS_TRIES
+
+    # and a real child past its limit is killed (a limit it cannot meet)
+    monkeypatch.setattr(uv_module.subprocess, "run", real)
+    monkeypatch.setattr(uv_module, "XATLAS_SECONDS", 0.01)
+    monkeypatch.setattr(uv_module, "XATLAS_SECONDS_PER_TRIANGLE", 0.0)
+    with pytest.raises(AssetError, match="did not finish"):
+        generate_uv1(s, 64, 2)
 
 
 def test_generate_two_instances_keeps_instance_invariants():

@@ -100,7 +100,7 @@ DOCS: dict[str, str] = {
                       "other fibres'; without one it is `first_bounce`) · "
                       "`turn_bounces` (`all_bounces` on the texels whose fibre turns "
                       "less than 30° along them, `mesh_bounces` on the others) · "
-                      "`adaptive` (`all_bounces` for sparse hair, where fewer than half "
+                      "`adaptive` (`all_bounces` for sparse hair, where fewer than 60 % "
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",

@@ -411,8 +411,17 @@ def _xatlas_solve(meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]], resol
     return out
 
 
-#: Runs of the xatlas child before an asset is refused, when it is killed by a signal.
+#: Runs of the xatlas child before an asset is refused, when it is killed by a signal or
+#: does not finish in time.
 XATLAS_TRIES = 2
+#: How long one xatlas child may run: this plus :data:`XATLAS_SECONDS_PER_TRIANGLE` per
+#: triangle. Its worker threads have deadlocked once (a child asleep on a futex for 12
+#: minutes, at no CPU, during a test run; the same input mapped at once when it was run
+#: again), and a bake or a service worker then waited for ever. An 82k-triangle mesh maps
+#: in 27 s on this 2-core machine (0.3 ms a triangle), so the limit is 10× that, plus a
+#: minute.
+XATLAS_SECONDS = 60.0
+XATLAS_SECONDS_PER_TRIANGLE = 3e-3
 
 
 def _xatlas_child(inp: str, outp: str) -> None:
@@ -432,7 +441,9 @@ def _run_xatlas(source: str, meshes, resolution: int, padding: int) -> dict:
     the CLI or a service worker. It has also died by a signal, once, on an input it maps
     every other time (the bundled Cornell box, during a benchmark: its worker threads
     race), so a child killed by a signal is run :data:`XATLAS_TRIES` times in all before
-    the asset is refused; a child that exits with an error is not retried.
+    the asset is refused; a child that exits with an error is not retried. A child that
+    has not finished after :data:`XATLAS_SECONDS` + :data:`XATLAS_SECONDS_PER_TRIANGLE` per
+    triangle is killed and counts as one of those runs.
     """
     pkg_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     with tempfile.TemporaryDirectory(prefix="prt-xatlas-") as tmp:
@@ -445,12 +456,23 @@ def _run_xatlas(source: str, meshes, resolution: int, padding: int) -> dict:
         env = dict(os.environ)
         env["PYTHONPATH"] = pkg_root + (os.pathsep + env["PYTHONPATH"]
                                         if env.get("PYTHONPATH") else "")
+        limit = XATLAS_SECONDS + XATLAS_SECONDS_PER_TRIANGLE * sum(
+            len(f) for _, f, _ in meshes)
         for _ in range(XATLAS_TRIES):
-            proc = subprocess.run([sys.executable, "-m", "prtcore.intake.uv", "--xatlas",
-                                   inp, outp],
-                                  capture_output=True, env=env, check=False)
+            try:
+                proc = subprocess.run([sys.executable, "-m", "prtcore.intake.uv",
+                                       "--xatlas", inp, outp],
+                                      capture_output=True, env=env, check=False,
+                                      timeout=limit)
+            except subprocess.TimeoutExpired:  # killed by run(); tried again
+                proc = None
+                continue
             if proc.returncode >= 0:  # done, or failed by itself: the same again
                 break
+        if proc is None:
+            raise AssetError(source, "TEXCOORD_1", f"xatlas did not finish generating "
+                             f"lightmap UVs in {limit:.0f} s ({XATLAS_TRIES} tries); supply "
+                             "a valid TEXCOORD_1 or try prepare.remesh")
         if proc.returncode != 0 or not os.path.exists(outp):
             tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()
             detail = f"exit status {proc.returncode}" + (f", {tail[-1][:120]}" if tail else "")
