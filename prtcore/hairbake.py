@@ -258,6 +258,14 @@ def denoise_atlas(data: Dataset, texels: TexelSpace, radius: float,
         "radius_texels": radius, "seconds": round(seconds, 3)}})
 
 
+def hair_points(hair: Hair, scene, spec: BakeSpec, timer: StageTimer) -> MeasurementPoints:
+    """``spec.measurement_points`` on the hull of the hair, or of the hair and the mesh's
+    prepared ``scene`` (None: hair alone)."""
+    return place_measurement_points(hair_scene(hair) if scene is None
+                                    else with_hair(scene, hair),
+                                    spec.measurement_points, timer)
+
+
 def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
                     limits: IntakeLimits, mesh: str | Path | None = None,
                     mesh_intake: Callable | None = None) -> HairIntake:
@@ -273,7 +281,7 @@ def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
     with timer.stage("texels"):
         space = build_strand_space(hair, spec.hair.texels_per_strand)
     if mesh is None:
-        points = place_measurement_points(hair_scene(hair), spec.measurement_points, timer)
+        points = hair_points(hair, None, spec, timer)
         return HairIntake(source=str(asset), spec=spec, hair=hair, texels=space,
                           points=points, prepare=HairPrepare(
                               utilisation=space.count / (space.width * space.height)),
@@ -282,8 +290,7 @@ def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
         raise ValueError("run_hair_intake: a mesh needs mesh_intake (prtcore.pipeline's "
                          "run_intake)")
     surface = mesh_intake(mesh, spec, limits=limits, timer=timer)
-    points = place_measurement_points(with_hair(surface.scene, hair),
-                                      spec.measurement_points, timer)
+    points = hair_points(hair, surface.scene, spec, timer)
     return HairIntake(source=str(asset), spec=spec, hair=hair,
                       texels=CombinedSpace(surface.texels, space), points=points,
                       prepare=HairPrepare(utilisation=surface.prepare.utilisation,
@@ -407,7 +414,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         raise AssetError(str(mesh), "", "cannot read asset: no such file (the --mesh of a "
                          "hair bake)")
     t_start = time.perf_counter()
-    grow = spec.lights.count == "auto"  # the bake may double its lights once (below)
+    grow = spec.lights.count == "auto"  # the bake may double its lights once (below),
+    grow_points = spec.measurement_points.count == "auto"  # and its points with them
     spec = hair_spec(spec, with_mesh=mesh is not None)
     timer = StageTimer(quiet=quiet, callback=callback)
     limits = limits or IntakeLimits.from_env()
@@ -419,18 +427,27 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     tracer, fibres = hair_tracer(space, scene)
     m = method(METHOD)
     inputs, result = _transport_and_fit(spec, intake, tracer, fibres, m, timer)
-    more = _more_lights(spec, result.verdict, asset, space, limits, mesh_texels) \
-        if grow else None
+    more = _more_lights(spec, result.verdict, asset, space, limits, mesh_texels,
+                        grow_points) if grow else None
     if more is not None:  # one more pass with twice the lights; the report lists both
-        first = {"lights": spec.lights.count, "status": result.verdict["status"],
-                 "ratio": result.verdict["ratio"]}
-        timer.note(f"[prtcore] lights             {spec.lights.count} → {more.lights.count}: "
-                   f"the verdict failed at {first['ratio']:.2f}× the projection bound; "
-                   "baked again with twice the training lights")
+        first = {"lights": spec.lights.count, "points": spec.measurement_points.count,
+                 "status": result.verdict["status"], "ratio": result.verdict["ratio"]}
+        points = more.measurement_points.count
+        timer.note(f"[prtcore] lights             {spec.lights.count} → {more.lights.count}"
+                   + (f", points {first['points']} → {points}" if points != first["points"]
+                      else "")
+                   + f": the verdict failed at {first['ratio']:.2f}× the projection bound; "
+                   "baked again with twice the training lights"
+                   + (" and measurement points" if points != first["points"] else ""))
+        if points != first["points"]:
+            intake = dataclasses.replace(intake, spec=more,
+                                         points=hair_points(hair, scene, more, timer))
         spec = more
         del inputs, result  # the first pass's dataset goes before the second is baked
         inputs, result = _transport_and_fit(spec, intake, tracer, fibres, m, timer)
-        tried = [first, {"lights": spec.lights.count, "status": result.verdict.get("status"),
+        tried = [first, {"lights": spec.lights.count,
+                         "points": spec.measurement_points.count,
+                         "status": result.verdict.get("status"),
                          "ratio": result.verdict.get("ratio")}]
         inputs = dataclasses.replace(inputs, data=dataclasses.replace(
             inputs.data, stats={**inputs.data.stats, "lights_tried": tried}))
@@ -539,19 +556,26 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
 
 
 def _more_lights(spec: BakeSpec, verdict: dict, asset, space: StrandSpace,
-                 limits: IntakeLimits, mesh_texels: int) -> BakeSpec | None:
+                 limits: IntakeLimits, mesh_texels: int, points: bool = False
+                 ) -> BakeSpec | None:
     """The spec of a second pass with twice the training lights, or None. A bake whose
     ``lights.count`` was "auto" and whose verdict failed because the transfer is more than
     ``validate.target_ratio`` × the projection bound bakes once more with 2K lights, if
-    the memory estimate at 2K is within the limit. Measured: the 2000-strand head with its
-    mesh fails at 1.27–1.28× with 256 lights and passes at 1.19× with 512 (docs/hair.md,
-    "Sparse hair takes every fibre's harmonics")."""
+    the memory estimate at 2K is within the limit; with ``points`` (``measurement_points.
+    count`` was "auto") on twice the measurement points as well. Measured: the 2000-strand
+    head with its mesh fails at 1.27–1.28× with 256 lights and passes at 1.19× with 512
+    (docs/hair.md, "Sparse hair takes every fibre's harmonics"); a 5000-strand head fails
+    at 1.31× and still at 1.27× with 512 lights on 256 points, and passes at 1.18× on 512
+    ("Transporting each texel in pieces")."""
     ratio = verdict.get("ratio")
     if verdict.get("status") != "fail" or ratio is None or \
             ratio <= spec.validate.target_ratio:
         return None
     more = dataclasses.replace(spec, lights=dataclasses.replace(
         spec.lights, count=2 * spec.lights.count))
+    if points:
+        more = dataclasses.replace(more, measurement_points=dataclasses.replace(
+            spec.measurement_points, count=2 * spec.measurement_points.count))
     try:
         check_hair_memory(asset, space, more, limits.max_bake_bytes, mesh_texels=mesh_texels)
     except LimitExceeded:

@@ -346,12 +346,13 @@ def test_a_chiang_bake_trains_on_more_lights_by_default():
                                  "lights": {"count": 40}})).lights.count == 40
 
 
-@pytest.mark.parametrize("case", ["auto", "explicit", "no memory"])
+@pytest.mark.parametrize("case", ["auto", "auto lights", "explicit", "no memory"])
 def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkeypatch, case):
     """``lights.count: "auto"``: a first pass whose verdict fails on the transfer's ratio
-    is baked once more with twice the lights, and ships the bundle a spec asking for 2K
-    asks for; the report lists both passes. An explicit count is kept whatever the
-    verdict, and so is K when the memory estimate at 2K is over the limit."""
+    is baked once more with twice the lights, and on twice the measurement points when
+    their count is "auto" too, and ships the bundle a spec asking for those asks for;
+    the report lists both passes. An explicit count is kept whatever the verdict, and so
+    is K when the memory estimate at 2K is over the limit."""
     import dataclasses
 
     from prtcore import hairbake
@@ -380,18 +381,29 @@ def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkey
         monkeypatch.setattr(hairbake, "check_hair_memory", over_at_2k)
     spec = {**SPEC, "lights": {**SPEC["lights"],
                                "count": 128 if case == "explicit" else "auto"}}
+    if case == "auto":
+        spec["measurement_points"] = {**SPEC["measurement_points"], "count": "auto"}
     out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
     report = json.loads((out / "report.json").read_text())
-    if case != "auto":
+    if case in ("explicit", "no memory"):
         assert counts == [128] and "lights_tried" not in report["transport"]
         assert report["verdict"]["ratio"] == 9.9  # the failed verdict ships, and says so
         return
     assert counts == [128, 256]
-    assert [(t["lights"], t["status"]) for t in report["transport"]["lights_tried"]] == [
-        (128, "fail"), (256, report["verdict"]["status"])]
-    assert read_manifest(out)["spec"]["lights"]["count"] == 256
+    p = 32 if case == "auto lights" else hairbake.hair_spec(
+        parse_spec(spec)).measurement_points.count
+    tried = report["transport"]["lights_tried"]
+    assert [(t["lights"], t["points"], t["status"]) for t in tried] == [
+        (128, p, "fail"), (256, 32 if case == "auto lights" else 2 * p,
+                           report["verdict"]["status"])]
+    manifest = read_manifest(out)
+    assert manifest["spec"]["lights"]["count"] == 256
+    assert manifest["spec"]["measurement_points"]["count"] == tried[1]["points"]
+    assert manifest["points"]["count"] == tried[1]["points"]  # the points re-placed
     monkeypatch.setattr(hairbake, "_transport_and_fit", first)
-    asked = bake(asset, parse_spec({**SPEC, "lights": {**SPEC["lights"], "count": 256}}),
+    asked = bake(asset, parse_spec({**SPEC, "lights": {**SPEC["lights"], "count": 256},
+                                    "measurement_points": {**SPEC["measurement_points"],
+                                                           "count": tried[1]["points"]}}),
                  tmp_path / "asked", quiet=True)
     for name in ("transfer.bin", "basis_00.exr"):
         assert sha256_file(out / name) == sha256_file(asked / name)
