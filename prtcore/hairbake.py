@@ -98,7 +98,7 @@ from prtcore.transport.fibre_chiang import (
     texel_albedo,
 )
 from prtcore.transport.hair import bake_hair_dataset
-from prtcore.transport.hair_mesh import bake_hair_mesh_dataset
+from prtcore.transport.hair_mesh import bake_hair_mesh_dataset, per_piece
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset
 from prtcore.transport.noise import DENOISE_FALLBACK
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
@@ -344,7 +344,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     pieces = arc_pieces(spec, space).hair.arc_subdivision
     space = space.subdivided(pieces)  # the texels the transport holds: S pieces each,
     t = space.count  # ⌈M/S⌉ fibre-gather rays per piece
-    m = -(-spec.transport.gather_rays // pieces)
+    m = per_piece(spec.transport.gather_rays, pieces)
     segments = space.hair.point_count - space.hair.strand_count
     everything = spec.hair.harmonics in STACKED_HARMONICS
     # the mean rows' three blocks, and six more for the texels whose harmonic rows

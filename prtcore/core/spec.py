@@ -290,8 +290,8 @@ class HairSpec:
     #: alone, adaptive for hair baked with a mesh; mesh_bounces without a mesh is
     #: first_bounce; turn_bounces: all_bounces on the texels whose fibre turns less than
     #: 30° along them, mesh_bounces on the others; adaptive: all_bounces where fewer than
-    #: half of the fibre gather's rays meet another fibre (sparse hair), turn_bounces
-    #: otherwise)
+    #: SPARSE_FIBRE_SHARE (0.6) of the fibre gather's rays meet another fibre (sparse
+    #: hair), turn_bounces otherwise)
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;

@@ -211,6 +211,12 @@ def state_order(texels: TexelSpace, space: StrandSpace, n: int) -> np.ndarray:
     return np.concatenate([head, *(t_m + b * t_h + space.morton for b in range(1, n))])
 
 
+def per_piece(count: int, pieces: int) -> int:
+    """⌈n/S⌉: a whole strand texel's ``count`` fibre-gather rays (M) or facing samples
+    (J) shared among its S ``pieces`` (``hair.arc_subdivision``), about n in all."""
+    return -(-int(count) // int(pieces))
+
+
 def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            fibres: FibreMesh, points: MeasurementPoints, tracer: RayTracer,
                            lights_train: Sequence[Light],
@@ -269,12 +275,12 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     spec = spec or TransportSpec()
     pieces = int(arc_subdivision)
     out_space, space = space, space.subdivided(pieces)
-    fibre_rays = -(-spec.gather_rays // pieces)  # ⌈M/S⌉ per piece
+    fibre_rays = per_piece(spec.gather_rays, pieces)
     samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples,
                                   orders if harmonics in STACKED_HARMONICS else 1)
     if direct_estimator == "facing":  # arc samples: ⌈J/S⌉ per piece (the sampled
         # estimator's J > 2H azimuths per piece keep its harmonics unaliased)
-        samples = -(-samples // pieces)
+        samples = per_piece(samples, pieces)
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
