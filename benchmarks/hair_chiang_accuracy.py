@@ -10,7 +10,12 @@ per colour:
 
 * ``isotropic``: transport carries each texel's direction-averaged outgoing radiance (the
   paper's storage, ``hair.chiang.exitance = "isotropic"``);
-* ``linear``: plus a linear function of direction through every bounce (``"linear"``);
+* ``linear``: plus a linear function of direction through every bounce (``"linear"``,
+  the default); ``quadratic``: plus cos² θ (cos 2φ, sin 2φ) (``"quadratic"``); both
+  solved as the bake solves them (prtcore.transport.low_rank);
+* with ``--projected P``: ``linear_firstP`` and ``quadratic_firstP``, a diagnostic: the
+  projected exitance through the first P bounces only, the direction average after
+  (docs/hair.md: +19 % on light hair at P = 1, so a bake carries it through every bounce);
 * ``isotropic_model``: the isotropic fast path against the path tracer that shades each
   hit toward a fresh direction (``exitance="isotropic"``): the gather, table and solve
   alone, without the approximation;
@@ -28,7 +33,7 @@ per colour:
 Usage: python benchmarks/hair_chiang_accuracy.py [--scene tangle|hairball] [--strands 1000]
        [--texels-per-strand 12]
        [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
-       [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0]
+       [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0] [--projected 1 2]
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from prtcore.core.sparse import RayBlockProduct  # noqa: E402
 from prtcore.core.spec import ChiangSpec  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.reference.chiang import chiang_reference  # noqa: E402
@@ -61,12 +67,29 @@ from prtcore.transport.fibre_chiang import (  # noqa: E402
     chiang_operator,
     texel_albedo,
 )
+from prtcore.transport.low_rank import solve_low_rank  # noqa: E402
 from prtcore.transport.solve import solve_indirect  # noqa: E402
 from prtcore.transport.strand_denoise import (  # noqa: E402
     DEFAULT_NEIGHBOURS,
     denoise_irradiance,
     neighbour_kernel,
 )
+
+
+def projected_first(product, rho, stacked, p: int, t: int) -> np.ndarray:
+    """The diagnostic ``{exitance}_first{p}``: the first p bounces carry every exitance
+    coefficient, the later ones the direction average alone (the same rays, weight and
+    read 0 only). (T, K, 3) float32, not clamped."""
+    leading = RayBlockProduct(product.row, product.col, product.weight[:, :1],
+                              product.read[:, :1], product.t, product.threads)
+    term, acc = stacked, None
+    for _ in range(p):
+        term = solve_indirect(None, rho, term, 1, 1.0, method="neumann", product=product,
+                              out=term)[0]
+        acc = term[:t].copy() if acc is None else acc + term[:t]
+    tail = solve_indirect(None, rho[:t], np.ascontiguousarray(term[:t]), 64 - p, 1e-4,
+                          method="neumann", product=leading)[0]
+    return tail + acc
 
 
 def fast_path(space, tracer, mesh, fibre, args, lights) -> tuple[dict, dict]:
@@ -79,10 +102,18 @@ def fast_path(space, tracer, mesh, fibre, args, lights) -> tuple[dict, dict]:
         t1 = time.perf_counter()
         direct = chiang_direct(space, tracer, lights, args.samples, 1, fibre, exitance)
         product, rho = chiang_operator(space, term, fibre, args.rays, exitance)
-        x = solve_indirect(None, rho, direct.reshape(-1, *direct.shape[2:]), 64, 1e-4,
-                           method="neumann", product=product)[0]
-        out[exitance] = np.maximum(x[:space.count], 0).astype(np.float64)
-        seconds[exitance] = gather + time.perf_counter() - t1
+        t_direct = time.perf_counter() - t1
+        stacked = direct.reshape(-1, *direct.shape[2:])
+        for p in [0] + ([] if exitance == "isotropic" else args.projected):
+            t2 = time.perf_counter()
+            name = exitance if p == 0 else f"{exitance}_first{p}"
+            if p == 0:  # as the bake solves
+                x = solve_low_rank(product, rho, stacked.copy(), 64, 1e-4,
+                                   rows=space.count)[0]
+            else:
+                x = projected_first(product, rho, stacked.copy(), p, space.count)
+            out[name] = np.maximum(x[:space.count], 0).astype(np.float64)
+            seconds[name] = gather + t_direct + time.perf_counter() - t2
     return out, seconds
 
 
@@ -99,6 +130,9 @@ def main() -> None:
     ap.add_argument("--texels", type=int, default=150)
     ap.add_argument("--colors", nargs="+", default=["0.8,0.6,0.4", "0.3,0.2,0.1"])
     ap.add_argument("--mitsuba-rays", type=int, default=0)
+    ap.add_argument("--projected", type=int, nargs="*", default=[],
+                    help="diagnostic: also carry linear/quadratic exitance through only "
+                         "the first P bounces, the direction average after")
     args = ap.parse_args()
     results = {}
     for color in args.colors:
@@ -114,7 +148,7 @@ def main() -> None:
         fast, seconds = fast_path(space, tracer, mesh, fibre, args, lights)
         kernel = neighbour_kernel(space.position, args.neighbours)
         rho = texel_albedo(fibre)
-        for e in EXITANCE:
+        for e in list(fast):
             fast[f"{e}_denoised"] = denoise_irradiance(
                 kernel, fast[e].astype(np.float32), rho).astype(np.float64)
         sel = np.random.default_rng(5).choice(space.count, args.texels, replace=False)

@@ -19,10 +19,14 @@ from prtcore.reference.fibres import noise_corrected_error
 from prtcore.scenes.hair import tangle, tangle_lights
 from prtcore.transport.fibre import hair_tracer
 from prtcore.transport.fibre_chiang import (
+    EXITANCE,
+    EXITANCE_TERMS,
     chiang_direct,
     chiang_fibre,
     chiang_gather,
     chiang_operator,
+    exitance_weights,
+    weighted_samples,
 )
 from prtcore.transport.solve import solve_indirect
 
@@ -187,3 +191,35 @@ def test_under_a_sky_the_fast_path_is_its_model_path_traced():
                             fibre.sigma_points, max_depth=1, exitance="isotropic")
     e = noise_corrected_error(fast[tex].astype(np.float64), a, b)
     assert abs(e["bias"]) < 0.02 + 3 * e["bias_se"] and e["rrmse"] < 0.15, e
+
+
+@pytest.mark.parametrize("exitance", EXITANCE)
+def test_the_compiled_direct_weights_are_the_exitance_weights(exitance):
+    """The direct light's compiled loop (weighted_samples) and the gather rays' weights
+    (exitance_weights) are one rule written twice: the same weighted mean of random
+    samples, with directions along the fibre, across it and in between, σ from clear to
+    past the table's end, and samples that receive no light."""
+    rng = np.random.default_rng(3)
+    n, j = 50, 6
+    fibre = chiang_fibre(ChiangSpec(), build_strand_space(tangle(20), 4))
+    t = rng.normal(size=(n, j, 3))
+    t /= np.linalg.norm(t, axis=-1, keepdims=True)
+    w = rng.normal(size=(n, j, 3))
+    w[:, 0] = t[:, 0]  # along the fibre: no perpendicular part
+    w[:, 1] = -t[:, 1]
+    w /= np.linalg.norm(w, axis=-1, keepdims=True)
+    sigma = rng.uniform(0, 1.5, (n, 3)) ** 2 * 30
+    rad = rng.uniform(0, 2, (n, j, 3)).astype(np.float32)
+    rad[:, 2] = 0
+    u = rng.normal(size=(n, 3))
+    u -= np.einsum("ij,ij->i", u, t[:, 0])[:, None] * t[:, 0]
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(t[:, 0], u)
+    got = np.empty((EXITANCE_TERMS[exitance], n, 3), np.float32)
+    weighted_samples(t, w, sigma, rad, fibre.albedo.values, fibre.albedo.sin_theta,
+                     fibre.albedo.root_sigma, u, v, got)
+    frame = (np.repeat(u, j, axis=0), np.repeat(v, j, axis=0))
+    want = exitance_weights(fibre.albedo, t.reshape(-1, 3), w.reshape(-1, 3),
+                            np.repeat(sigma, j, axis=0), exitance, frame)
+    want = (want.reshape(len(want), n, j, 3) * rad[None]).mean(axis=2)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())

@@ -270,9 +270,11 @@ class ChiangSpec:
     alpha_deg: float = 2.0
     #: index of refraction of the fibre
     eta: float = 1.55
-    #: what transport carries of each texel's outgoing radiance: "isotropic" (its average,
-    #: the paper's) or "linear" (plus a linear function of direction: 16× the operator)
-    exitance: str = "isotropic"
+    #: what transport carries of each texel's outgoing radiance: "linear" (its average
+    #: plus a linear function of direction, through every bounce: 11 % per texel on the
+    #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
+    #: solve) or "isotropic" (the average alone, the paper's: 38 %); docs/hair.md
+    exitance: str = "linear"
 
 
 @dataclass(frozen=True)

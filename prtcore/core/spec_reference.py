@@ -87,10 +87,12 @@ DOCS: dict[str, str] = {
     "chiang.beta_n": "azimuthal roughness, 0.1–1",
     "chiang.alpha_deg": "cuticle tilt in degrees, −10–10",
     "chiang.eta": "index of refraction of the fibre, 1–3",
-    "chiang.exitance": "`isotropic` (transport carries each texel's direction-averaged "
-                       "outgoing radiance, the paper's) · `linear` (plus a linear function "
-                       "of direction: 16× the operator, docs/hair.md) · `quadratic` (plus "
-                       "cos² θ (cos 2φ, sin 2φ)); with a `--mesh` too",
+    "chiang.exitance": "`linear` (transport carries each texel's direction-averaged "
+                       "outgoing radiance plus a linear function of direction, through "
+                       "every bounce: 11 % per texel on the tangle, docs/hair.md) · "
+                       "`quadratic` (plus cos² θ (cos 2φ, sin 2φ): 10 %, 1.5× the solve) "
+                       "· `isotropic` (the average alone, the paper's: 38 %, the "
+                       "cheapest); with a `--mesh` too",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `adaptive` for hair "
                       "baked with a mesh) · `first_bounce` (the direct light's first "
                       "azimuthal harmonic in the first bounce) · `all_bounces` (every "

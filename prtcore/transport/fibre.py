@@ -228,9 +228,10 @@ def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Li
                       weight: Callable | None = None) -> FibreDirect | np.ndarray:
     """:func:`fibre_direct` for ``lights`` from :func:`direct_samples`' ``drawn``,
     ``block`` texels at a time (a progress bar over them with ``progress``).
-    weight : another fibre's F weights per sample and light instead of the texel's ρ,
-    ``weight(idx (n,) texels, origin (n, J, 3), lights)`` → (F, n, J, K, 3) float32
-    (:mod:`prtcore.transport.fibre_chiang`); the result is then the F weighted means
+    weight : another fibre's weighting of the samples instead of the texel's ρ,
+    ``weight(idx (n,) texels, origin (n, J, 3), lights, rad (n, J, K, 3) float32)`` →
+    (F, n, K, 3) float32, the F weighted means of the samples' ``E/π · max(0, n·ωl) · V``
+    (``rad``; :mod:`prtcore.transport.fibre_chiang`); the result is then those means
     (F, T, K, 3) float32 (no harmonics)."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
@@ -247,10 +248,11 @@ def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Li
                               normal[idx].reshape(-1, 3), np.repeat(rho, j, axis=0)
                               ).reshape(len(idx), j, k, 3)
         if weight is not None:
-            w = weight(idx, origin[idx], lights)
+            rad *= np.float32(2)
+            w = weight(idx, origin[idx], lights, rad)
             if weighted is None:
                 weighted = np.empty((len(w), t, k, 3), dtype=np.float32)
-            weighted[:, idx] = 2 * np.einsum("fnjkc,njkc->fnkc", w, rad) / j
+            weighted[:, idx] = w
             continue
         mean[idx] = rad.mean(axis=1)
         for h in range(harmonics):

@@ -38,6 +38,7 @@ from prtcore.transport.fibre_chiang import (
     chiang_gather,
     chiang_operator,
 )
+from prtcore.transport.low_rank import solve_low_rank
 from prtcore.transport.solve import solve_indirect
 
 #: the timed stages of :func:`bake_hair_dataset`, in the order they run
@@ -164,22 +165,17 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
                                spec.seed + 1, fibre, exitance)
     rays3 = tracer.rays_traced
     t = space.count
-    if exitance == "isotropic":
-        direct_mean = direct[0]
-        indirect, bounces, resid, solve_stats = solve_indirect(
-            None, rho, direct_mean, spec.max_bounces, spec.tolerance, timer,
-            threads=tracer.threads, product=product,
-            out=None if keep_direct_texels else direct_mean)
-    else:  # every texel's exitance coefficients, stacked: (FT, K, 3)
-        direct_mean = direct[0].copy() if keep_direct_texels else None
-        stacked = direct.reshape(-1, *direct.shape[2:])
-        del direct
-        indirect, bounces, resid, solve_stats = solve_indirect(
-            None, rho, stacked, spec.max_bounces, spec.tolerance, timer,
-            method="neumann", threads=tracer.threads, product=product, out=stacked)
-        # the truncated exitance can dip below zero at a few texels; light cannot
-        solve_stats["negative_clamped"] = int((indirect[:t] < 0).sum())
-        indirect = np.maximum(indirect[:t], np.float32(0))
+    direct_mean = direct[0].copy() if keep_direct_texels else None
+    stacked = direct.reshape(-1, *direct.shape[2:])  # the coefficients stacked: (FT, K, 3)
+    del direct
+    indirect, bounces, resid, solve_stats = solve_low_rank(
+        product, rho, stacked, spec.max_bounces, spec.tolerance, rows=t, timer=timer,
+        threads=tracer.threads)
+    del stacked
+    if exitance != "isotropic":  # the truncated exitance can dip below zero at a few
+        # texels; light cannot
+        solve_stats["negative_clamped"] = int((indirect < 0).sum())
+        indirect = np.maximum(indirect, np.float32(0))
     stats = {"train": len(lights_train), "fibre": fibre_stats, "model": "chiang",
              "exitance": exitance,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,

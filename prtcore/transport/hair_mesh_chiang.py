@@ -17,9 +17,10 @@ fibre's direction-averaged exitance L̄ (:mod:`prtcore.core.bcsdf`). The operato
 
 over the F exitance coefficients of every receiver (an atlas texel uses the first),
 applied matrix-free from the rays (one :class:`~prtcore.core.sparse.RayBlockProduct` over
-T_m + T_h texels) and solved by :func:`prtcore.transport.solve.solve_indirect`'s Neumann
-series. The near field of both gathers is corrected in the first bounce (the fibre rays'
-corrections weighted by their exitance weights).
+T_m + T_h texels) and solved on a basis of the light columns after the first bounce
+(:func:`prtcore.transport.low_rank.solve_low_rank`). The near field of both gathers is
+corrected in the first bounce (the fibre rays' corrections weighted by their exitance
+weights).
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ from prtcore.transport.fibre_chiang import (
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
-from prtcore.transport.solve import solve_indirect
+from prtcore.transport.low_rank import solve_low_rank
 
 
 class StrandRays(StrandHits):
@@ -214,12 +215,11 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     r6 = tracer.rays_traced
     albedo = np.full((n_f * t, 3), 0.5)
     albedo[:t_m] = texels.albedo
-    indirect, bounces, resid, solve_stats = solve_indirect(
-        None, albedo, direct, spec.max_bounces, spec.tolerance, timer,
-        method="neumann", threads=tracer.threads, first_bounce=first, out=direct,
-        product=product)
+    indirect, bounces, resid, solve_stats = solve_low_rank(
+        product, albedo, direct, spec.max_bounces, spec.tolerance, rows=t, timer=timer,
+        threads=tracer.threads, first_bounce=first)
+    del direct
     if n_f > 1:  # the truncated exitance can dip below zero at a few texels; light cannot
-        indirect = indirect[:t]
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
         indirect = np.maximum(indirect, np.float32(0))
     stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,

@@ -73,7 +73,7 @@ class ChannelProduct:
         return out
 
 
-def _col_norms(x: np.ndarray) -> np.ndarray:
+def col_norms(x: np.ndarray) -> np.ndarray:
     """‖x[:, j]‖ over rows for x (T, ...) float32 → x.shape[1:] float64 (float32 sums over
     row blocks of NORM_BLOCK, accumulated in float64)."""
     x2 = x.reshape(len(x), -1)
@@ -375,7 +375,7 @@ def _neumann(product, rho32, b, max_bounces, tolerance):
         term = _apply(product, rho32, term)
         n += 1
         x += term
-        resid = _relative(_col_norms(term), _col_norms(x))
+        resid = _relative(col_norms(term), col_norms(x))
         if resid < tolerance:
             conv = True
             break
