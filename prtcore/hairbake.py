@@ -142,6 +142,9 @@ class HairIntake:
 #: 128 lights stays near 10 %: 1.52× the bound, a failed verdict; 512 lights pass at 1.21×
 #: (docs/hair.md)
 CHIANG_FIXED_LIGHTS = 512
+#: what ``hair.chiang.exitance = "auto"`` takes where memory allows (docs/hair.md: 11 % per
+#: texel on the tangle against the isotropic 38 %, 1.9× the isotropic bake's time)
+AUTO_EXITANCE = "linear"
 #: training lights of a hair + mesh bake (diffuse fibre) whose ``lights.count`` is "auto".
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
 #: 1.25× its projection bound, on the gate; with its atlas rows filtered (``fit.denoise``,
@@ -341,6 +344,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     solve terms were counted twice or three times), K = 272 4.45 against 7.74 (15.41).
     With ``hair.arc_subdivision`` S every strand term counts S·T pieces of ⌈M/S⌉ rays."""
     k = spec.lights.count + spec.lights.holdout
+    if spec.hair.chiang.exitance == "auto":  # estimated at what it may resolve to
+        spec = _with_exitance(spec, AUTO_EXITANCE)
     pieces = arc_pieces(spec, space).hair.arc_subdivision
     space = space.subdivided(pieces)  # the texels the transport holds: S pieces each,
     t = space.count  # ⌈M/S⌉ fibre-gather rays per piece
@@ -394,6 +399,30 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     return int(est)
 
 
+def _with_exitance(spec: BakeSpec, exitance: str) -> BakeSpec:
+    return dataclasses.replace(spec, hair=dataclasses.replace(
+        spec.hair, chiang=dataclasses.replace(spec.hair.chiang, exitance=exitance)))
+
+
+def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
+                    limit_bytes: int, mesh_texels: int = 0) -> tuple[BakeSpec, str | None]:
+    """``hair.chiang.exitance = "auto"`` resolved: :data:`AUTO_EXITANCE` (linear) when the
+    bake's memory estimate with it is within ``limit_bytes``, else isotropic (a quarter of
+    the stacked direct light; docs/hair.md). Returns the spec and a line saying why
+    isotropic was taken, or None. Any other value, and the diffuse fibre, are kept."""
+    if spec.hair.fibre != "chiang" or spec.hair.chiang.exitance != "auto":
+        return spec, None
+    linear = _with_exitance(spec, AUTO_EXITANCE)
+    try:
+        check_hair_memory(asset, space, linear, limit_bytes, mesh_texels=mesh_texels)
+    except LimitExceeded as e:
+        return _with_exitance(spec, "isotropic"), (
+            f"hair.chiang.exitance auto → isotropic: with {AUTO_EXITANCE} exitance "
+            f"{e.what} (limit {e.limit}); the direction average alone is less accurate "
+            "(docs/hair.md)")
+    return linear, None
+
+
 def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFiles,
               exclude: tuple[str, ...] = (), quiet: bool = False, force: bool = False,
               limits: IntakeLimits | None = None, callback: ProgressCallback | None = None,
@@ -424,6 +453,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     space, hair, scene = intake.strands, intake.hair, intake.scene
     spec = arc_pieces(spec, space)
     mesh_texels = intake.texels.mesh.count if scene is not None else 0
+    spec, why = chiang_exitance(asset, space, spec, limits.max_bake_bytes, mesh_texels)
+    if why is not None:
+        timer.note(f"[prtcore] {why}")
     check_hair_memory(asset, space, spec, limits.max_bake_bytes, mesh_texels=mesh_texels)
     tracer, fibres = hair_tracer(space, scene)
     m = method(METHOD)

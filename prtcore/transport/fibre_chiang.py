@@ -39,7 +39,8 @@ reads ``c0 − c · d`` of the fibre it hits. The direct light's coefficients co
 same weights; every bounce goes through the (4T, 4T) operator (a rank-one 4 × 4 block
 per ray and channel); the few texels whose truncated exitance dips below
 zero are clamped and counted. The stored texel is still c0 (the runtime is unchanged).
-Measured: 11.0 % on the same tangle (8192 paths). The default.
+Measured: 11.0 % on the same tangle (8192 paths); what the default ("auto") takes
+where the memory estimate allows (:func:`prtcore.hairbake.chiang_exitance`).
 
 **Quadratic exitance** (``"quadratic"``): also ``cos² θ (cos 2φ, sin 2φ)`` in each
 texel's frame at the middle of its arc (:func:`texel_frames`), dual weight
