@@ -7,8 +7,9 @@ drawn from a spec's default family (spot lights about the hair), M gather rays, 
 samples, tolerance 1e-4 and up to 64 bounces. Both solves get the same direct light and
 operator in one run, so their time ratio is measured on one machine state. Printed, per
 exitance and rank tolerance: seconds and the ratio, bounces, the basis' size after each
-bounce, and the error of the basis solve against the full one (relative Frobenius; the
-worst and the median light; the 99th percentile over texels of the mean over lights).
+bounce (and the basis each full-width bounce would have needed), and the error of the
+basis solve against the full one (relative Frobenius; the worst and the median light;
+the 99th percentile over texels of the mean over lights).
 Written to benchmarks/results/low_rank_solve.json.
 
 Usage: python benchmarks/low_rank_solve.py [--strands 1000] [--lights 256] [--rays 256]
@@ -94,9 +95,11 @@ def main() -> None:
                    "median_light": float(np.median(per_light)),
                    "texel_p99": float(np.percentile(per_texel, 99))}
             row["basis"][str(tol)] = {"seconds": secs, "speedup": full_s / secs,
-                                      "bounces": n, "ranks": stats["ranks"], "error": err}
+                                      "bounces": n, "ranks": stats["ranks"],
+                                      "needed": stats["needed"], "error": err}
             print(f"  rank tolerance {tol:g}: {secs:.1f} s ({full_s / secs:.1f}× faster), "
-                  f"{n} bounces, basis {stats['ranks'][:8]}…; error {err['relative']:.1e} "
+                  f"{n} bounces, basis {stats['ranks'][:8]}… (needed at full width "
+                  f"{stats['needed']}); error {err['relative']:.1e} "
                   f"(worst light {err['worst_light']:.1e}, median {err['median_light']:.1e}, "
                   f"texel p99 {err['texel_p99']:.1e})")
         results[exitance] = row
