@@ -369,11 +369,11 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     est = whole + max(gather, after)
     if spec.hair.fibre == "chiang":  # each hit's data; with F > 1 coefficients the stacked
         # direct light's other F − 1 (the solve works in its buffer, transport/low_rank.py;
-        # its column blocks are bounded by SOLVE_BLOCK_BYTES), the first coefficient's
-        # sum of bounces and the clamped result beside it
+        # its column blocks are bounded by SOLVE_BLOCK_BYTES) and the first coefficient's
+        # sum of bounces beside it (clamped in place)
         f = EXITANCE_TERMS[spec.hair.chiang.exitance]
         est += t * m * CHIANG_BYTES_PER_RAY[spec.hair.chiang.exitance] \
-            + ((f + 1) * t * k * 12 if f > 1 else 0)
+            + (f * t * k * 12 if f > 1 else 0)
     if everything:  # the operator's blocks before they are summed; beside the stacked
         # (3T, K, 3) direct light (``light``) the direct light's mean and harmonics, and
         # for hair alone the solve's result (with a mesh it is written over the direct)
@@ -389,7 +389,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
             # and with F > 1 coefficients their stacked rows in the solve
             f = EXITANCE_TERMS[spec.hair.chiang.exitance]
             est += mesh_texels * m * CHIANG_BYTES_PER_RAY[
-                spec.hair.chiang.exitance] + ((f + 1) * mesh_texels * k * 12 if f > 1 else 0)
+                spec.hair.chiang.exitance] + (f * mesh_texels * k * 12 if f > 1 else 0)
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels"
                             + (f", {mesh_texels} atlas texels" if mesh_texels else "")

@@ -175,7 +175,7 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
     if exitance != "isotropic":  # the truncated exitance can dip below zero at a few
         # texels; light cannot
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
-        indirect = np.maximum(indirect, np.float32(0))
+        np.maximum(indirect, np.float32(0), out=indirect)  # in place: no second copy
     stats = {"train": len(lights_train), "fibre": fibre_stats, "model": "chiang",
              "exitance": exitance,
              "rays": {"fibre_gather": rays1 - rays0, "direct_points": rays2 - rays1,

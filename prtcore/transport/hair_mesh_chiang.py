@@ -221,7 +221,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     del direct
     if n_f > 1:  # the truncated exitance can dip below zero at a few texels; light cannot
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
-        indirect = np.maximum(indirect, np.float32(0))
+        np.maximum(indirect, np.float32(0), out=indirect)  # in place: no second copy
     stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,
                             gather.stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
                             solve_stats, model="chiang", exitance=exitance)
