@@ -25,7 +25,7 @@ import numpy as np
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.sparse import RayBlockProduct
-from prtcore.transport.solve import NORM_BLOCK, col_norms, solve_indirect
+from prtcore.transport.solve import NORM_BLOCK, col_norms, relative_change, solve_indirect
 
 #: Frobenius share of the (per light normalised) light columns a basis may drop, when it
 #: is first taken and at every shrinking. Checked against the full-width solve
@@ -151,7 +151,7 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
             else:
                 acc += direct[:rows]
                 change, total = col_norms(direct[:rows]), col_norms(acc)
-            resid = _resid(change, total)
+            resid = relative_change(change, total)
             if resid < tolerance:
                 stats["converged"] = True
                 break
@@ -169,11 +169,6 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
                                        rank_tolerance, stats)
         stats["seconds"] = time.perf_counter() - t0
         return acc, bounces, resid, stats
-
-
-def _resid(change: np.ndarray, total: np.ndarray) -> float:
-    live = total > 0
-    return float((change[live] / total[live]).max()) if live.any() else 0.0
 
 
 def _on_basis(product, albedo, direct, mix, lift, acc, bounces, max_bounces, tolerance,
@@ -199,7 +194,7 @@ def _on_basis(product, albedo, direct, mix, lift, acc, bounces, max_bounces, tol
         bounces += 1
         stats["ranks"].append(r)
         change, total = _add_lifted(acc, z, lift)
-        resid = _resid(change, total)
+        resid = relative_change(change, total)
         if resid < tolerance:
             stats["converged"] = True
             break

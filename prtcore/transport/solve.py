@@ -84,7 +84,7 @@ def col_norms(x: np.ndarray) -> np.ndarray:
     return np.sqrt(out).reshape(x.shape[1:])
 
 
-def _relative(change: np.ndarray, total: np.ndarray) -> float:
+def relative_change(change: np.ndarray, total: np.ndarray) -> float:
     """max over columns of change / total, columns with total 0 skipped."""
     live = total > 0
     return float((change[live] / total[live]).max()) if live.any() else 0.0
@@ -375,7 +375,7 @@ def _neumann(product, rho32, b, max_bounces, tolerance):
         term = _apply(product, rho32, term)
         n += 1
         x += term
-        resid = _relative(col_norms(term), col_norms(x))
+        resid = relative_change(col_norms(term), col_norms(x))
         if resid < tolerance:
             conv = True
             break
@@ -422,7 +422,7 @@ def _chebyshev(product, rho32, b, lo, hi, max_bounces, tolerance):
         rho_k = rho_new
         d, d_new, src, src_new = d_new, d, src_new, src
         n += 1  # x now holds bounces 1 … n
-        resid = _relative(np.sqrt(norm_d.sum(axis=0)).reshape(shape[1:]),
+        resid = relative_change(np.sqrt(norm_d.sum(axis=0)).reshape(shape[1:]),
                           np.sqrt(norm_x.sum(axis=0)).reshape(shape[1:]))
         best = min(best, resid)
         if resid < tolerance:
