@@ -22,6 +22,9 @@ per colour:
 * ``isotropic_denoised`` (and for every exitance): after the bake's denoising of the
   strand texels (``prtcore.transport.strand_denoise``, ``--neighbours`` k, irradiance
   taken against the fibre's sphere-averaged albedo);
+* with ``--second-seed``: ``{exitance}_systematic``, the fast path's error with its own
+  noise removed too (two bakes of other seeds), and ``{exitance}_noise``, that noise per
+  texel (relative to the reference's RMS);
 * with ``--mitsuba-rays R``: ``pathtracer_vs_mitsuba``, prtcore's Chiang path tracer
   against Mitsuba 3's own ``hair`` BSDF and path tracer (prtcore.reference.mitsuba_fibres:
   the polylines as B-spline curves), both sides' noise removed; and ``{exitance}_vs_mitsuba``,
@@ -34,6 +37,7 @@ Usage: python benchmarks/hair_chiang_accuracy.py [--scene tangle|hairball] [--st
        [--texels-per-strand 12]
        [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
        [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0] [--projected 1 2]
+       [--second-seed]
 """
 
 from __future__ import annotations
@@ -92,15 +96,18 @@ def projected_first(product, rho, stacked, p: int, t: int) -> np.ndarray:
     return tail + acc
 
 
-def fast_path(space, tracer, mesh, fibre, args, lights) -> tuple[dict, dict]:
-    """{exitance: indirect (T, K, 3)} and {exitance: seconds} (the gather shared)."""
+def fast_path(space, tracer, mesh, fibre, args, lights, seed: int = 0
+              ) -> tuple[dict, dict]:
+    """{exitance: indirect (T, K, 3)} and {exitance: seconds} (the gather shared); ``seed``
+    offsets the gather's and the direct light's seeds (another bake of the same scene)."""
     t0 = time.perf_counter()
-    term = chiang_gather(space, tracer, mesh, 0, args.rays, 2, fibre)
+    term = chiang_gather(space, tracer, mesh, 0, args.rays, 2 + 10 * seed, fibre)
     gather = time.perf_counter() - t0
     out, seconds = {}, {}
     for exitance in EXITANCE:
         t1 = time.perf_counter()
-        direct = chiang_direct(space, tracer, lights, args.samples, 1, fibre, exitance)
+        direct = chiang_direct(space, tracer, lights, args.samples, 1 + 10 * seed, fibre,
+                               exitance)
         product, rho = chiang_operator(space, term, fibre, args.rays, exitance)
         t_direct = time.perf_counter() - t1
         stacked = direct.reshape(-1, *direct.shape[2:])
@@ -130,6 +137,10 @@ def main() -> None:
     ap.add_argument("--texels", type=int, default=150)
     ap.add_argument("--colors", nargs="+", default=["0.8,0.6,0.4", "0.3,0.2,0.1"])
     ap.add_argument("--mitsuba-rays", type=int, default=0)
+    ap.add_argument("--second-seed", action="store_true",
+                    help="also bake with other seeds: rows {exitance}_systematic (both "
+                         "the reference's and the fast path's noise removed) and "
+                         "{exitance}_noise (the fast path's own per-texel noise)")
     ap.add_argument("--projected", type=int, nargs="*", default=[],
                     help="diagnostic: also carry linear/quadratic exitance through only "
                          "the first P bounces, the direction average after")
@@ -146,6 +157,8 @@ def main() -> None:
         tracer, mesh = hair_tracer(space)
         fibre = chiang_fibre(ChiangSpec(), space)
         fast, seconds = fast_path(space, tracer, mesh, fibre, args, lights)
+        again = fast_path(space, tracer, mesh, fibre, args, lights, 1)[0] \
+            if args.second_seed else {}
         kernel = neighbour_kernel(space.position, args.neighbours)
         rho = texel_albedo(fibre)
         for e in list(fast):
@@ -160,6 +173,13 @@ def main() -> None:
                                fibre.params, fibre.sigma_points, exitance="isotropic")
         rows = {e: noise_corrected_error(fast[e][sel], *ref) for e in fast}
         rows["isotropic_model"] = noise_corrected_error(fast["isotropic"][sel], *iso)
+        for e, x in again.items():  # the fast path's own noise removed too
+            rows[f"{e}_systematic"] = noise_corrected_error((fast[e][sel], x[sel]), *ref)
+            rows[f"{e}_noise"] = {
+                "rrmse": float(np.sqrt(np.mean((fast[e][sel] - x[sel]) ** 2) / 2)
+                               / np.sqrt(np.mean(((ref[0] + ref[1]) / 2) ** 2))),
+                "raw_rrmse": float("nan"), "reference_noise": 0.0, "bias": 0.0,
+                "bias_se": 0.0}
         if args.mitsuba_rays:
             from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect
             mit = mitsuba_fibre_indirect(space, lights, sel, args.mitsuba_rays, 9,

@@ -196,9 +196,14 @@ def scattering(tangent: np.ndarray, wo: np.ndarray, wi: np.ndarray, h: np.ndarra
 
 
 #: the directional albedo table: sin θi nodes, √σ nodes up to SIGMA_MAX (per unit radius),
-#: and the Gauss–Legendre nodes over θo and h of its quadrature
+#: and the Gauss–Legendre nodes over θo and h of its quadrature. Ā is concave in √σ near
+#: σ = 0 (A_p ≈ 1 − σ ℓ_p), so linear interpolation there reads low by about
+#: (dĀ/dσ) √σ (Δ − √σ) for a node spacing Δ in √σ: with 49 nodes the light hair's fibre
+#: stored 0.57 % less energy than it scatters (the quadrature of S itself), which the
+#: ~6 bounces of light hair compounded into a −3 % bias (docs/hair.md, "The directional
+#: albedo table's σ nodes"); 193 nodes leave 0.01 %.
 ALBEDO_SIN_NODES = 129
-ALBEDO_SIGMA_NODES = 49
+ALBEDO_SIGMA_NODES = 193
 SIGMA_MAX = 32.0
 ALBEDO_THETA_QUAD = 512
 ALBEDO_H_QUAD = 64
