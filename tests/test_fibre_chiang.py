@@ -76,7 +76,7 @@ def tangle_fast():
     lights = tangle_lights()
     term = chiang_gather(space, tracer, mesh, 0, 256, 2, fibre)
     out = {}
-    for exitance in ("isotropic", "linear", "quadratic"):
+    for exitance in EXITANCE:
         direct = chiang_direct(space, tracer, lights, 16, 1, fibre, exitance)
         product, rho = chiang_operator(space, term, fibre, 256, exitance)
         stacked = direct.reshape(-1, *direct.shape[2:])
@@ -102,9 +102,9 @@ def test_fast_path_is_its_model_path_traced(tangle_fast, bounces):
     assert abs(e["bias"]) < 0.06 and e["rrmse"] < 0.15, e
 
 
-@pytest.mark.parametrize("exitance", ["linear", "quadratic"])
+@pytest.mark.parametrize("exitance", ["linear", "quadratic", "second_order"])
 def test_projected_exitance_is_its_model_path_traced_at_one_bounce(tangle_fast, exitance):
-    """The linear and quadratic exitances' first bounce against the path tracer that
+    """The linear, quadratic and second-order exitances' first bounce against the path tracer that
     projects each hit's outgoing radiance the same way (its reproducing kernel,
     :func:`prtcore.reference.chiang.projection_kernel`). Beyond one bounce that
     estimator's kernel weights multiply and its variance explodes, so all bounces are
@@ -128,7 +128,7 @@ def test_projected_exitance_follows_the_exact_reference_where_the_isotropic_one_
     ref = chiang_reference(space, tracer, mesh, 0, lights, tex, 2048, 12, fibre.params,
                            fibre.sigma_points)
     iso = noise_corrected_error(out["isotropic", 64][tex].astype(np.float64), *ref)
-    for exitance in ("linear", "quadratic"):
+    for exitance in ("linear", "quadratic", "second_order"):
         e = noise_corrected_error(out[exitance, 64][tex].astype(np.float64), *ref)
         assert e["rrmse"] < 0.15 and abs(e["bias"]) < 0.07, (exitance, e)
         assert e["rrmse"] < 0.5 * iso["rrmse"], (exitance, e, iso)

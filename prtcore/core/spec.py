@@ -273,7 +273,8 @@ class ChiangSpec:
     #: what transport carries of each texel's outgoing radiance: "linear" (its average
     #: plus a linear function of direction, through every bounce: 11 % per texel on the
     #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
-    #: solve), "isotropic" (the average alone, the paper's: 38 %, the least memory) or
+    #: solve), "second_order" (the whole second order: nine terms), "isotropic" (the
+    #: average alone, the paper's: 38 %, the least memory) or
     #: "auto": linear where the bake's memory estimate allows it, else isotropic
     #: (prtcore.hairbake.chiang_exitance); docs/hair.md
     exitance: str = "auto"
@@ -577,7 +578,7 @@ def _chiang(v: Any) -> ChiangSpec:
                        hi=10.0),
         eta=_num(c.get("eta", d.eta), "hair.chiang.eta", lo=1.0, hi=3.0),
         exitance=_choice(c.get("exitance", d.exitance), "hair.chiang.exitance",
-                         ("auto", "isotropic", "linear", "quadratic")))
+                         ("auto", "isotropic", "linear", "quadratic", "second_order")))
 
 
 def _section(cls: type, v: Any, key: str) -> dict:

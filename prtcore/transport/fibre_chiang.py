@@ -45,6 +45,11 @@ where the memory estimate allows (:func:`prtcore.hairbake.chiang_exitance`).
 **Quadratic exitance** (``"quadratic"``): also ``cos² θ (cos 2φ, sin 2φ)`` in each
 texel's frame at the middle of its arc (:func:`texel_frames`), dual weight
 ``(16/5) Ā_2``: a (6T, 6T) operator; 10.0 % on the same tangle.
+
+**Second-order exitance** (``"second_order"``): also the rest of the second order,
+``sin² θ − 1/4`` (how much of the light leaves near the fibre's normal plane, where the
+longitudinal lobe puts it) and ``sin θ cos θ (cos φ, sin φ)``, duals ``16 Ā_z`` and
+``16 Ā_s ω̂i⊥`` (the table's moments 4 and 5): a (9T, 9T) operator.
 """
 
 from __future__ import annotations
@@ -143,16 +148,22 @@ def check_lights(lights: Sequence[Light]) -> None:
 #: Memory per gather ray beyond the diffuse fibre's (bytes): each hit's direction and
 #: tangent (24) and row/column (8) as gathered, the matrix-free operator's copy of those
 #: (8) with F × 3 weights and F reads (16 F), the weights' float64 temporaries (48 F)
-CHIANG_BYTES_PER_RAY = {"isotropic": 100, "linear": 300, "quadratic": 420}
+CHIANG_BYTES_PER_RAY = {"isotropic": 100, "linear": 300, "quadratic": 420,
+                        "second_order": 600}
 #: the fibre's outgoing radiance carried through transport (``hair.chiang.exitance``)
-EXITANCE = ("isotropic", "linear", "quadratic")
+EXITANCE = ("isotropic", "linear", "quadratic", "second_order")
 #: coefficients per texel of each
-EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6}
+EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6, "second_order": 9}
+
+
+def needs_frames(exitance: str) -> bool:
+    """Whether ``exitance`` has terms in each texel's frame (:func:`texel_frames`)."""
+    return EXITANCE_TERMS[exitance] >= 6
 
 
 def texel_frames(space: StrandSpace) -> tuple[np.ndarray, np.ndarray]:
     """(u, v) (T, 3) float64: a unit frame across each texel's fibre at the middle of its
-    arc (the transported frame), for the azimuthal second-order terms."""
+    arc (the transported frame; its tangent is u × v), for the second-order terms."""
     _, tangent, u = axis_frame(space.hair, space.strand, space.arc.mean(axis=1))
     return u, np.cross(tangent, u)
 
@@ -173,7 +184,8 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
     exitance coefficients, (F, n, 3): F = 1, Ā (isotropic); F = 4, Ā then the world
     vector ``g = 4 Ā_t t + (8/3) Ā_⊥ ŵ_⊥`` (linear); F = 6, those then
     ``(16/5) Ā_2 (cos 2φ, sin 2φ)`` of w in the receiving texels' ``frame`` (u, v)
-    (quadratic)."""
+    (quadratic); F = 9, those then ``16 Ā_z`` and ``16 Ā_s (ŵ_⊥·u, ŵ_⊥·v)``
+    (second_order)."""
     sin = np.einsum("ij,ij->i", tangent, w)
     mean = albedo(sin, sigma)
     if exitance == "isotropic":
@@ -183,23 +195,33 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
     at, ap = albedo(sin, sigma, 1), albedo(sin, sigma, 2)
     g = 4 * at[:, None, :] * tangent[:, :, None] + 8 / 3 * ap[:, None, :] * perp[:, :, None]
     out = [mean[None], np.moveaxis(g, 1, 0)]
-    if exitance == "quadratic":
+    if EXITANCE_TERMS[exitance] >= 6:
         c2, s2 = _second_order(w, *frame)
         norm = np.maximum(c2 * c2 + s2 * s2, 1e-24) ** 0.5  # cos² θ of w
         a2 = 16 / 5 * albedo(sin, sigma, 3)
         out += [(a2 * (c2 / norm)[:, None])[None], (a2 * (s2 / norm)[:, None])[None]]
+    if EXITANCE_TERMS[exitance] == 9:
+        a_s = 16 * albedo(sin, sigma, 5)
+        out += [(16 * albedo(sin, sigma, 4))[None]] + [
+            (a_s * np.einsum("ij,ij->i", perp, f)[:, None])[None] for f in frame]
     return np.concatenate(out)
 
 
 def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
     """What a ray toward d (n, 3) reads of each coefficient of the fibre it hits (frames
     (u, v) (n, 3) of the texels hit, for the second-order terms): 1, −d, then
-    cos² θ (cos 2φ, sin 2φ) of −d."""
+    cos² θ (cos 2φ, sin 2φ) of −d, then sin² θ − 1/4 and sin θ cos θ (cos φ, sin φ) of −d
+    (t = u × v; all even in d)."""
     out = [np.ones(len(d))]
     if terms >= 4:
         out += [-d[:, 0], -d[:, 1], -d[:, 2]]
-    if terms == 6:
+    if terms >= 6:
         out += list(_second_order(d, *frame))  # even in d
+    if terms == 9:
+        u, v = frame
+        s = np.einsum("ij,ij->i", d, np.cross(u, v))
+        out += [s * s - 0.25, s * np.einsum("ij,ij->i", d, u),
+                s * np.einsum("ij,ij->i", d, v)]
     return out
 
 
@@ -207,12 +229,12 @@ def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
 def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_nodes, fu, fv,
                      out):  # pragma: no cover - compiled
     """Each texel's exitance coefficients from its J samples of one light: ``(1/J) Σ_j
-    w_f(ωl) rad_j`` with :func:`exitance_weights`' weights w_f (F = out.shape[0]: 1, 4 or
-    6), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
+    w_f(ωl) rad_j`` with :func:`exitance_weights`' weights w_f (F = out.shape[0]: 1, 4, 6 or
+    9), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
 
     tangent, to_light (n, J, 3) float64 at the samples; sigma (n, 3) float64 per texel;
     rad (n, J, 3) float32 the samples' radiance; values (4, S, Q) float64, sin_nodes (S,),
-    root_nodes (Q,) the table; fu, fv (n, 3) the texels' frames (quadratic); out
+    root_nodes (Q,) the table; fu, fv (n, 3) the texels' frames (F ≥ 6); out
     (F, n, 3) float32, written."""
     n, nj = rad.shape[0], rad.shape[1]
     terms = out.shape[0]
@@ -220,6 +242,7 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
     s0, ds = sin_nodes[0], sin_nodes[1] - sin_nodes[0]
     r0, dr = root_nodes[0], root_nodes[1] - root_nodes[0]
     rmax2 = root_nodes[nq - 1] ** 2
+    moments = 1 if terms == 1 else (3 if terms == 4 else (4 if terms == 6 else 6))
     for i in numba.prange(n):
         jq = np.empty(3, np.int64)
         fq = np.empty(3)
@@ -228,7 +251,7 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
             jj = min(int(y), nq - 2)
             jq[c], fq[c] = jj, y - jj
         acc = np.zeros((terms, 3))
-        m = np.empty(4)
+        m = np.empty(6)
         for j in range(nj):
             t0, t1, t2 = tangent[i, j, 0], tangent[i, j, 1], tangent[i, j, 2]
             w0, w1, w2 = to_light[i, j, 0], to_light[i, j, 1], to_light[i, j, 2]
@@ -239,19 +262,21 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
             p0, p1, p2 = w0 - sn * t0, w1 - sn * t1, w2 - sn * t2
             pn = max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2), 1e-12)
             p0, p1, p2 = p0 / pn, p1 / pn, p2 / pn
-            c2 = s2 = 0.0
-            if terms == 6:
+            c2 = s2 = eu = ev = 0.0
+            if terms >= 6:
                 a = w0 * fu[i, 0] + w1 * fu[i, 1] + w2 * fu[i, 2]
                 b = w0 * fv[i, 0] + w1 * fv[i, 1] + w2 * fv[i, 2]
                 c2, s2 = a * a - b * b, 2 * a * b
                 norm = max(c2 * c2 + s2 * s2, 1e-24) ** 0.5
                 c2, s2 = c2 / norm, s2 / norm
+                eu = p0 * fu[i, 0] + p1 * fu[i, 1] + p2 * fu[i, 2]
+                ev = p0 * fv[i, 0] + p1 * fv[i, 1] + p2 * fv[i, 2]
             for c in range(3):
                 r = rad[i, j, c]
                 if r == 0:
                     continue
                 jj, fy = jq[c], fq[c]
-                for mo in range(1 if terms == 1 else (3 if terms == 4 else 4)):
+                for mo in range(moments):
                     v = values[mo]
                     top = v[ii, jj] * (1 - fy) + v[ii, jj + 1] * fy
                     bottom = v[ii + 1, jj] * (1 - fy) + v[ii + 1, jj + 1] * fy
@@ -262,10 +287,14 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
                     acc[1, c] += at * t0 + ap * p0
                     acc[2, c] += at * t1 + ap * p1
                     acc[3, c] += at * t2 + ap * p2
-                if terms == 6:
+                if terms >= 6:
                     a2 = 16 / 5 * m[3] * r
                     acc[4, c] += a2 * c2
                     acc[5, c] += a2 * s2
+                if terms == 9:
+                    acc[6, c] += 16 * m[4] * r
+                    acc[7, c] += 16 * m[5] * r * eu
+                    acc[8, c] += 16 * m[5] * r * ev
         for f in range(terms):
             for c in range(3):
                 out[f, i, c] = acc[f, c] / nj
@@ -289,7 +318,7 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
     arc, _ = space.surface_sample_params(samples, seed)  # the samples' arcs, as drawn
     tangent = axis_frame(space.hair, np.repeat(space.strand, samples),
                          arc.reshape(-1))[1].reshape(space.count, samples, 3)
-    frames = texel_frames(space) if exitance == "quadratic" else None
+    frames = texel_frames(space) if needs_frames(exitance) else None
 
     terms = EXITANCE_TERMS[exitance]
     table = fibre.albedo
@@ -379,7 +408,7 @@ def ray_weights(fibre: ChiangFibre, rows: np.ndarray, data: np.ndarray,
     """The exitance weights (F, n, 3) float64 (:func:`exitance_weights`; F = 1: the
     directional albedo Ā(t·d, σ)) of gather rays from strand texels ``rows`` (n,) with
     :func:`chiang_gather`'s ``data`` (n, 6); ``frames``: :func:`texel_frames` of the
-    texels, for quadratic exitance."""
+    texels, for quadratic and second-order exitance."""
     data = np.asarray(data, dtype=np.float64)
     frame = None if frames is None else (frames[0][rows], frames[1][rows])
     return exitance_weights(fibre.albedo, data[:, 3:6], data[:, :3],
@@ -399,7 +428,7 @@ def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, ray
     is ``L = W (L_d + L)``."""
     rows, cols, data = term.rays
     t = space.count
-    frames = texel_frames(space) if exitance == "quadratic" else None
+    frames = texel_frames(space) if needs_frames(exitance) else None
     w = ray_weights(fibre, rows, data, exitance, frames)  # (F, n, 3)
     f = len(w)
     read = exitance_reads(data[:, :3].astype(np.float64), None if frames is None

@@ -78,7 +78,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     fibre : the Chiang fibre (``hair.fibre = "chiang"``,
     :mod:`prtcore.transport.fibre_chiang`; ``harmonics`` is then ignored), or None for the
     diffuse fibre; ``chiang_exitance`` (``hair.chiang.exitance``): what its transport
-    carries of each texel's outgoing radiance, "isotropic", "linear" or "quadratic"."""
+    carries of each texel's outgoing radiance, "isotropic", "linear", "quadratic" or
+    "second_order"."""
     if fibre is not None:
         return _chiang_dataset(space, points, tracer, lights_train, lights_holdout,
                                spec or TransportSpec(), timer or StageTimer(quiet=True),

@@ -47,6 +47,7 @@ from prtcore.transport.fibre_chiang import (
     chiang_direct,
     chiang_gather,
     exitance_reads,
+    needs_frames,
     ray_weights,
     texel_frames,
 )
@@ -95,7 +96,7 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     rays to the mesh, with the same data. Strand rows take the exitance weights × 2 / M
     per channel (the solver's albedo is 1/2 there, as in
     :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
-    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (quadratic)."""
+    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6)."""
     f = EXITANCE_TERMS[exitance]
     t = t_m + t_h
     coo = mesh_rows.tocsc()[:, :t_m].tocoo()  # atlas → atlas: one value each way
@@ -173,7 +174,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                              near_field=spec.near_field, direct_samples=spec.direct_samples,
                              foreign=strands)
     n_f = EXITANCE_TERMS[exitance]
-    frames = texel_frames(space) if exitance == "quadratic" else None
+    frames = texel_frames(space) if needs_frames(exitance) else None
     t = t_m + t_h
     r1 = tracer.rays_traced
     with timer.stage("fibre gather"):
