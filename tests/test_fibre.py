@@ -22,6 +22,7 @@ from prtcore.transport.fibre import (
     fibre_gather,
     hair_tracer,
     harmonic_receivers,
+    stratified_rays,
 )
 
 
@@ -147,3 +148,26 @@ def test_turn_bounces_for_hair_alone_is_all_bounces_where_every_texel_is_straigh
                         lambda h, s, *share: harmonic_receivers(h, s, -1.0, *share))
     none = bake("turn_bounces")
     assert np.isfinite(none).all() and np.abs(none - every).max() > 0
+
+
+def test_stratified_gather_rays_are_uniform_and_cover_each_texel_evenly():
+    """stratified_rays (the Chiang gather's): every ray is uniform (averaged over texels,
+    each coordinate's mean is 1/2 and its arc inside its texel), and a texel's M rays
+    cover each coordinate far more evenly than independent draws: the spread of a texel's
+    mean of u is under a quarter of the independent draws' sqrt(1/(12 M))."""
+    space = build_strand_space(hairball(200), 10)
+    m = 64
+    arc, phi, direction_at = stratified_rays(space, m, seed=3)
+    t = space.count
+    arc = arc.reshape(t, m)
+    assert ((arc >= space.arc[:, :1]) & (arc <= space.arc[:, 1:])).all()
+    u, psi = direction_at(np.arange(t * m))
+    frac = (arc - space.arc[:, :1]) / (space.arc[:, 1:] - space.arc[:, :1])
+    iid = math.sqrt(1 / (12 * m))
+    for x in (frac, phi.reshape(t, m) / (2 * np.pi), u.reshape(t, m),
+              psi.reshape(t, m) / (2 * np.pi)):
+        per_texel = x.mean(axis=1)
+        assert abs(per_texel.mean() - 0.5) < 3 * iid / math.sqrt(t)
+        assert per_texel.std() < 0.25 * iid, per_texel.std() / iid
+    again = stratified_rays(space, m, seed=3)
+    np.testing.assert_array_equal(again[0], arc.reshape(-1))

@@ -307,13 +307,41 @@ class FibreTerm:
     rays: tuple | None = None
 
 
+def stratified_rays(space: StrandSpace, rays: int, seed: int
+                    ) -> tuple[np.ndarray, np.ndarray, Callable]:
+    """Randomised quasi-Monte Carlo gather rays: one scrambled Sobol' set of ``rays``
+    points in [0, 1)⁴ (scipy.stats.qmc, seeded), shifted modulo 1 by a uniform random
+    vector per texel (Cranley–Patterson), so every ray is still uniform (the estimate
+    stays unbiased) while a texel's rays cover arc × azimuth × direction evenly.
+    Returns the arcs (t·M,) float64 (metres), the surface azimuths (t·M,) float64 and
+    ``direction_at(ray)`` → (u, ψ) (n,) each: the cosine lobe's u (cos² of the polar
+    angle) and azimuth of rays ``ray`` (n,) int (texel·M + k), made per batch."""
+    from scipy.stats import qmc
+
+    t = space.count
+    bits = max(int(np.ceil(np.log2(max(rays, 1)))), 0)
+    point = qmc.Sobol(d=4, scramble=True, seed=np.random.default_rng([seed, 3])
+                      ).random_base2(bits)[:rays]  # (M, 4)
+    shift = np.random.default_rng([seed, 4]).random((t, 4))
+
+    def at(dim: int, ray: np.ndarray) -> np.ndarray:
+        return np.mod(point[ray % rays, dim] + shift[ray // rays, dim], 1.0)
+
+    def grid(dim: int) -> np.ndarray:  # (t, M), without a (t·M,) index array
+        return np.mod(point[None, :, dim] + shift[:, None, dim], 1.0)
+
+    arc = space.arc[:, :1] + grid(0) * (space.arc[:, 1:] - space.arc[:, :1])
+    return (arc.reshape(-1), (2 * np.pi * grid(1)).reshape(-1),
+            lambda ray: (at(2, ray), 2 * np.pi * at(3, ray)))
+
+
 def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_faces: int,
                  rays: int, seed: int, harmonics: int = HARMONICS,
                  all_bounces: bool = False, mesh_texels: Callable | None = None,
                  mesh_columns: int = 0, orders: int = 1,
                  ray_data: Callable | None = None,
                  harmonic_rows: bool | np.ndarray | Callable[[float], bool | np.ndarray]
-                 = True) -> FibreTerm:
+                 = True, stratified: bool = False) -> FibreTerm:
     """Trace the fibre-to-fibre operator G with ``rays`` (M) cosine rays per texel.
     ``mesh_faces``: the number of scene triangles before the fibre tubes in ``tracer``.
     mesh_texels : the mesh receives too (a hair + mesh bake): a
@@ -330,13 +358,19 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
     fibres' light.
     ray_data : what another fibre needs of every ray that hits a fibre, ``ray_data(texel
     (n,), arc (n,), d (n, 3))`` → (n, F): kept in :attr:`FibreTerm.rays`
-    (:mod:`prtcore.transport.fibre_chiang` weights the rays with it)."""
+    (:mod:`prtcore.transport.fibre_chiang` weights the rays with it).
+    stratified : each texel's M rays take their arc, surface azimuth and direction from
+    one scrambled Sobol' set shifted per texel (:func:`stratified_rays`) instead of
+    independent draws (the arc uniform, the azimuth in M strata, the direction free)."""
     t = space.count
     hair = space.hair
     # the samples' places drawn once (16 bytes a ray), their points made per batch: the
     # (t·M, 3) float64 origins, normals and axis points at once were 72 bytes a ray
     # (6.4 GiB for 140k strands at M = 64)
-    sample_arc, phi = (x.reshape(-1) for x in space.surface_sample_params(rays, seed))
+    if stratified:
+        sample_arc, phi, direction_at = stratified_rays(space, rays, seed)
+    else:
+        sample_arc, phi = (x.reshape(-1) for x in space.surface_sample_params(rays, seed))
     rng = np.random.default_rng([seed, 1])
     frame_u = transported_frames(hair)[1]  # once, not per batch
     rows_all, cols_all, cs_all, po_all, rw_all = [], [], [], [], []
@@ -355,7 +389,11 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         u = rng.random(b - a)
         origin, normal, _ = space.surface_points(ray // rays, sample_arc[ray], phi[ray],
                                                  frame_u)
-        d = directions_around(normal, np.sqrt(u), 2 * np.pi * rng.random(b - a))
+        if stratified:
+            u, psi = direction_at(ray)
+        else:
+            psi = 2 * np.pi * rng.random(b - a)
+        d = directions_around(normal, np.sqrt(u), psi)
         del normal
         hits = tracer.intersect(origin, d)
         fib = hits.triangle >= mesh_faces

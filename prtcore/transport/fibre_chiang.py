@@ -399,6 +399,7 @@ def chiang_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_f
         return np.concatenate([d, axis_frame(hair, space.strand[texel], arc)[1]], axis=1)
 
     return fibre_gather(space, tracer, mesh, mesh_faces, rays, seed, harmonics=0,
+                        stratified=True,
                         ray_data=ray_data, mesh_texels=mesh_texels,
                         mesh_columns=mesh_columns)
 
