@@ -145,6 +145,12 @@ CHIANG_FIXED_LIGHTS = 512
 #: what ``hair.chiang.exitance = "auto"`` takes where memory allows (docs/hair.md: 11 % per
 #: texel on the tangle against the isotropic 38 %, 1.9× the isotropic bake's time)
 AUTO_EXITANCE = "linear"
+#: with at least this many gather rays per texel "auto" takes second-order exitance where
+#: memory allows: on the light tangle at M = 256 its truncation (4.2 % against linear's
+#: 8.3 %) outweighs its larger noise (one bake 8.5 % against 10.9 %; dark 10.3 % against
+#: 13.8 %); at M = 64, the bake's default, the three are alike (15.8, 16.1, 16.3 %) and
+#: linear costs least (docs/hair.md, "The directional albedo table's σ nodes")
+SECOND_ORDER_RAYS = 256
 #: training lights of a hair + mesh bake (diffuse fibre) whose ``lights.count`` is "auto".
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
 #: 1.25× its projection bound, on the gate; with its atlas rows filtered (``fit.denoise``,
@@ -406,21 +412,29 @@ def _with_exitance(spec: BakeSpec, exitance: str) -> BakeSpec:
 
 def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                     limit_bytes: int, mesh_texels: int = 0) -> tuple[BakeSpec, str | None]:
-    """``hair.chiang.exitance = "auto"`` resolved: :data:`AUTO_EXITANCE` (linear) when the
-    bake's memory estimate with it is within ``limit_bytes``, else isotropic (a quarter of
-    the stacked direct light; docs/hair.md). Returns the spec and a line saying why
-    isotropic was taken, or None. Any other value, and the diffuse fibre, are kept."""
+    """``hair.chiang.exitance = "auto"`` resolved: second-order exitance when the bake
+    traces at least :data:`SECOND_ORDER_RAYS` gather rays per texel and its memory
+    estimate with it is within ``limit_bytes``, else :data:`AUTO_EXITANCE` (linear) when
+    that fits, else isotropic (a quarter of the stacked direct light; docs/hair.md).
+    Returns the spec and a line saying why a lesser exitance than the rays call for was
+    taken, or None. Any other value, and the diffuse fibre, are kept."""
     if spec.hair.fibre != "chiang" or spec.hair.chiang.exitance != "auto":
         return spec, None
-    linear = _with_exitance(spec, AUTO_EXITANCE)
-    try:
-        check_hair_memory(asset, space, linear, limit_bytes, mesh_texels=mesh_texels)
-    except LimitExceeded as e:
-        return _with_exitance(spec, "isotropic"), (
-            f"hair.chiang.exitance auto → isotropic: with {AUTO_EXITANCE} exitance "
-            f"{e.what} (limit {e.limit}); the direction average alone is less accurate "
-            "(docs/hair.md)")
-    return linear, None
+    tried = (["second_order"] if spec.transport.gather_rays >= SECOND_ORDER_RAYS
+             else []) + [AUTO_EXITANCE]
+    refused = []
+    for exitance in tried:
+        candidate = _with_exitance(spec, exitance)
+        try:
+            check_hair_memory(asset, space, candidate, limit_bytes, mesh_texels=mesh_texels)
+        except LimitExceeded as e:
+            refused.append(f"with {exitance} exitance {e.what} (limit {e.limit})")
+            continue
+        return candidate, None if not refused else (
+            f"hair.chiang.exitance auto → {exitance}: {refused[0]}")
+    return _with_exitance(spec, "isotropic"), (
+        f"hair.chiang.exitance auto → isotropic: {'; '.join(refused)}; the direction "
+        "average alone is less accurate (docs/hair.md)")
 
 
 def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFiles,

@@ -362,6 +362,38 @@ def test_auto_exitance_is_linear_where_memory_allows_and_isotropic_where_not():
     assert chiang_exitance("t.hair", space, diffuse, 1)[0] is diffuse
 
 
+def test_auto_exitance_takes_the_second_order_with_many_gather_rays():
+    """With hair gather rays ≥ SECOND_ORDER_RAYS, "auto" takes second-order exitance
+    (its truncation is the smaller error there), linear with a line naming the limit
+    where the second order's estimate does not fit, and isotropic where neither does."""
+    from prtcore.hairbake import (
+        SECOND_ORDER_RAYS,
+        check_hair_memory,
+        chiang_exitance,
+        hair_spec,
+    )
+    space = build_strand_space(tangle(300), 4)
+    many = {**CHIANG, "transport": {"gather_rays": SECOND_ORDER_RAYS}}
+    spec = hair_spec(parse_spec(many))
+    est = {e: check_hair_memory("t.hair", space, hair_spec(parse_spec(
+        {**many, "hair": {**CHIANG["hair"], "chiang": {"exitance": e}}})), 1 << 50)
+        for e in ("isotropic", "linear", "second_order")}
+    assert est["isotropic"] < est["linear"] < est["second_order"]
+    got, why = chiang_exitance("t.hair", space, spec, 1 << 50)
+    assert got.hair.chiang.exitance == "second_order" and why is None
+    limit = (est["linear"] + est["second_order"]) // 2
+    got, why = chiang_exitance("t.hair", space, spec, limit)
+    assert got.hair.chiang.exitance == "linear"
+    assert "auto → linear: with second_order exitance" in why
+    assert f"max_bake_bytes={limit}" in why
+    got, why = chiang_exitance("t.hair", space, spec, est["isotropic"])
+    assert got.hair.chiang.exitance == "isotropic" and "with linear exitance" in why
+    fewer = hair_spec(parse_spec({**CHIANG, "transport": {"gather_rays":
+                                                           SECOND_ORDER_RAYS - 1}}))
+    assert chiang_exitance("t.hair", space, fewer, 1 << 50)[0].hair.chiang.exitance == \
+        "linear"
+
+
 def test_a_chiang_bake_trains_on_more_lights_by_default():
     """The Chiang fibre's smoother indirect light needs more training lights for the
     verdict to pass (docs/hair.md: the 10k hairball fails at 1.52× with 128, passes at

@@ -275,7 +275,8 @@ class ChiangSpec:
     #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
     #: solve), "second_order" (the whole second order: nine terms), "isotropic" (the
     #: average alone, the paper's: 38 %, the least memory) or
-    #: "auto": linear where the bake's memory estimate allows it, else isotropic
+    #: "auto": second_order with ≥ 256 gather rays, else linear, where the bake's memory
+    #: estimate allows it, else isotropic
     #: (prtcore.hairbake.chiang_exitance); docs/hair.md
     exitance: str = "auto"
 

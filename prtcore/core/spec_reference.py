@@ -87,8 +87,9 @@ DOCS: dict[str, str] = {
     "chiang.beta_n": "azimuthal roughness, 0.1–1",
     "chiang.alpha_deg": "cuticle tilt in degrees, −10–10",
     "chiang.eta": "index of refraction of the fibre, 1–3",
-    "chiang.exitance": "`auto` (`linear` where the bake's memory estimate is within "
-                       "`max_bake_bytes`, else `isotropic`, and the run says so) · "
+    "chiang.exitance": "`auto` (`second_order` with `transport.gather_rays` ≥ 256, "
+                       "else `linear`, where the bake's memory estimate is within "
+                       "`max_bake_bytes`, else the next one down, and the run says so) · "
                        "`linear` (transport carries each texel's direction-averaged "
                        "outgoing radiance plus a linear function of direction, through "
                        "every bounce: 11 % per texel on the tangle, docs/hair.md) · "
