@@ -178,8 +178,8 @@ def main() -> None:
             rows[f"{e}_noise"] = {
                 "rrmse": float(np.sqrt(np.mean((fast[e][sel] - x[sel]) ** 2) / 2)
                                / np.sqrt(np.mean(((ref[0] + ref[1]) / 2) ** 2))),
-                "raw_rrmse": float("nan"), "reference_noise": 0.0, "bias": 0.0,
-                "bias_se": 0.0}
+                "raw_rrmse": float("nan"), "reference_noise": 0.0, "bias": float("nan"),
+                "bias_se": float("nan")}
         if args.mitsuba_rays:
             from prtcore.reference.mitsuba_fibres import mitsuba_fibre_indirect
             mit = mitsuba_fibre_indirect(space, lights, sel, args.mitsuba_rays, 9,

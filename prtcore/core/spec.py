@@ -274,10 +274,9 @@ class ChiangSpec:
     #: plus a linear function of direction, through every bounce: 11 % per texel on the
     #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
     #: solve), "second_order" (the whole second order: nine terms), "isotropic" (the
-    #: average alone, the paper's: 38 %, the least memory) or
-    #: "auto": second_order with ≥ 256 gather rays, else linear, where the bake's memory
-    #: estimate allows it, else isotropic
-    #: (prtcore.hairbake.chiang_exitance); docs/hair.md
+    #: average alone, the paper's: 38 %, the least memory) or "auto": second_order with
+    #: ≥ 256 gather rays, else linear, where the bake's memory estimate allows it, else
+    #: isotropic (prtcore.hairbake.chiang_exitance); docs/hair.md
     exitance: str = "auto"
 
 

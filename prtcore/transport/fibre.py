@@ -59,6 +59,7 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.stats import qmc
 
 from prtcore.core.fibres import (
     DEFAULT_PIECES,
@@ -316,8 +317,6 @@ def stratified_rays(space: StrandSpace, rays: int, seed: int
     Returns the arcs (t·M,) float64 (metres), the surface azimuths (t·M,) float64 and
     ``direction_at(ray)`` → (u, ψ) (n,) each: the cosine lobe's u (cos² of the polar
     angle) and azimuth of rays ``ray`` (n,) int (texel·M + k), made per batch."""
-    from scipy.stats import qmc
-
     t = space.count
     bits = max(int(np.ceil(np.log2(max(rays, 1)))), 0)
     point = qmc.Sobol(d=4, scramble=True, seed=np.random.default_rng([seed, 3])
@@ -386,13 +385,13 @@ def fibre_gather(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh, mesh_fa
         b = min(a + FIBRE_BATCH, total)
         pos = np.arange(a, b)
         ray = order[pos // rays] * rays + pos % rays  # the rays' own indices
-        u = rng.random(b - a)
-        origin, normal, _ = space.surface_points(ray // rays, sample_arc[ray], phi[ray],
-                                                 frame_u)
         if stratified:
             u, psi = direction_at(ray)
-        else:
+        else:  # the draws in their old order: the diffuse fibre's bundles stay the same
+            u = rng.random(b - a)
             psi = 2 * np.pi * rng.random(b - a)
+        origin, normal, _ = space.surface_points(ray // rays, sample_arc[ray], phi[ray],
+                                                 frame_u)
         d = directions_around(normal, np.sqrt(u), psi)
         del normal
         hits = tracer.intersect(origin, d)

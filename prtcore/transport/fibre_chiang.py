@@ -238,7 +238,7 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
     9), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
 
     tangent, to_light (n, J, 3) float64 at the samples; sigma (n, 3) float64 per texel;
-    rad (n, J, 3) float32 the samples' radiance; values (4, S, Q) float64, sin_nodes (S,),
+    rad (n, J, 3) float32 the samples' radiance; values (6, S, Q) float64, sin_nodes (S,),
     root_nodes (Q,) the table; fu, fv (n, 3) the texels' frames (F ≥ 6); out
     (F, n, 3) float32, written."""
     n, nj = rad.shape[0], rad.shape[1]
