@@ -19,9 +19,11 @@ per colour:
 * ``isotropic_model``: the isotropic fast path against the path tracer that shades each
   hit toward a fresh direction (``exitance="isotropic"``): the gather, table and solve
   alone, without the approximation;
-* ``isotropic_denoised`` (and for every exitance): after the bake's denoising of the
-  strand texels (``prtcore.transport.strand_denoise``, ``--neighbours`` k, irradiance
-  taken against the fibre's sphere-averaged albedo);
+* ``isotropic_denoised`` (and for every exitance): after the plane fit of the strand
+  texels' denoiser (``prtcore.transport.strand_denoise``, ``--neighbours`` k, irradiance
+  taken against the fibre's sphere-averaged albedo); ``{exitance}_denoised_t2`` (the
+  bake's default for this fibre) and ``_t12`` with the fibre-direction terms of
+  ``--directions`` in the fit too;
 * with ``--second-seed``: ``{exitance}_systematic``, the fast path's error with its own
   noise removed too (two bakes of other seeds), and ``{exitance}_noise``, that noise per
   texel (relative to the reference's RMS);
@@ -37,7 +39,8 @@ Usage: python benchmarks/hair_chiang_accuracy.py [--scene tangle|hairball] [--st
        [--texels-per-strand 12]
        [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
        [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0] [--projected 1 2]
-       [--second-seed]
+       [--second-seed] [--exitances isotropic linear quadratic second_order]
+       [--directions t2 t12] [--neighbours 64]
 """
 
 from __future__ import annotations
@@ -75,6 +78,7 @@ from prtcore.transport.low_rank import solve_low_rank  # noqa: E402
 from prtcore.transport.solve import solve_indirect  # noqa: E402
 from prtcore.transport.strand_denoise import (  # noqa: E402
     DEFAULT_NEIGHBOURS,
+    DIRECTIONS,
     denoise_irradiance,
     neighbour_kernel,
 )
@@ -104,7 +108,7 @@ def fast_path(space, tracer, mesh, fibre, args, lights, seed: int = 0
     term = chiang_gather(space, tracer, mesh, 0, args.rays, 2 + 10 * seed, fibre)
     gather = time.perf_counter() - t0
     out, seconds = {}, {}
-    for exitance in EXITANCE:
+    for exitance in args.exitances:
         t1 = time.perf_counter()
         direct = chiang_direct(space, tracer, lights, args.samples, 1 + 10 * seed, fibre,
                                exitance)
@@ -141,6 +145,10 @@ def main() -> None:
                     help="also bake with other seeds: rows {exitance}_systematic (both "
                          "the reference's and the fast path's noise removed) and "
                          "{exitance}_noise (the fast path's own per-texel noise)")
+    ap.add_argument("--exitances", nargs="+", choices=EXITANCE, default=list(EXITANCE))
+    ap.add_argument("--directions", nargs="*", choices=DIRECTIONS, default=list(DIRECTIONS),
+                    help="also denoise with these fibre-direction terms: rows "
+                         "{exitance}_denoised_{direction}")
     ap.add_argument("--projected", type=int, nargs="*", default=[],
                     help="diagnostic: also carry linear/quadratic exitance through only "
                          "the first P bounces, the direction average after")
@@ -159,20 +167,29 @@ def main() -> None:
         fast, seconds = fast_path(space, tracer, mesh, fibre, args, lights)
         again = fast_path(space, tracer, mesh, fibre, args, lights, 1)[0] \
             if args.second_seed else {}
-        kernel = neighbour_kernel(space.position, args.neighbours)
+        kernels = {"": neighbour_kernel(space.position, args.neighbours)}
+        for d in args.directions:
+            kernels[f"_{d}"] = neighbour_kernel(space.position, args.neighbours,
+                                                tangent=space.tangent, direction=d)
         rho = texel_albedo(fibre)
         for e in list(fast):
-            fast[f"{e}_denoised"] = denoise_irradiance(
-                kernel, fast[e].astype(np.float32), rho).astype(np.float64)
+            for name, kernel in kernels.items():
+                fast[f"{e}_denoised{name}"] = denoise_irradiance(
+                    kernel, fast[e].astype(np.float32), rho).astype(np.float64)
+                if again:
+                    again[f"{e}_denoised{name}"] = denoise_irradiance(
+                        kernel, again[e].astype(np.float32), rho).astype(np.float64)
         sel = np.random.default_rng(5).choice(space.count, args.texels, replace=False)
         t0 = time.perf_counter()
         ref = chiang_reference(space, tracer, mesh, 0, lights, sel, args.paths, 7,
                                fibre.params, fibre.sigma_points)
         ref_s = time.perf_counter() - t0
         iso = chiang_reference(space, tracer, mesh, 0, lights, sel, args.paths, 8,
-                               fibre.params, fibre.sigma_points, exitance="isotropic")
+                               fibre.params, fibre.sigma_points, exitance="isotropic") \
+            if "isotropic" in fast else None
         rows = {e: noise_corrected_error(fast[e][sel], *ref) for e in fast}
-        rows["isotropic_model"] = noise_corrected_error(fast["isotropic"][sel], *iso)
+        if "isotropic" in fast:
+            rows["isotropic_model"] = noise_corrected_error(fast["isotropic"][sel], *iso)
         for e, x in again.items():  # the fast path's own noise removed too
             rows[f"{e}_systematic"] = noise_corrected_error((fast[e][sel], x[sel]), *ref)
             rows[f"{e}_noise"] = {
@@ -187,7 +204,7 @@ def main() -> None:
                                              fibre.params,
                                              sigma_a=tuple(fibre.sigma_texels[0])))
             rows["pathtracer_vs_mitsuba"] = noise_corrected_error(ref, *mit)
-            for e in EXITANCE:
+            for e in args.exitances:
                 rows[f"{e}_vs_mitsuba"] = noise_corrected_error(fast[e][sel], *mit)
         print(f"colour {color} (σ_a {np.round(fibre.sigma_texels[0], 3).tolist()}), "
               f"{space.count} texels")

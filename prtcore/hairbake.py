@@ -25,7 +25,8 @@ path tracer, as ``prtcore report BUNDLE --reference-spp N`` does (hair alone:
 
 The strand texels' indirect light is denoised before the fit
 (:mod:`prtcore.transport.strand_denoise`, ``hair.denoise_neighbours``): each texel's
-irradiance fitted by a plane through its nearest texels in space.
+irradiance fitted by a plane through its nearest texels in space (for the Chiang fibre,
+a plane and the second band of the fibre's direction, ``hair.denoise_direction``).
 
 A mesh baked with the hair has its atlas rows filtered by the surfaces' seam-aware
 lightmap filter (``fit.denoise``: "auto" is :data:`~prtcore.transport.noise.DENOISE_FALLBACK`
@@ -102,7 +103,11 @@ from prtcore.transport.hair_mesh import bake_hair_mesh_dataset, per_piece
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset
 from prtcore.transport.noise import DENOISE_FALLBACK
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
-from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS, denoise_dataset
+from prtcore.transport.strand_denoise import (
+    DEFAULT_NEIGHBOURS,
+    DENOISE_TERMS,
+    denoise_dataset,
+)
 
 METHOD = "data_driven"
 #: writes a run's report files: (directory, method, result, report, seconds, t_start)
@@ -145,11 +150,14 @@ CHIANG_FIXED_LIGHTS = 512
 #: what ``hair.chiang.exitance = "auto"`` takes where memory allows (docs/hair.md: 11 % per
 #: texel on the tangle against the isotropic 38 %, 1.9× the isotropic bake's time)
 AUTO_EXITANCE = "linear"
-#: with at least this many gather rays per texel "auto" takes second-order exitance where
-#: memory allows: on the light tangle at M = 256 its truncation (4.2 % against linear's
-#: 8.3 %) outweighs its larger noise (one bake 8.5 % against 10.9 %; dark 10.3 % against
-#: 13.8 %); at M = 64, the bake's default, the three are alike (15.8, 16.1, 16.3 %) and
-#: linear costs least (docs/hair.md, "The directional albedo table's σ nodes")
+#: with at least this many gather rays per texel, or with the strand texels denoised (the
+#: default), "auto" takes second-order exitance where memory allows. Its truncation is the
+#: smallest (light tangle at M = 256: 4.2 % against linear's 8.3 %), its noise the largest;
+#: undenoised, at M = 64 the three exitances are alike (15.8, 16.1, 16.3 %), and from
+#: M = 256 the second order is best (8.5 % against 10.9 %; dark 10.3 against 13.8 %). The
+#: denoiser takes the noise: the 10k hairball at the bake's defaults, denoised with the
+#: fibre's direction, second order 6.8 % (light) and 7.3 % (dark) against linear's 8.3 and
+#: 9.4 % (docs/hair.md, "Denoising the Chiang fibre")
 SECOND_ORDER_RAYS = 256
 #: training lights of a hair + mesh bake (diffuse fibre) whose ``lights.count`` is "auto".
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
@@ -169,8 +177,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, ``fit.denoise`` resolved (with a
     mesh, "auto" is :data:`~prtcore.transport.noise.DENOISE_FALLBACK` texels, the filter of
     the mesh's atlas rows; hair alone has no atlas: 0),
-    ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
-    Chiang fibre), ``hair.direct_samples = "auto"`` resolved for the diffuse fibre
+    ``hair.denoise_neighbours = "auto"`` resolved (64) and ``hair.denoise_direction``
+    ("t2" for the Chiang fibre, "none" for the diffuse one), ``hair.direct_samples =
+    "auto"`` resolved for the diffuse fibre
     (:func:`prtcore.transport.fibre.direct_sample_count`), ``hair.harmonics = "auto"``
     resolved (adaptive with a mesh: the
     light that goes head → hair → head needs the side of the fibre that faced the head,
@@ -195,7 +204,10 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     harmonics = spec.hair.harmonics
     denoise = spec.hair.denoise_neighbours
     if denoise == "auto":  # measured in docs/hair.md, "Denoising the strand texels"
-        denoise = 0 if spec.hair.fibre == "chiang" else DEFAULT_NEIGHBOURS
+        denoise = DEFAULT_NEIGHBOURS
+    direction = spec.hair.denoise_direction
+    if direction == "auto":  # docs/hair.md, "Denoising the Chiang fibre"
+        direction = "t2" if spec.hair.fibre == "chiang" else "none"
     if spec.hair.fibre == "chiang":
         harmonics = "auto"  # the Chiang fibre carries no harmonics (its own transport)
     elif harmonics == "auto":
@@ -218,7 +230,8 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
                                                      placement="hull"),
         fit=dataclasses.replace(spec.fit, denoise=atlas_radius(spec, with_mesh)),
         hair=dataclasses.replace(spec.hair, harmonics=harmonics,
-                                 denoise_neighbours=denoise, direct_samples=samples,
+                                 denoise_neighbours=denoise, denoise_direction=direction,
+                                 direct_samples=samples,
                                  arc_subdivision=pieces))
 
 
@@ -413,14 +426,16 @@ def _with_exitance(spec: BakeSpec, exitance: str) -> BakeSpec:
 def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                     limit_bytes: int, mesh_texels: int = 0) -> tuple[BakeSpec, str | None]:
     """``hair.chiang.exitance = "auto"`` resolved: second-order exitance when the bake
-    traces at least :data:`SECOND_ORDER_RAYS` gather rays per texel and its memory
-    estimate with it is within ``limit_bytes``, else :data:`AUTO_EXITANCE` (linear) when
-    that fits, else isotropic (a quarter of the stacked direct light; docs/hair.md).
+    denoises its strand texels (``hair.denoise_neighbours`` > 1, the default) or traces at
+    least :data:`SECOND_ORDER_RAYS` gather rays per texel, and its memory estimate with it
+    is within ``limit_bytes``; else :data:`AUTO_EXITANCE` (linear) when that fits, else
+    isotropic (a quarter of the stacked direct light; docs/hair.md).
     Returns the spec and a line saying why a lesser exitance than the rays call for was
     taken, or None. Any other value, and the diffuse fibre, are kept."""
     if spec.hair.fibre != "chiang" or spec.hair.chiang.exitance != "auto":
         return spec, None
-    tried = (["second_order"] if spec.transport.gather_rays >= SECOND_ORDER_RAYS
+    denoised = spec.hair.denoise_neighbours == "auto" or spec.hair.denoise_neighbours > 1
+    tried = (["second_order"] if denoised or spec.transport.gather_rays >= SECOND_ORDER_RAYS
              else []) + [AUTO_EXITANCE]
     refused = []
     for exitance in tried:
@@ -590,7 +605,8 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,
-                           timer=timer, threads=tracer.threads)
+                           timer=timer, threads=tracer.threads,
+                           direction=DENOISE_TERMS[spec.hair.denoise_direction])
     indirect = None
     if scene is not None:  # the atlas rows filtered here (the fit's own filter would run
         # over the strand rows too), and handed to the fit as the lightmaps it fits

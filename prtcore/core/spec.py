@@ -300,9 +300,13 @@ class HairSpec:
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
-    #: "auto": 64 for the diffuse fibre, 0 for "chiang" (whose texels differ with the
-    #: fibre's direction, so neighbours' averages add bias)
+    #: "auto": 64 for either fibre
     denoise_neighbours: int | str = "auto"
+    #: the fibre-direction terms the denoiser's fit takes besides the plane: "none" | "t2"
+    #: (the second band of the fibre's direction, five terms) | "t12" (also the first) |
+    #: "auto": "t2" for "chiang" (whose texels differ with the fibre's direction through
+    #: its lobes), "none" for the diffuse fibre (prtcore.transport.strand_denoise)
+    denoise_direction: str = "auto"
     #: the diffuse fibre's direct-light estimator: "facing" (one shadow ray per arc sample
     #: and light from across the projected width, the azimuth in closed form) | "sampled"
     #: (J stratified azimuths per texel, each shaded) (prtcore.transport.fibre_facing)
@@ -796,6 +800,8 @@ def _parse(data: Any) -> BakeSpec:
                            "turn_bounces", "adaptive")),
         denoise_neighbours=_int_or_auto(hs.get("denoise_neighbours", "auto"),
                                         "hair.denoise_neighbours", lo=0, hi=1024),
+        denoise_direction=_choice(hs.get("denoise_direction", "auto"),
+                                  "hair.denoise_direction", ("auto", "none", "t2", "t12")),
         direct=_choice(hs.get("direct", "facing"), "hair.direct", DIRECT_ESTIMATORS),
         direct_samples=_int_or_auto(hs.get("direct_samples", "auto"), "hair.direct_samples",
                                     lo=1, hi=256),

@@ -111,11 +111,17 @@ DOCS: dict[str, str] = {
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
-    "hair.denoise_neighbours": "`auto` (64 for the diffuse fibre, 0 for `chiang`), or k "
+    "hair.denoise_neighbours": "`auto` (64), or k "
                                "in 0–1024: every strand texel's indirect irradiance "
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "
                                "docs/hair.md); 0 or 1: off",
+    "hair.denoise_direction": "`auto` (`t2` for `chiang`, `none` for the diffuse fibre), "
+                              "`none`, `t2` or `t12`: the terms of the fibre's direction "
+                              "t that the denoiser's local fit takes besides the plane: "
+                              "`t2` the five of t tᵀ − I/3 (a radially averaged fibre's "
+                              "response turns with its direction through them), `t12` "
+                              "also t (docs/hair.md, \"Denoising the Chiang fibre\")",
     "hair.arc_subdivision": "`auto` (2 for the diffuse fibre with a mesh when the hair is curly: "
                             "the median texel's fibre turns 30° or more along it; 1 "
                             "otherwise), or "
