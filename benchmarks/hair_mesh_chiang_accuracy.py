@@ -16,14 +16,19 @@ colour) and dark hair (eumelanin 1.3):
 * ``exact_1``: the first bounce alone against the exact reference;
 * ``model_1``: the first bounce against the reference that makes the same isotropic
   assumption at every fibre hit (``exitance="isotropic"``) — the transport's own error;
-* with ``--exitance linear quadratic``: the same rows for those exitances (``linear:exact``
-  …), whose ``model_1`` reference weights each fibre hit by the projection's kernel.
+* with ``--exitance linear quadratic second_order``: the same rows for those exitances
+  (``linear:exact`` …), whose ``model_1`` reference weights each fibre hit by the
+  projection's kernel;
+* ``exact_denoised``: all bounces with the strand texels denoised as a bake denoises them
+  (prtcore.transport.strand_denoise: k = 64, the plane and the fibre's direction, ``t2``,
+  the Chiang fibre's default), the atlas texels as traced. ``--rows`` picks the rows.
 
 Printed and written to benchmarks/results/hair_mesh_chiang_accuracy.json.
 
 Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 256]
        [--paths 4096] [--texels 300] [--resolution 32] [--texels-per-strand 8]
-       [--exitance isotropic linear quadratic]
+       [--exitance isotropic linear quadratic second_order] [--samples 8]
+       [--rows exact exact_1 model_1 exact_denoised]
 """
 
 from __future__ import annotations
@@ -51,8 +56,9 @@ from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference  # noqa: E402
 from prtcore.scenes.hair import head_hair  # noqa: E402
 from prtcore.transport.fibre import hair_tracer  # noqa: E402
-from prtcore.transport.fibre_chiang import chiang_fibre  # noqa: E402
+from prtcore.transport.fibre_chiang import chiang_fibre, texel_albedo  # noqa: E402
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset  # noqa: E402
+from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS, denoise_dataset  # noqa: E402
 
 HAIRS = {"light": ChiangSpec(), "dark": ChiangSpec(eumelanin=1.3)}
 
@@ -67,9 +73,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--texels-per-strand", type=int, default=8)
     ap.add_argument("--samples", type=int, default=8, help="direct samples J")
     ap.add_argument("--exitance", nargs="+", default=["isotropic"],
-                    choices=["isotropic", "linear", "quadratic"],
+                    choices=["isotropic", "linear", "quadratic", "second_order"],
                     help="hair.chiang.exitance variants (each row prefixed by its name "
                          "when not isotropic)")
+    ap.add_argument("--rows", nargs="+", default=["exact", "exact_1", "model_1"],
+                    choices=["exact", "exact_1", "model_1", "exact_denoised"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_accuracy.json"))
     args = ap.parse_args(argv)
@@ -87,11 +95,15 @@ def main(argv: list[str] | None = None) -> dict:
                            np.sort(t_m + rng.choice(space.count, n_h, replace=False))])
     out: dict = {"args": vars(args), "texels": {"mesh": t_m, "strands": space.count},
                  "results": {}}
+    refs: dict = {}
     for (name, chiang), model in ((h, e) for h in HAIRS.items() for e in args.exitance):
         fibre = chiang_fibre(chiang, space)
         prefix = "" if model == "isotropic" else f"{model}:"
         for row, bounces, exitance in (("exact", 64, "exact"), ("exact_1", 1, "exact"),
-                                       ("model_1", 1, model)):
+                                       ("model_1", 1, model), ("exact_denoised", 64, "exact")):
+            if row not in args.rows:
+                continue
+            denoised = row == "exact_denoised"
             row = prefix + row
             t0 = time.perf_counter()
             data = bake_chiang_hair_mesh_dataset(
@@ -99,11 +111,17 @@ def main(argv: list[str] | None = None) -> dict:
                 TransportSpec(gather_rays=args.rays, direct_samples=args.samples, seed=0,
                               max_bounces=bounces), StageTimer(quiet=True), fibre,
                 exitance=model)
+            if denoised:
+                data = denoise_dataset(data, space, DEFAULT_NEIGHBOURS,
+                                       albedo=texel_albedo(fibre), first_row=t_m,
+                                       direction="t2")
             t1 = time.perf_counter()
-            a, b = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS,
-                                              rows, args.paths, 101, fibre.params,
-                                              fibre.sigma_points, max_depth=bounces,
-                                              exitance=exitance)
+            key = (name, bounces, exitance)  # the exact rows share their reference
+            if key not in refs:
+                refs[key] = chiang_hair_mesh_reference(
+                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
+                    fibre.params, fibre.sigma_points, max_depth=bounces, exitance=exitance)
+            a, b = refs[key]
             t2 = time.perf_counter()
             fast = data.indirect[rows].astype(np.float64)
             res = {"fast_s": t1 - t0, "reference_s": t2 - t1}

@@ -150,14 +150,15 @@ CHIANG_FIXED_LIGHTS = 512
 #: what ``hair.chiang.exitance = "auto"`` takes where memory allows (docs/hair.md: 11 % per
 #: texel on the tangle against the isotropic 38 %, 1.9× the isotropic bake's time)
 AUTO_EXITANCE = "linear"
-#: with at least this many gather rays per texel, or with the strand texels denoised (the
-#: default), "auto" takes second-order exitance where memory allows. Its truncation is the
-#: smallest (light tangle at M = 256: 4.2 % against linear's 8.3 %), its noise the largest;
-#: undenoised, at M = 64 the three exitances are alike (15.8, 16.1, 16.3 %), and from
-#: M = 256 the second order is best (8.5 % against 10.9 %; dark 10.3 against 13.8 %). The
-#: denoiser takes the noise: the 10k hairball at the bake's defaults, denoised with the
-#: fibre's direction, second order 6.8 % (light) and 7.3 % (dark) against linear's 8.3 and
-#: 9.4 % (docs/hair.md, "Denoising the Chiang fibre")
+#: with at least this many gather rays per texel, or with the strand texels denoised
+#: (``hair.denoise_neighbours`` > 1), "auto" takes second-order exitance where memory
+#: allows. Its truncation is the smallest (light tangle at M = 256: 4.2 % against
+#: linear's 8.3 %), its noise the largest; undenoised, at M = 64 the three exitances are
+#: alike (15.8, 16.1, 16.3 %), and from M = 256 the second order is best (8.5 % against
+#: 10.9 %; dark 10.3 against 13.8 %). The denoiser takes the noise: the 10k hairball at
+#: the bake's defaults, denoised with the fibre's direction, second order 6.8 % (light)
+#: and 7.3 % (dark) against linear's 8.3 and 9.4 % (docs/hair.md, "Denoising the Chiang
+#: fibre"; not the default: there the verdict fails at 1.37× the projection bound)
 SECOND_ORDER_RAYS = 256
 #: training lights of a hair + mesh bake (diffuse fibre) whose ``lights.count`` is "auto".
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
@@ -177,7 +178,8 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, ``fit.denoise`` resolved (with a
     mesh, "auto" is :data:`~prtcore.transport.noise.DENOISE_FALLBACK` texels, the filter of
     the mesh's atlas rows; hair alone has no atlas: 0),
-    ``hair.denoise_neighbours = "auto"`` resolved (64) and ``hair.denoise_direction``
+    ``hair.denoise_neighbours = "auto"`` resolved (64 for the diffuse fibre, 0 for the
+    Chiang fibre) and ``hair.denoise_direction``
     ("t2" for the Chiang fibre, "none" for the diffuse one), ``hair.direct_samples =
     "auto"`` resolved for the diffuse fibre
     (:func:`prtcore.transport.fibre.direct_sample_count`), ``hair.harmonics = "auto"``
@@ -203,8 +205,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     harmonics = spec.hair.harmonics
     denoise = spec.hair.denoise_neighbours
-    if denoise == "auto":  # measured in docs/hair.md, "Denoising the strand texels"
-        denoise = DEFAULT_NEIGHBOURS
+    if denoise == "auto":  # measured in docs/hair.md, "Denoising the strand texels" and
+        # "Denoising the Chiang fibre" (within the per-texel bounds, but the verdict fails)
+        denoise = 0 if spec.hair.fibre == "chiang" else DEFAULT_NEIGHBOURS
     direction = spec.hair.denoise_direction
     if direction == "auto":  # docs/hair.md, "Denoising the Chiang fibre"
         direction = "t2" if spec.hair.fibre == "chiang" else "none"
@@ -426,7 +429,7 @@ def _with_exitance(spec: BakeSpec, exitance: str) -> BakeSpec:
 def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                     limit_bytes: int, mesh_texels: int = 0) -> tuple[BakeSpec, str | None]:
     """``hair.chiang.exitance = "auto"`` resolved: second-order exitance when the bake
-    denoises its strand texels (``hair.denoise_neighbours`` > 1, the default) or traces at
+    denoises its strand texels (``hair.denoise_neighbours`` > 1, asked for) or traces at
     least :data:`SECOND_ORDER_RAYS` gather rays per texel, and its memory estimate with it
     is within ``limit_bytes``; else :data:`AUTO_EXITANCE` (linear) when that fits, else
     isotropic (a quarter of the stacked direct light; docs/hair.md).
@@ -434,7 +437,7 @@ def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     taken, or None. Any other value, and the diffuse fibre, are kept."""
     if spec.hair.fibre != "chiang" or spec.hair.chiang.exitance != "auto":
         return spec, None
-    denoised = spec.hair.denoise_neighbours == "auto" or spec.hair.denoise_neighbours > 1
+    denoised = spec.hair.denoise_neighbours not in ("auto", 0, 1)  # "auto": 0 for chiang
     tried = (["second_order"] if denoised or spec.transport.gather_rays >= SECOND_ORDER_RAYS
              else []) + [AUTO_EXITANCE]
     refused = []

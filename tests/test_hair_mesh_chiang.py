@@ -166,15 +166,14 @@ def test_a_chiang_bake_with_a_head_through_the_cli(tmp_path):
     verify_bundle(out)
     m = read_manifest(out)
     assert m["fibre"]["model"] == "chiang" and "harmonics" not in m["fibre"]
-    assert m["fibre"]["chiang"]["exitance"] == "second_order"  # the default, denoised
+    assert m["fibre"]["chiang"]["exitance"] == "linear"  # the default
     assert "every direction" in m["units"]["radiance"]
     report = json.loads((out / "report.json").read_text())
     assert report["transport"]["model"] == "chiang"
     from prtcore.validate import validate_bundle  # the Chiang hair + mesh path tracer
     row = next(r for r in validate_bundle(out, spp=16, count=1)["rows"] if r["n"] == 8)
     assert 0 < row["rmse_noise_corrected_mean"] <= row["rmse_mean"] < 1
-    assert report["transport"]["exitance"] == "second_order"
-    assert report["transport"]["denoise"]["direction"] == "t2"
+    assert report["transport"]["exitance"] == "linear"
     assert report["transport"]["solve"]["negative_clamped"] >= 0
     iso = {**spec, "hair": {**spec["hair"], "chiang": {"exitance": "isotropic"}}}
     out = bake(hair, parse_spec(iso), tmp_path / "isotropic", quiet=True, mesh=mesh)

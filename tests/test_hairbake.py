@@ -283,11 +283,7 @@ def test_the_140k_hairball_fits_the_default_memory_limit_and_k_scales_the_estima
         check_hair_memory("ball.hair", space, more, limit)
 
 
-#: the Chiang fibre, at 32 gather rays (16, the diffuse tests' rays, leave its second-order
-#: exitance noisy enough on 800 texels for the verdict to sit on its limit: 1.26×, or
-#: 1.04× with another light seed)
-CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"},
-          "transport": {"gather_rays": 32}}
+CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}
 
 
 def test_a_chiang_fibre_bake_states_its_fibre_and_validates_with_its_own_path_tracer(
@@ -302,10 +298,8 @@ def test_a_chiang_fibre_bake_states_its_fibre_and_validates_with_its_own_path_tr
     assert "every direction" in m["units"]["radiance"]
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"]["status"] == "pass"
-    # denoised by default, with the second band of the fibre's direction in the fit
-    assert report["transport"]["denoise"]["neighbours"] == 64
-    assert report["transport"]["denoise"]["direction"] == "t2"
-    assert m["spec"]["hair"]["denoise_direction"] == "t2"
+    assert "denoise" not in report["transport"]  # not by default for the Chiang fibre
+    assert m["spec"]["hair"]["denoise_direction"] == "t2"  # the fit's terms when asked
     v = validate_bundle(out, spp=64, count=1)
     row = next(r for r in v["rows"] if r["n"] == 8)
     assert 0 < row["rmse_noise_corrected_mean"] < 0.6
@@ -330,17 +324,16 @@ def test_a_chiang_bake_takes_environment_lights_and_refuses_harmonics_by_key(tmp
         parse_spec({"hair": {"fibre": "chiang", "harmonics": "all_bounces"}})
 
 
-def test_a_chiang_bake_carries_second_order_exitance_by_default_and_reports_what_it_clamped(
+def test_a_chiang_bake_carries_linear_exitance_by_default_and_reports_what_it_clamped(
         tmp_path):
-    """The default exitance, with the strand texels denoised, is the second order
-    (docs/hair.md, "Denoising the Chiang fibre": 6.8 % per texel on the 10k hairball
-    against linear's 8.3 %), solved on a basis of the lights (transport/low_rank.py)."""
+    """The default exitance is linear (docs/hair.md: 11 % per texel on the tangle against
+    the isotropic 38 %), solved on a basis of the lights (transport/low_rank.py)."""
     asset = write_hair(tmp_path / "tangle.hair", tangle(200))
     out = bake(asset, parse_spec(CHIANG), tmp_path / "out", quiet=True)
     report = json.loads((out / "report.json").read_text())
-    assert report["transport"]["exitance"] == "second_order"
+    assert report["transport"]["exitance"] == "linear"
     m = json.loads((out / "manifest.json").read_text())
-    assert m["fibre"]["chiang"]["exitance"] == "second_order"
+    assert m["fibre"]["chiang"]["exitance"] == "linear"
     solve = report["transport"]["solve"]
     assert solve["method"] == "low_rank" and solve["negative_clamped"] >= 0
     assert report["verdict"]["status"] == "pass"
@@ -348,14 +341,13 @@ def test_a_chiang_bake_carries_second_order_exitance_by_default_and_reports_what
 
 
 def test_auto_exitance_is_linear_where_memory_allows_and_isotropic_where_not():
-    """Undenoised and with few gather rays, hair.chiang.exitance "auto" (the default)
-    takes linear exitance when the bake's estimate with it fits max_bake_bytes, else
-    isotropic with a line naming the limit; an explicit exitance, and the diffuse fibre,
-    are kept as they are."""
+    """Undenoised (the Chiang fibre's default) and with few gather rays,
+    hair.chiang.exitance "auto" (the default) takes linear exitance when the bake's
+    estimate with it fits max_bake_bytes, else isotropic with a line naming the limit; an
+    explicit exitance, and the diffuse fibre, are kept as they are."""
     from prtcore.hairbake import AUTO_EXITANCE, check_hair_memory, chiang_exitance, hair_spec
     space = build_strand_space(tangle(300), 4)
-    spec = hair_spec(parse_spec({**CHIANG, "hair": {**CHIANG["hair"],
-                                                    "denoise_neighbours": 0}}))
+    spec = hair_spec(parse_spec(CHIANG))
     assert spec.hair.chiang.exitance == "auto" and AUTO_EXITANCE == "linear"
     linear = check_hair_memory("t.hair", space, spec, 1 << 50)  # "auto" counts as linear
     iso_spec = hair_spec(parse_spec({**CHIANG, "hair": {**CHIANG["hair"],
@@ -373,10 +365,10 @@ def test_auto_exitance_is_linear_where_memory_allows_and_isotropic_where_not():
 
 
 def test_auto_exitance_takes_the_second_order_when_denoised_or_with_many_gather_rays():
-    """With hair gather rays ≥ SECOND_ORDER_RAYS, or with the strand texels denoised (the
-    default), "auto" takes second-order exitance (its truncation is the smallest error
-    once the noise is taken), linear with a line naming the limit where the second order's
-    estimate does not fit, and isotropic where neither does."""
+    """With hair gather rays ≥ SECOND_ORDER_RAYS, or with the strand texels denoised
+    (``hair.denoise_neighbours`` > 1), "auto" takes second-order exitance (its truncation
+    is the smallest error once the noise is taken), linear with a line naming the limit
+    where the second order's estimate does not fit, and isotropic where neither does."""
     from prtcore.hairbake import (
         SECOND_ORDER_RAYS,
         check_hair_memory,
@@ -401,11 +393,11 @@ def test_auto_exitance_takes_the_second_order_when_denoised_or_with_many_gather_
     assert got.hair.chiang.exitance == "isotropic" and "with linear exitance" in why
     fewer = {**CHIANG, "transport": {"gather_rays": SECOND_ORDER_RAYS - 1}}
     assert chiang_exitance("t.hair", space, hair_spec(parse_spec(fewer)), 1 << 50
-                           )[0].hair.chiang.exitance == "second_order"  # denoised
-    raw = hair_spec(parse_spec({**fewer, "hair": {**CHIANG["hair"],
-                                                   "denoise_neighbours": 1}}))
-    assert chiang_exitance("t.hair", space, raw, 1 << 50)[0].hair.chiang.exitance == \
-        "linear"
+                           )[0].hair.chiang.exitance == "linear"  # not denoised
+    denoised = hair_spec(parse_spec({**fewer, "hair": {**CHIANG["hair"],
+                                                        "denoise_neighbours": 64}}))
+    assert chiang_exitance("t.hair", space, denoised, 1 << 50
+                           )[0].hair.chiang.exitance == "second_order"
 
 
 def test_a_chiang_bake_trains_on_more_lights_by_default():
