@@ -21,8 +21,8 @@ per colour:
   alone, without the approximation;
 * ``isotropic_denoised`` (and for every exitance): after the plane fit of the strand
   texels' denoiser (``prtcore.transport.strand_denoise``, ``--neighbours`` k, irradiance
-  taken against the fibre's sphere-averaged albedo); ``{exitance}_denoised_t2`` (the
-  bake's default for this fibre) and ``_t12`` with the fibre-direction terms of
+  taken against the fibre's sphere-averaged albedo); ``{exitance}_denoised_t2`` (what a
+  bake takes for this fibre when asked to denoise) and ``_t12`` with the fibre-direction terms of
   ``--directions`` in the fit too;
 * with ``--second-seed``: ``{exitance}_systematic``, the fast path's error with its own
   noise removed too (two bakes of other seeds), and ``{exitance}_noise``, that noise per

@@ -21,7 +21,8 @@ colour) and dark hair (eumelanin 1.3):
   projection's kernel;
 * ``exact_denoised``: all bounces with the strand texels denoised as a bake denoises them
   (prtcore.transport.strand_denoise: k = 64, the plane and the fibre's direction, ``t2``,
-  the Chiang fibre's default), the atlas texels as traced. ``--rows`` picks the rows.
+  what the Chiang fibre takes when asked to denoise), the atlas texels as traced.
+  ``--rows`` picks the rows.
 
 Printed and written to benchmarks/results/hair_mesh_chiang_accuracy.json.
 

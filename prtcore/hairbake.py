@@ -103,11 +103,7 @@ from prtcore.transport.hair_mesh import bake_hair_mesh_dataset, per_piece
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset
 from prtcore.transport.noise import DENOISE_FALLBACK
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
-from prtcore.transport.strand_denoise import (
-    DEFAULT_NEIGHBOURS,
-    DENOISE_TERMS,
-    denoise_dataset,
-)
+from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS, denoise_dataset
 
 METHOD = "data_driven"
 #: writes a run's report files: (directory, method, result, report, seconds, t_start)
@@ -609,7 +605,7 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,
                            timer=timer, threads=tracer.threads,
-                           direction=DENOISE_TERMS[spec.hair.denoise_direction])
+                           direction=spec.hair.denoise_direction)
     indirect = None
     if scene is not None:  # the atlas rows filtered here (the fit's own filter would run
         # over the strand rows too), and handed to the fit as the lightmaps it fits

@@ -200,7 +200,7 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
     at, ap = albedo(sin, sigma, 1), albedo(sin, sigma, 2)
     g = 4 * at[:, None, :] * tangent[:, :, None] + 8 / 3 * ap[:, None, :] * perp[:, :, None]
     out = [mean[None], np.moveaxis(g, 1, 0)]
-    if EXITANCE_TERMS[exitance] >= 6:
+    if needs_frames(exitance):
         c2, s2 = _second_order(w, *frame)
         norm = np.maximum(c2 * c2 + s2 * s2, 1e-24) ** 0.5  # cos² θ of w
         a2 = 16 / 5 * albedo(sin, sigma, 3)

@@ -66,11 +66,10 @@ SLOPE_RIDGE = 1e-3
 #: a row whose local-linear weights sum to more than this in absolute value (its noise
 #: gain) keeps the kernel average's weights instead
 MAX_GAIN = 2.5
-#: the fibre-direction terms a ``directional`` kernel fits besides the plane: "t2", the five
-#: second-order (traceless t tᵀ) components; "t12", also t itself (the tilt's odd part)
+#: the fibre-direction terms a kernel's fit may take besides the plane (the values of
+#: ``hair.denoise_direction`` once resolved): "t2", the five second-order (traceless
+#: t tᵀ) components; "t12", also t itself (the tilt's odd part)
 DIRECTIONS = ("t2", "t12")
-#: ``hair.denoise_direction`` (resolved) → the ``direction`` argument of the kernel
-DENOISE_TERMS = {"none": "", "t2": "t2", "t12": "t12"}
 
 
 @dataclass(frozen=True)
@@ -83,15 +82,15 @@ class NeighbourKernel:
     radius : (T,) float64 the kernel radius h of every texel (metres)
     local_linear : whether the weights are those of a local linear fit rather than the
         kernel average
-    direction : "" or one of :data:`DIRECTIONS`: the fibre-direction terms fitted besides
-        the plane
+    direction : "none" or one of :data:`DIRECTIONS`: the fibre-direction terms fitted
+        besides the plane
     """
 
     matrix: sp.csr_matrix
     neighbours: int
     radius: np.ndarray
     local_linear: bool = False
-    direction: str = ""
+    direction: str = "none"
 
 
 def direction_terms(tangent: np.ndarray, direction: str) -> np.ndarray:
@@ -139,23 +138,25 @@ def _local_linear_weights(offset: np.ndarray, w: np.ndarray,
     ``a + b·(x − x_i) + c·(f(t) − f(t_i))``: a fibre whose response depends on its direction
     (the Chiang fibre's lobes) is compared with neighbours of other directions through it.
     The slopes carry a ridge of ``SLOPE_RIDGE`` × the row's weight; a row with a noise
-    gain Σ|l| above ``MAX_GAIN`` keeps the plane's weights (without ``turn``), and failing
+    gain Σ|l| above ``MAX_GAIN`` takes the plane's weights (without ``turn``), and failing
     that ``w`` normalised.
     """
     n, k = w.shape
     x = np.concatenate([np.ones((n, k, 1)), offset], axis=2)
-    lw, ok = _intercept_weights(x, w)
-    out = np.where(ok[:, None], lw, w / w.sum(axis=1, keepdims=True))
-    if turn is not None:
-        lw, ok = _intercept_weights(np.concatenate([x, turn], axis=2), w)
-        out = np.where(ok[:, None], lw, out)
+    out = np.empty((n, k))
+    todo = np.arange(n)  # the rows still without weights, fitted by ever fewer terms
+    for design in ([] if turn is None else [np.concatenate([x, turn], axis=2)]) + [x]:
+        lw, ok = _intercept_weights(design[todo], w[todo])
+        out[todo[ok]] = lw[ok]
+        todo = todo[~ok]
+    out[todo] = w[todo] / w[todo].sum(axis=1, keepdims=True)
     return out
 
 
 def neighbour_kernel(position: np.ndarray, neighbours: int = DEFAULT_NEIGHBOURS,
                      threads: int = 2, local_linear: bool = True,
                      lend: np.ndarray | None = None, tangent: np.ndarray | None = None,
-                     direction: str = "") -> NeighbourKernel:
+                     direction: str = "none") -> NeighbourKernel:
     """The kernel over ``position`` (T, 3) float64 texel points: each texel's ``neighbours``
     (k) nearest points (every point when T ≤ k), itself included, with Epanechnikov weights
     of an adaptive radius, and with ``local_linear`` (the default) the weights of the local
@@ -165,7 +166,7 @@ def neighbour_kernel(position: np.ndarray, neighbours: int = DEFAULT_NEIGHBOURS,
     lends nothing still gets a row). k ≤ 1: the identity."""
     position = np.asarray(position, dtype=np.float64)
     terms = None
-    if direction:
+    if direction != "none":
         if tangent is None or np.shape(tangent) != position.shape:
             raise ValueError("neighbour_kernel: a directional kernel needs the texels' "
                              f"tangents ({position.shape}), got "
@@ -207,7 +208,7 @@ def neighbour_kernel(position: np.ndarray, neighbours: int = DEFAULT_NEIGHBOURS,
     matrix.sort_indices()
     local_linear = local_linear and k >= 4
     return NeighbourKernel(matrix, k, radius, local_linear,
-                           direction if local_linear else "")
+                           direction if local_linear else "none")
 
 
 def denoise_irradiance(kernel: NeighbourKernel, radiance: np.ndarray, albedo: np.ndarray,
@@ -262,7 +263,7 @@ def _filter(product: SparseProduct, flat: np.ndarray, rho: np.ndarray,
 def denoise_dataset(data: Dataset, space: StrandSpace, neighbours: int,
                     albedo: np.ndarray | None = None, first_row: int = 0,
                     timer: StageTimer | None = None, threads: int = 2,
-                    direction: str = "") -> Dataset:
+                    direction: str = "none") -> Dataset:
     """``data`` with its strand texels' indirect light denoised (:func:`denoise_irradiance`
     over :func:`neighbour_kernel` of ``space.position``, with ``direction`` of
     ``space.tangent`` too); the strand texels are rows
@@ -289,7 +290,8 @@ def denoise_dataset(data: Dataset, space: StrandSpace, neighbours: int,
                            threads, space.position, space.tangent)
         seconds = time.perf_counter() - t0
     stats = {**data.stats, "denoise": {"neighbours": kernel.neighbours,
-                                       "direction": kernel.direction or None,
+                                       "direction": None if kernel.direction == "none"
+                                       else kernel.direction,
                                        "median_radius_m": float(np.median(kernel.radius)),
                                        "seconds": round(seconds, 3)}}
     return dataclasses.replace(data, stats=stats)
