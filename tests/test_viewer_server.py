@@ -138,11 +138,16 @@ def test_prtcore_view_prints_the_url_and_serves(fake_bundle):
     Ctrl-C, which ends it with status 0."""
     # the child gets Ctrl-C as a terminal gives it: an ignored SIGINT is inherited across
     # exec (Python then installs no KeyboardInterrupt handler), and in the whole suite an
-    # earlier test leaves it ignored in this process (the viewer then ran until killed)
-    proc = subprocess.Popen([sys.executable, "-m", "prtcore", "view", str(fake_bundle),
-                             "--port", "0", "--no-browser", "-q"], stdout=subprocess.PIPE,
-                            text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    # earlier test leaves it ignored in this process (the viewer then ran until killed).
+    # The child restores it itself before it runs the CLI: a preexec_fn would fork with
+    # this process's hooks, and once an earlier test has imported JAX its at-fork hook
+    # warns of a deadlock (JAX is multithreaded)
+    argv = ["prtcore", "view", str(fake_bundle), "--port", "0", "--no-browser", "-q"]
+    proc = subprocess.Popen([sys.executable, "-c", "import runpy, signal, sys; "
+                             "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                             f"sys.argv = {argv!r}; "
+                             "runpy.run_module('prtcore', run_name='__main__')"],
+                            stdout=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()
         url = re.search(r"http://127\.0\.0\.1:\d+/", line).group(0)
