@@ -412,30 +412,93 @@ def test_a_chiang_bake_trains_on_more_lights_by_default():
                                  "lights": {"count": 40}})).lights.count == 40
 
 
-@pytest.mark.parametrize("case", ["auto", "auto lights", "explicit", "no memory"])
-def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkeypatch, case):
-    """``lights.count: "auto"``: a first pass whose verdict fails on the transfer's ratio
-    is baked once more with twice the lights, and on twice the measurement points when
-    their count is "auto" too, and ships the bundle a spec asking for those asks for;
-    the report lists both passes. An explicit count is kept whatever the verdict, and so
-    is K when the memory estimate at 2K is over the limit."""
+def _failing_fits(monkeypatch, fails):
+    """Every fit of the data-driven method whose (lights, points) ``fails(K, P)`` says so
+    reports a verdict failed at 9.9× the projection bound (as if the transfer were far
+    from it); returns the (K, P) of every fit and the number of transports."""
     import dataclasses
 
     from prtcore import hairbake
+    from prtcore.methods.data_driven import DataDriven
 
-    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
-    first = hairbake._transport_and_fit
-    counts = []
+    fits, transports = [], []
+    fit, transport = DataDriven.fit, hairbake._transport_and_fit
 
-    def failing_first(spec, *args):
-        inputs, result = first(spec, *args)
-        counts.append(spec.lights.count)
-        if len(counts) == 1:  # as if the transfer were far from the bound
+    def failing_fit(self, inputs, timer):
+        result = fit(self, inputs, timer)
+        k, p = len(inputs.train), inputs.intake.points.count
+        fits.append((k, p))
+        if fails(k, p):
             result = dataclasses.replace(result, verdict={**result.verdict,
                                                           "status": "fail", "ratio": 9.9})
-        return inputs, result
+        return result
 
-    monkeypatch.setattr(hairbake, "_transport_and_fit", failing_first)
+    def counted(spec, *args):
+        transports.append(spec.lights.count)
+        return transport(spec, *args)
+
+    monkeypatch.setattr(DataDriven, "fit", failing_fit)
+    monkeypatch.setattr(hairbake, "_transport_and_fit", counted)
+    return fits, transports
+
+
+def test_a_failed_verdict_is_fitted_again_on_more_points(tmp_path, monkeypatch):
+    """``measurement_points.count: "auto"``: a fit whose verdict fails on the transfer's
+    ratio is fitted again on twice the points, then four times, until it passes, with no
+    second transport (the texels' light does not depend on the points). The bundle is the
+    one a spec asking for those points gives, bit for bit; the report lists each fit."""
+    from prtcore import hairbake
+    from prtcore.intake.plan import FIXED_POINTS
+
+    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    fits, transports = _failing_fits(monkeypatch, lambda k, p: p < 4 * FIXED_POINTS)
+    spec = {**SPEC, "measurement_points": {**SPEC["measurement_points"], "count": "auto"}}
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    assert transports == [64]  # one transport, three fits
+    assert fits == [(64, FIXED_POINTS), (64, 2 * FIXED_POINTS), (64, 4 * FIXED_POINTS)]
+    assert 4 * FIXED_POINTS == hairbake.MAX_AUTO_POINTS
+    report = json.loads((out / "report.json").read_text())
+    tried = report["transport"]["points_tried"]
+    assert [(t["points"], t["status"]) for t in tried] == [
+        (FIXED_POINTS, "fail"), (2 * FIXED_POINTS, "fail"),
+        (4 * FIXED_POINTS, report["verdict"]["status"])]
+    assert report["verdict"]["ratio"] != 9.9 and "lights_tried" not in report["transport"]
+    manifest = read_manifest(out)
+    assert manifest["spec"]["measurement_points"]["count"] == 4 * FIXED_POINTS
+    assert manifest["points"]["count"] == 4 * FIXED_POINTS
+    asked = bake(asset, parse_spec({**SPEC, "measurement_points": {
+        **SPEC["measurement_points"], "count": 4 * FIXED_POINTS}}), tmp_path / "asked",
+        quiet=True)
+    for name in ("transfer.bin", "basis_00.exr", "points.bin"):
+        assert sha256_file(out / name) == sha256_file(asked / name)
+
+
+def test_the_points_that_fit_best_ship_when_none_passes(tmp_path, monkeypatch):
+    """When no point count passes, the fit with the lowest ratio ships (here the first:
+    every fit reports 9.9×, and a tie keeps the fewer points)."""
+    from prtcore.intake.plan import FIXED_POINTS
+
+    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    fits, _ = _failing_fits(monkeypatch, lambda k, p: True)
+    spec = {**SPEC, "measurement_points": {**SPEC["measurement_points"], "count": "auto"}}
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    assert [p for _, p in fits] == [FIXED_POINTS, 2 * FIXED_POINTS, 4 * FIXED_POINTS]
+    assert read_manifest(out)["points"]["count"] == FIXED_POINTS
+    assert json.loads((out / "report.json").read_text())["verdict"]["ratio"] == 9.9
+
+
+@pytest.mark.parametrize("case", ["auto", "auto lights", "explicit", "no memory"])
+def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkeypatch, case):
+    """``lights.count: "auto"``: a bake whose verdict still fails on the transfer's ratio
+    (after more points, when their count is "auto" too) is baked once more with twice the
+    lights on the same points, and ships the bundle a spec asking for those asks for; the
+    report lists both passes. An explicit count is kept whatever the verdict, and so is K
+    when the memory estimate at 2K is over the limit."""
+    from prtcore import hairbake
+    from prtcore.intake.plan import FIXED_POINTS
+
+    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    fits, transports = _failing_fits(monkeypatch, lambda k, p: k == 128)
     if case == "no memory":
         estimate = hairbake.check_hair_memory
 
@@ -447,29 +510,32 @@ def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkey
         monkeypatch.setattr(hairbake, "check_hair_memory", over_at_2k)
     spec = {**SPEC, "lights": {**SPEC["lights"],
                                "count": 128 if case == "explicit" else "auto"}}
+    p = 32
     if case == "auto":
         spec["measurement_points"] = {**SPEC["measurement_points"], "count": "auto"}
+        p = FIXED_POINTS  # 2P and 4P fail too, and the first of the tie is kept
     out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
     report = json.loads((out / "report.json").read_text())
     if case in ("explicit", "no memory"):
-        assert counts == [128] and "lights_tried" not in report["transport"]
+        assert transports == [128] and "lights_tried" not in report["transport"]
         assert report["verdict"]["ratio"] == 9.9  # the failed verdict ships, and says so
         return
-    assert counts == [128, 256]
-    p = 32 if case == "auto lights" else hairbake.hair_spec(
-        parse_spec(spec)).measurement_points.count
+    assert transports == [128, 256]
+    assert [k for k, _ in fits] == [128] * (3 if case == "auto" else 1) + [256]
     tried = report["transport"]["lights_tried"]
     assert [(t["lights"], t["points"], t["status"]) for t in tried] == [
-        (128, p, "fail"), (256, 32 if case == "auto lights" else 2 * p,
-                           report["verdict"]["status"])]
+        (128, p, "fail"), (256, p, report["verdict"]["status"])]
+    if case == "auto":
+        assert [t["points"] for t in report["transport"]["points_tried"]] == [
+            FIXED_POINTS, 2 * FIXED_POINTS, 4 * FIXED_POINTS]
     manifest = read_manifest(out)
     assert manifest["spec"]["lights"]["count"] == 256
-    assert manifest["spec"]["measurement_points"]["count"] == tried[1]["points"]
-    assert manifest["points"]["count"] == tried[1]["points"]  # the points re-placed
-    monkeypatch.setattr(hairbake, "_transport_and_fit", first)
+    assert manifest["spec"]["measurement_points"]["count"] == p
+    assert manifest["points"]["count"] == p
+    monkeypatch.undo()
     asked = bake(asset, parse_spec({**SPEC, "lights": {**SPEC["lights"], "count": 256},
                                     "measurement_points": {**SPEC["measurement_points"],
-                                                           "count": tried[1]["points"]}}),
+                                                           "count": p}}),
                  tmp_path / "asked", quiet=True)
     for name in ("transfer.bin", "basis_00.exr"):
         assert sha256_file(out / name) == sha256_file(asked / name)
