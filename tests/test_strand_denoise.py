@@ -186,10 +186,13 @@ def test_the_spec_key_and_its_default_per_fibre():
     assert parse_spec({}).hair.denoise_neighbours == "auto"
     assert hair_spec(parse_spec({})).hair.denoise_neighbours == 64
     assert hair_spec(parse_spec({})).hair.denoise_direction == "none"
-    # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md): when
-    # denoised its fit takes the direction's second band; not denoised by default
+    # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md): its fit
+    # takes the direction's second band; with a mesh it is not denoised by default
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair
+    assert (chiang.denoise_neighbours, chiang.denoise_direction) == (64, "t2")
+    chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True).hair
     assert (chiang.denoise_neighbours, chiang.denoise_direction) == (0, "t2")
+    assert hair_spec(parse_spec({}), with_mesh=True).hair.denoise_neighbours == 64
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_direction": "none"}})
                      ).hair.denoise_direction == "none"
     with pytest.raises(SpecError, match=r"hair\.denoise_direction"):

@@ -300,9 +300,8 @@ class HairSpec:
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
-    #: "auto": 64 for the diffuse fibre, 0 for "chiang" (denoised, its texels are within
-    #: the per-texel bounds, but the 10k hairball's verdict fails: docs/hair.md,
-    #: "Denoising the Chiang fibre")
+    #: "auto": 64, but 0 for "chiang" with a mesh (denoised, its strand texels' bias
+    #: grows: docs/hair.md, "Denoising the Chiang fibre")
     denoise_neighbours: int | str = "auto"
     #: the fibre-direction terms the denoiser's fit takes besides the plane: "none" | "t2"
     #: (the second band of the fibre's direction, five terms) | "t12" (also the first) |

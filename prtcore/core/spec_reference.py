@@ -111,7 +111,7 @@ DOCS: dict[str, str] = {
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
-    "hair.denoise_neighbours": "`auto` (64 for the diffuse fibre, 0 for `chiang`: "
+    "hair.denoise_neighbours": "`auto` (64; 0 for `chiang` with a mesh: "
                                "docs/hair.md, \"Denoising the Chiang fibre\"), or k "
                                "in 0–1024: every strand texel's indirect irradiance "
                                "taken from a local linear fit through its k nearest texels "

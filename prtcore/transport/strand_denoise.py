@@ -20,13 +20,13 @@ colours. A texel whose fibre has ρ = 0 in a channel keeps L = 0 there and lends
 (The weights are those of a local linear fit, a plane through the neighbours, whose
 intercept is taken; the average is its fallback.)
 
-**The fibre's direction** (``direction="t2"``, the Chiang fibre's when it is denoised,
-``hair.denoise_direction``; it is not by default: the 10k hairball's verdict then
-fails). A Chiang texel stores ``(1/π²) ∫ L_i(ω) Ā(θ) cos θ dω`` with sin θ = t·ω: the
-incident field against a kernel zonal about the fibre's direction t, so by Funk–Hecke
-each band of the field reaches the texel scaled and evaluated at t. Neighbours pointing
-other ways differ in truth, through the field's low bands; the fit takes the five
-second-band terms of t (:func:`direction_terms`) besides the plane. On the 10k hairball
+**The fibre's direction** (``direction="t2"``, the Chiang fibre's,
+``hair.denoise_direction``; denoised by default for hair alone, not with a mesh). A Chiang
+texel stores ``(1/π²) ∫ L_i(ω) Ā(θ) cos θ dω`` with sin θ = t·ω: the incident field
+against a kernel zonal about the fibre's direction t, so by Funk–Hecke each band of the
+field reaches the texel scaled and evaluated at t. Neighbours pointing other ways differ
+in truth, through the field's low bands; the fit takes the five second-band terms of t
+(:func:`direction_terms`) besides the plane. On the 10k hairball
 at the bake's rays: second-order exitance 6.8 % (light) and 7.3 % (dark) per texel
 against the path tracer, 7.9 % and 9.0 % with the plane alone, 14.0 % and 16.4 %
 undenoised (docs/hair.md, "Denoising the Chiang fibre").
