@@ -99,23 +99,14 @@ def main() -> None:
     seconds = {"transport": time.perf_counter() - t0}
     data, k = inputs.data, len(inputs.train)
     indirect_train, indirect_hold = data.indirect[:, :k], data.indirect[:, k:]
-    lights = data.lights
-    sets = [(k, indirect_train, lights[:k])]
-    if args.more_lights_seed is not None:
-        t1 = time.perf_counter()
-        more = {**spec_dict, "lights": {**spec_dict["lights"],
-                                        "seed": args.more_lights_seed, "holdout": 0}}
-        _, _, _, inputs2 = transport(asset, more, timer)
-        seconds["second transport"] = time.perf_counter() - t1
-        k2 = len(inputs2.train)
-        sets.append((k + k2, np.concatenate([indirect_train, inputs2.data.indirect[:, :k2]],
-                                            axis=1), (*lights[:k], *inputs2.data.lights[:k2])))
-        del inputs2
-    hold = lights[k:]
-    rows = []
+    lights, hold = data.lights, data.lights[k:]
+    out = ROOT / "benchmarks" / "results" / "hair_transfer_points.json"
+    rows: list[dict] = []
     print(f"{'K':>5} {'P':>5}  " + "  ".join(f"n={n}: error/bound (ratio)" if n == 4
                                           else f"n={n}" for n in TABLE_N), flush=True)
-    for kk, train_indirect, train_lights in sets:
+
+    def fits(kk: int, train_indirect, train_lights) -> None:
+        """Every P of ``--points`` on these training lights; the JSON rewritten after each."""
         for p in args.points:
             pspec = dataclasses.replace(spec, measurement_points=dataclasses.replace(
                 spec.measurement_points, count=p))
@@ -135,13 +126,25 @@ def main() -> None:
             print(f"{kk:>5} {p:>5}  " + "  ".join(
                 f"{100 * v['error']:.1f}/{100 * v['bound']:.1f} ({v['ratio']:.2f}×)"
                 for v in row["by_n"].values()) + f"   {row['seconds']:.0f} s", flush=True)
-    out = ROOT / "benchmarks" / "results" / "hair_transfer_points.json"
-    out.write_text(json.dumps({"args": {k_: str(v) for k_, v in vars(args).items()},
-                               "spec": spec_dict, "exitance": spec.hair.chiang.exitance,
-                               "denoise_neighbours": spec.hair.denoise_neighbours,
-                               "shipped_n": spec.fit.basis, "rows": rows,
-                               "seconds": seconds, "stages": dict(timer.seconds)},
-                              indent=1))
+            out.write_text(json.dumps({
+                "args": {k_: str(v) for k_, v in vars(args).items()}, "spec": spec_dict,
+                "exitance": spec.hair.chiang.exitance,
+                "denoise_neighbours": spec.hair.denoise_neighbours,
+                "shipped_n": spec.fit.basis, "rows": rows, "seconds": seconds,
+                "stages": dict(timer.seconds)}, indent=1))
+
+    fits(k, indirect_train, lights[:k])
+    if args.more_lights_seed is not None:
+        t1 = time.perf_counter()
+        more = {**spec_dict, "lights": {**spec_dict["lights"],
+                                        "seed": args.more_lights_seed, "holdout": 0}}
+        _, _, _, inputs2 = transport(asset, more, timer)
+        seconds["second transport"] = time.perf_counter() - t1
+        k2 = len(inputs2.train)
+        both = np.concatenate([indirect_train, inputs2.data.indirect[:, :k2]], axis=1)
+        second = inputs2.data.lights[:k2]
+        del inputs2
+        fits(k + k2, both, (*lights[:k], *second))
     print(f"written {out}")
 
 
