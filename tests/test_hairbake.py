@@ -449,18 +449,27 @@ def _failing_fits(monkeypatch, fails):
     return fits, transports
 
 
-def test_a_failed_verdict_is_fitted_again_on_more_points(tmp_path, monkeypatch):
+@pytest.mark.parametrize("with_mesh", [False, True])
+def test_a_failed_verdict_is_fitted_again_on_more_points(tmp_path, monkeypatch, with_mesh):
     """``measurement_points.count: "auto"``: a fit whose verdict fails on the transfer's
     ratio is fitted again on twice the points, then four times, until it passes, with no
     second transport (the texels' light does not depend on the points). The bundle is the
-    one a spec asking for those points gives, bit for bit; the report lists each fit."""
+    one a spec asking for those points gives, bit for bit; the report lists each fit. With
+    a mesh the points' direct light is shadowed by the mesh as in the transport."""
     from prtcore import hairbake
     from prtcore.intake.plan import FIXED_POINTS
+    from prtcore.scenes.hair import head_hair, write_head
 
-    asset = write_hair(tmp_path / "tangle.hair", tangle(200))
+    base = SPEC
+    if with_mesh:
+        asset = write_hair(tmp_path / "hair.hair", head_hair(60, "curly", seed=1))
+        mesh = write_head(tmp_path / "head.glb")
+        base = {**SPEC, "atlas": {"resolution": 32}}
+    else:
+        asset, mesh = write_hair(tmp_path / "tangle.hair", tangle(200)), None
     fits, transports = _failing_fits(monkeypatch, lambda k, p: p < 4 * FIXED_POINTS)
-    spec = {**SPEC, "measurement_points": {**SPEC["measurement_points"], "count": "auto"}}
-    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
+    spec = {**base, "measurement_points": {**SPEC["measurement_points"], "count": "auto"}}
+    out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True, mesh=mesh)
     assert transports == [64]  # one transport, three fits
     assert fits == [(64, FIXED_POINTS), (64, 2 * FIXED_POINTS), (64, 4 * FIXED_POINTS)]
     assert 4 * FIXED_POINTS == hairbake.MAX_AUTO_POINTS
@@ -473,10 +482,11 @@ def test_a_failed_verdict_is_fitted_again_on_more_points(tmp_path, monkeypatch):
     manifest = read_manifest(out)
     assert manifest["spec"]["measurement_points"]["count"] == 4 * FIXED_POINTS
     assert manifest["points"]["count"] == 4 * FIXED_POINTS
-    asked = bake(asset, parse_spec({**SPEC, "measurement_points": {
+    asked = bake(asset, parse_spec({**base, "measurement_points": {
         **SPEC["measurement_points"], "count": 4 * FIXED_POINTS}}), tmp_path / "asked",
-        quiet=True)
-    for name in ("transfer.bin", "basis_00.exr", "points.bin"):
+        quiet=True, mesh=mesh)
+    for name in ("transfer.bin", "basis_00.exr", "points.bin",
+                 *(("strand_basis_00.exr",) if with_mesh else ())):
         assert sha256_file(out / name) == sha256_file(asked / name)
 
 
