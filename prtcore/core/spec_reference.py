@@ -31,7 +31,10 @@ DOCS: dict[str, str] = {
                   "(refuse when TEXCOORD_1 is missing or invalid)",
     "measurement_points.count": "P, measurement points, 1–1048576, or `auto`: the bake "
                                 "tries P = 256, 512, … up to `sizing.max_points` and "
-                                "ships the smallest that meets the verdict's target",
+                                "ships the smallest that meets the verdict's target "
+                                "(hair bakes: 256 on the hull, fitted again on 512 and "
+                                "1024 while the verdict fails on the transfer's ratio, "
+                                "with no second transport; docs/hair.md)",
     "measurement_points.placement": "`auto` (`qdeim` when the bake chooses P: count "
                                     "`auto` on a static bake; else `surface`) · "
                                     "`surface` (blue noise on the asset) · `hull` (on "
