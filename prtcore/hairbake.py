@@ -681,6 +681,22 @@ def _more_points(inputs: BakeInputs, result, tracer, m: Method, timer: StageTime
         inputs.data, stats={**inputs.data.stats, "points_tried": tried})), result
 
 
+def tried_line(transport: dict) -> str:
+    """report.txt's line for a hair bake fitted more than once (``transport``: report.json's
+    ``transport``, with ``points_tried`` and / or ``lights_tried``), e.g. ``fitted on:
+    256 points × 512 lights fail 1.37× → 512 × 512 fail 1.28× → 1024 × 512 pass 1.17×``."""
+    tries = list(transport.get("points_tried") or transport.get("lights_tried", [])[:1])
+    tries += list(transport.get("lights_tried", [])[1:])
+
+    def one(i: int, t: dict) -> str:
+        ratio = "" if t.get("ratio") is None else f" {t['ratio']:.2f}×"
+        size = (f"{t['points']} points × {t['lights']} lights" if i == 0
+                else f"{t['points']} × {t['lights']}")
+        return f"{size} {t.get('status')}{ratio}"
+
+    return "fitted on: " + " → ".join(one(i, t) for i, t in enumerate(tries))
+
+
 def _tried(spec: BakeSpec, result) -> dict:
     return {"lights": spec.lights.count, "points": spec.measurement_points.count,
             "status": result.verdict.get("status"), "ratio": result.verdict.get("ratio")}

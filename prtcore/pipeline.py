@@ -302,6 +302,11 @@ def _finish_run_files(out: Path, m, result, seconds: dict[str, float],
         from prtcore.transport.noise import noise_line
 
         text = f"transport noise: {noise_line(report['transport_noise'])}\n{text}"
+    transport = report.get("transport") or {}
+    if transport.get("points_tried") or transport.get("lights_tried"):  # a hair bake's
+        from prtcore.hairbake import tried_line  # fits on more points or lights
+
+        text = f"{tried_line(transport)}\n{text}"
     (out / "report.txt").write_text(text + "\n", encoding="utf-8")
 
 

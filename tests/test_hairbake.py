@@ -479,6 +479,10 @@ def test_a_failed_verdict_is_fitted_again_on_more_points(tmp_path, monkeypatch, 
         (FIXED_POINTS, "fail"), (2 * FIXED_POINTS, "fail"),
         (4 * FIXED_POINTS, report["verdict"]["status"])]
     assert report["verdict"]["ratio"] != 9.9 and "lights_tried" not in report["transport"]
+    line = (out / "report.txt").read_text().splitlines()[0]
+    assert line.startswith(f"fitted on: {FIXED_POINTS} points × 64 lights fail 9.90× → "
+                           f"{2 * FIXED_POINTS} × 64 fail 9.90× → {4 * FIXED_POINTS} × 64 "
+                           f"{report['verdict']['status']}"), line
     manifest = read_manifest(out)
     assert manifest["spec"]["measurement_points"]["count"] == 4 * FIXED_POINTS
     assert manifest["points"]["count"] == 4 * FIXED_POINTS
@@ -545,6 +549,9 @@ def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkey
     if case == "auto":
         assert [t["points"] for t in report["transport"]["points_tried"]] == [
             FIXED_POINTS, 2 * FIXED_POINTS, 4 * FIXED_POINTS]
+    line = (out / "report.txt").read_text().splitlines()[0]
+    assert line.startswith(f"fitted on: {p} points × 128 lights fail 9.90× → ") and \
+        line.count("→") == (3 if case == "auto" else 1) and f"{p} × 256 " in line, line
     manifest = read_manifest(out)
     assert manifest["spec"]["lights"]["count"] == 256
     assert manifest["spec"]["measurement_points"]["count"] == p
