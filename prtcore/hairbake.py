@@ -504,8 +504,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     more = _more_lights(spec, result.verdict, asset, space, limits,
                         mesh_texels) if grow else None
     if more is not None:  # one more pass with twice the lights; the report lists both
-        first = {"lights": spec.lights.count, "points": spec.measurement_points.count,
-                 "status": result.verdict["status"], "ratio": result.verdict["ratio"]}
+        first = _tried(spec, result)
         timer.note(f"[prtcore] lights             {spec.lights.count} → {more.lights.count}"
                    f": the verdict failed at {first['ratio']:.2f}× the projection bound; "
                    "baked again with twice the training lights")
@@ -514,11 +513,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         points_tried = inputs.data.stats.get("points_tried")
         del inputs, result  # the first pass's dataset goes before the second is baked
         inputs, result = _transport_and_fit(spec, intake, tracer, fibres, m, timer)
-        tried = [first, {"lights": spec.lights.count,
-                         "points": spec.measurement_points.count,
-                         "status": result.verdict.get("status"),
-                         "ratio": result.verdict.get("ratio")}]
-        stats = {**inputs.data.stats, "lights_tried": tried}
+        stats = {**inputs.data.stats, "lights_tried": [first, _tried(spec, result)]}
         if points_tried is not None:
             stats["points_tried"] = points_tried
         inputs = dataclasses.replace(inputs, data=dataclasses.replace(inputs.data,
@@ -674,7 +669,7 @@ def _more_points(inputs: BakeInputs, result, tracer, m: Method, timer: StageTime
                                                               direct_points=direct))
         result = m.fit(inputs, timer)
         tried.append(_tried(spec, result))
-        if (result.verdict.get("ratio") or np.inf) < (best[1].verdict.get("ratio") or np.inf):
+        if _ratio(result) < _ratio(best[1]):
             best = (inputs, result)
     inputs, result = best
     return dataclasses.replace(inputs, data=dataclasses.replace(
@@ -695,6 +690,12 @@ def tried_line(transport: dict) -> str:
         return f"{size} {t.get('status')}{ratio}"
 
     return "fitted on: " + " → ".join(one(i, t) for i, t in enumerate(tries))
+
+
+def _ratio(result) -> float:
+    """The verdict's ratio to the projection bound; inf where it could not be judged."""
+    ratio = result.verdict.get("ratio")
+    return np.inf if ratio is None else ratio
 
 
 def _tried(spec: BakeSpec, result) -> dict:
