@@ -33,9 +33,12 @@ per colour:
   the fast path against Mitsuba directly.
 
 ``--scene hairball``: the bake's 10k hairball (``--strands`` 10000 then) under
-``hairball_lights`` instead of the tangle.
+``hairball_lights`` instead of the tangle. ``--scene head``: the curly hair of the hair +
+mesh checks (``head_hair``, 500 strands, benchmarks/hair_mesh_chiang_accuracy.py) under
+``head_lights``, without its head: which part of that benchmark's strand texels' error is
+the hair's own.
 
-Usage: python benchmarks/hair_chiang_accuracy.py [--scene tangle|hairball] [--strands 1000]
+Usage: python benchmarks/hair_chiang_accuracy.py [--scene tangle|hairball|head] [--strands 1000]
        [--texels-per-strand 12]
        [--rays 256] [--samples 16] [--paths 2048] [--texels 150]
        [--colors 0.8,0.6,0.4 0.3,0.2,0.1] [--mitsuba-rays 0] [--projected 1 2]
@@ -64,7 +67,14 @@ from prtcore.core.spec import ChiangSpec  # noqa: E402
 from prtcore.receivers.strands import build_strand_space  # noqa: E402
 from prtcore.reference.chiang import chiang_reference  # noqa: E402
 from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
-from prtcore.scenes.hair import hairball, hairball_lights, tangle, tangle_lights  # noqa: E402
+from prtcore.scenes.hair import (  # noqa: E402
+    hairball,
+    hairball_lights,
+    head_hair,
+    head_lights,
+    tangle,
+    tangle_lights,
+)
 from prtcore.transport.fibre import hair_tracer  # noqa: E402
 from prtcore.transport.fibre_chiang import (  # noqa: E402
     EXITANCE,
@@ -130,7 +140,7 @@ def fast_path(space, tracer, mesh, fibre, args, lights, seed: int = 0
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", choices=("tangle", "hairball"), default="tangle")
+    ap.add_argument("--scene", choices=("tangle", "hairball", "head"), default="tangle")
     ap.add_argument("--strands", type=int, default=None,
                     help="1000 for the tangle, 10000 for the hairball")
     ap.add_argument("--neighbours", type=int, default=DEFAULT_NEIGHBOURS)
@@ -158,6 +168,8 @@ def main() -> None:
         rgb = [float(c) for c in color.split(",")]
         if args.scene == "hairball":
             hair, lights = hairball(args.strands or 10_000), hairball_lights()
+        elif args.scene == "head":
+            hair, lights = head_hair(args.strands or 500, "curly"), head_lights()
         else:
             hair, lights = tangle(args.strands or 1000), tangle_lights()
         hair = dataclasses.replace(hair, color=np.tile(rgb, (hair.point_count, 1)))
