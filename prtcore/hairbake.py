@@ -101,7 +101,7 @@ from prtcore.transport.fibre_chiang import (
 )
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset, per_piece
-from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset
+from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset, chiang_mesh_bytes
 from prtcore.transport.noise import DENOISE_FALLBACK
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
 from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS, denoise_dataset
@@ -368,6 +368,10 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     (benchmarks/stage_memory.py, the 10k head + mesh at the bake's 139k-texel atlas):
     K = 144 peak 3.78 GiB against 6.08 GiB (9.66 until 2026-12-05, whose stacked and
     solve terms were counted twice or three times), K = 272 4.45 against 7.74 (15.41).
+    The Chiang fibre with a mesh has its own transport and its own model
+    (:func:`~prtcore.transport.hair_mesh_chiang.chiang_mesh_bytes`) on top of the whole
+    transport's fixed costs; until 2026-12-06 it took this one's terms with its own added,
+    about twice its peak.
     With ``hair.arc_subdivision`` S every strand term counts S·T pieces of ⌈M/S⌉ rays."""
     k = spec.lights.count + spec.lights.holdout
     if spec.hair.chiang.exitance == "auto":  # estimated at what it may resolve to
@@ -392,6 +396,9 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                 SOLVE_BLOCK_BYTES)
     after = light + max((1 + 2 * HARMONICS) * entries + 2 * t * held * 12,
                         (2 + 2 * HARMONICS) * entries, entries + solve)
+    if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
+        return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
+            mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport))
     est = whole + max(gather, after)
     if spec.hair.fibre == "chiang":  # each hit's data; with F > 1 coefficients the stacked
         # direct light's other F − 1 (the solve works in its buffer, transport/low_rank.py;
@@ -406,16 +413,16 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         est += t * m * blocks * 20 + (3 if mesh_texels else 6) * t * k * 12
     if mesh_texels:  # the surface gather of the atlas (one process and one solve: its
         # MEM_PROCESS and working arrays are counted above), and the atlas rows of the
-        # direct light the solve works in (its strand rows are ``light``'s; the Chiang
-        # fibre's transport holds its own)
+        # direct light the solve works in (its strand rows are ``light``'s)
         est += estimate_bake_bytes(mesh_texels, k, spec.transport, ("surface",)) \
             - MEM_PROCESS - min(SOLVE_WORK_ARRAYS * mesh_texels * k * 12, SOLVE_BLOCK_BYTES) \
-            + (mesh_texels + (t if spec.hair.fibre == "chiang" else 0)) * k * 12
-        if spec.hair.fibre == "chiang":  # the mesh rows again, as rays of the product,
-            # and with F > 1 coefficients their stacked rows in the solve
-            f = EXITANCE_TERMS[spec.hair.chiang.exitance]
-            est += mesh_texels * m * CHIANG_BYTES_PER_RAY[
-                spec.hair.chiang.exitance] + (f * mesh_texels * k * 12 if f > 1 else 0)
+            + mesh_texels * k * 12
+    return _checked(asset, space, mesh_texels, k, limit_bytes, est)
+
+
+def _checked(asset, space: StrandSpace, mesh_texels: int, k: int, limit_bytes: int,
+             est: float) -> int:
+    """``est`` as bytes, or :class:`LimitExceeded` naming the bake when it is over."""
     if est > limit_bytes:
         raise LimitExceeded(str(asset), "", f"the bake of {space.count} strand texels"
                             + (f", {mesh_texels} atlas texels" if mesh_texels else "")

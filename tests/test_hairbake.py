@@ -215,14 +215,22 @@ def test_all_bounce_harmonics_bake_and_agree_with_the_first_bounce_variant(tmp_p
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("with_mesh", [False, True], ids=["hair", "hair+mesh"])
-def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, with_mesh):
+@pytest.mark.parametrize("case", ["hair", "hair+mesh", "hair+mesh chiang"])
+def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, case):
     """check_hair_memory against the peak RSS of a whole hair bake in a fresh process (the
     hairball at 4000 strands, K = 64 + 16: several light blocks of the first bounce; or
-    4000 curly strands on the test head, baked together: mesh_bounces' stacked state).
+    4000 curly strands on the test head, baked together: mesh_bounces' stacked state; or
+    the same with the Chiang fibre and linear exitance, its own transport).
     Measured: hair 739–774 MiB, estimate 882 MiB (1.2×); hair + mesh 2.27 GiB, estimate
     3.70 GiB (1.63×: mesh_bounces' stacked terms are counted on both phases; at 10k
-    strands 1.61–1.74×, docs/hair.md), so its looseness is held to 1.8×."""
+    strands 1.61–1.74×, docs/hair.md), so its looseness is held to 1.8×. With the Chiang
+    fibre 2.72 GiB, estimate 4.97 GiB (1.83×: at this K the assembly of the product sets
+    the estimate, and it counts an entry for every gather ray, while on this convex head
+    most of the atlas's rays escape), held to 2×. Until 2026-12-06 the Chiang fibre's
+    estimate was the diffuse fibre's terms with its own added: 2.1× at 2000 strands and
+    K = 528, and 6.90 GiB here against 3.25 GiB, whose product was then assembled in
+    float64."""
+    with_mesh = case != "hair"
     import subprocess
     import sys
 
@@ -238,6 +246,8 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, w
     else:
         asset, mesh = write_hair(tmp_path / "ball.hair", hairball(4000)), None
     spec = {"lights": {"count": 64, "holdout": 16, "seed": 2}}
+    if case.endswith("chiang"):
+        spec["hair"] = {"fibre": "chiang", "chiang": {"exitance": "linear"}}
     # the child's own peak is VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss
     # over execve, so a child started from this (large) pytest process would report the
     # parent's size (2.4 GiB in a full suite run against 0.8 GiB of its own)
@@ -258,7 +268,8 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, w
     est = check_hair_memory(asset, intake.strands, s, 1 << 62,
                             mesh_texels=intake.texels.mesh.count if with_mesh else 0)
     print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
-    assert peak <= est <= (1.8 if with_mesh else 1.6) * peak, (peak, est)
+    loose = 2.0 if case.endswith("chiang") else 1.8 if with_mesh else 1.6
+    assert peak <= est <= loose * peak, (peak, est)
 
 
 def test_the_140k_hairball_fits_the_default_memory_limit_and_k_scales_the_estimate():
@@ -281,6 +292,29 @@ def test_the_140k_hairball_fits_the_default_memory_limit_and_k_scales_the_estima
     with pytest.raises(LimitExceeded, match=r"ball.hair: .*1400000 strand texels and 272 "
                        r"lights needs about .* GiB.*max_bake_bytes="):
         check_hair_memory("ball.hair", space, more, limit)
+
+
+def test_the_10k_head_with_the_chiang_fibre_takes_linear_exitance_under_the_default_limit():
+    """The 10k curly head on the head mesh's 139 089 atlas texels, Chiang fibre, the
+    default 512 + 16 lights: linear exitance measured 9.81 GiB peak (docs/hair.md). Its
+    estimate lies between that and the default limit, so ``auto`` takes linear. Before
+    the Chiang fibre with a mesh had its own model the estimate was 18.84 GiB and the
+    bake took isotropic. Second order, which the default rays do not call for, is over."""
+    from prtcore.core.limits import IntakeLimits
+    from prtcore.hairbake import check_hair_memory, chiang_exitance, hair_spec
+    from prtcore.scenes.hair import head_hair
+
+    space = build_strand_space(head_hair(10_000, "curly", seed=0), 10)
+    limit, atlas = IntakeLimits().max_bake_bytes, 139_089
+    spec = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True)
+    got, why = chiang_exitance("head.hair", space, spec, limit, mesh_texels=atlas)
+    assert got.hair.chiang.exitance == "linear" and why is None
+    est = check_hair_memory("head.hair", space, got, limit, mesh_texels=atlas)
+    assert 9.81 * 2**30 < est < limit
+    second = hair_spec(parse_spec({"hair": {"fibre": "chiang", "chiang": {
+        "exitance": "second_order"}}}), with_mesh=True)
+    with pytest.raises(LimitExceeded, match=r"head.hair: .*139089 atlas texels"):
+        check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
 
 
 CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}

@@ -38,6 +38,7 @@ from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.receivers.texels import TexelSpace
+from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import MeshHits
@@ -54,6 +55,56 @@ from prtcore.transport.fibre_chiang import (
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
 from prtcore.transport.low_rank import solve_low_rank
+from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
+
+#: bytes of one entry of the product (:class:`~prtcore.core.sparse.RayBlockProduct`:
+#: int32 row and column, F × 3 float32 weights, F float32 reads) and of its assembly
+#: (:func:`chiang_mesh_product`: the float64 reads, the parts as the product keeps them,
+#: the sort's order, one field concatenated before it is sorted, and the sorted fields),
+#: each a + b F; and per fibre ray and coefficient, its weights' float64 temporaries
+PRODUCT_ENTRY_BYTES = (8, 16)
+PRODUCT_BUILD_BYTES = (24, 52)
+FIBRE_WEIGHT_BYTES = 48
+#: bytes per ray that either gather keeps until the product is made (its rows, the texel
+#: hit and its direction, and the fibre rays' tangents) and per fibre ray to the mesh,
+#: kept for the near field (:class:`~prtcore.transport.fibre.MeshHits`)
+RAY_KEPT_BYTES = 40
+MESH_HIT_BYTES = 56
+
+
+def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
+                      transport) -> int:
+    """The transport's own peak memory (bytes, beyond the process and the texels' and
+    fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
+    ``t_m`` atlas and ``t_h`` strand texels, ``k`` lights (training + held-out), ``rays``
+    gather rays per texel and ``exitance``: the larger of two phases.
+
+    * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
+      to fibres they keep, then the assembly of the product, at most one entry per
+      gather ray of either gather (entries = (T_m + T_h) M; on the test head with 2000
+      strands 30 % of that).
+    * **Solve.** The product, the stacked direct light (F (T_m + T_h), K, 3) float32 that
+      the solve works in (the atlas texels' F − 1 other coefficients zero but written by
+      every bounce), the sum of the bounces beside it ((T_m + T_h), K, 3), the first
+      bounce's near-field corrections (at most T_m + F T_h rows of (K, 3)), the surface
+      gather's matrix and the fibre rays' mesh hits kept beside it, and the solve's
+      working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
+
+    Measured (benchmarks/stage_memory.py, 2000 curly strands on the head, 512² atlas:
+    139 089 + 20 000 texels, K = 528, M = 64, linear): peak 6.36 GiB in the solve."""
+    f = EXITANCE_TERMS[exitance]
+    n = t_m + t_h
+    entries = n * rays
+    product = entries * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f)
+    gathers = (operator_for("surface").estimate_bytes(t_m, k, transport)
+               + operator_for("fibre").estimate_bytes(t_h, k, transport)
+               + entries * (RAY_KEPT_BYTES + PRODUCT_BUILD_BYTES[0]
+                            + PRODUCT_BUILD_BYTES[1] * f)
+               + t_h * rays * FIBRE_WEIGHT_BYTES * f)
+    solve = (product + (f + 1) * n * k * 12 + (t_m + f * t_h) * k * 12
+             + t_m * rays * 12 + t_h * rays * MESH_HIT_BYTES
+             + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
+    return int(max(gathers, solve))
 
 
 class StrandRays(StrandHits):
@@ -111,29 +162,38 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     hh_read = np.stack(exitance_reads(f_data[:, :3].astype(np.float64), None if frames is None
                                       else (frames[0][f_cols], frames[1][f_cols]), f), axis=1)
     m_data = hits.data if hits.data is not None else np.zeros((0, 6), np.float32)
-    parts = []  # (rows, cols, weight (n, F, 3), read (n, F))
+    parts = []  # (rows, cols, weight (n, F, 3), read (n, F)) as the product keeps them
+
+    def part(rows, cols, weight, read) -> None:  # cast once, as RayBlockProduct would
+        parts.append([np.asarray(rows, np.int32), np.asarray(cols, np.int32),
+                      np.asarray(weight, np.float32), np.asarray(read, np.float32)])
 
     def first_only(w3: np.ndarray) -> np.ndarray:
-        out = np.zeros((len(w3), f, 3))
+        out = np.zeros((len(w3), f, 3), np.float32)
         out[:, 0] = w3
         return out
 
-    unit = np.zeros((1, f))
+    unit = np.zeros((1, f), np.float32)
     unit[0, 0] = 1.0
-    parts.append((mm[0], mm[1], first_only(mm[2]), np.repeat(unit, len(mm[0]), axis=0)))
-    parts.append((s_rows, s_texel + t_m, first_only(mh_w), mh_read))
+    part(mm[0], mm[1], first_only(mm[2]), np.repeat(unit, len(mm[0]), axis=0))
+    part(s_rows, s_texel + t_m, first_only(mh_w), mh_read)
+    del mh_read, mh_w
     scale = 2.0 / rays
-    parts.append((f_rows + t_m, np.asarray(f_cols, np.int64) + t_m,
-                  np.moveaxis(ray_weights(fibre, f_rows, f_data, exitance, frames), 0, 1)
-                  * scale, hh_read))
-    parts.append((hits.row + t_m, hits.col,
-                  np.moveaxis(ray_weights(fibre, hits.row, m_data, exitance, frames), 0, 1)
-                  * scale, np.repeat(unit, len(hits.row), axis=0)))
-    rows = np.concatenate([p[0] for p in parts])
-    order = np.argsort(rows, kind="stable")
-    return RayBlockProduct(rows[order], np.concatenate([p[1] for p in parts])[order],
-                           np.concatenate([p[2] for p in parts])[order],
-                           np.concatenate([p[3] for p in parts])[order], t, threads)
+    part(f_rows + t_m, np.asarray(f_cols, np.int64) + t_m,
+         np.moveaxis(ray_weights(fibre, f_rows, f_data, exitance, frames), 0, 1) * scale,
+         hh_read)
+    del hh_read
+    part(hits.row + t_m, hits.col,
+         np.moveaxis(ray_weights(fibre, hits.row, m_data, exitance, frames), 0, 1) * scale,
+         np.repeat(unit, len(hits.row), axis=0))
+    order = np.argsort(np.concatenate([p[0] for p in parts]), kind="stable")
+    fields = []
+    for i in range(4):  # one field at a time, each part's dropped once it is copied
+        fields.append(np.concatenate([p[i] for p in parts])[order])
+        for p in parts:
+            p[i] = None
+    del order
+    return RayBlockProduct(*fields, t, threads)
 
 
 def chiang_hair_near_field(hits: MeshHits, texels: TexelSpace, fibre: ChiangFibre,
