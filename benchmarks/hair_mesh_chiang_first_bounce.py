@@ -27,7 +27,7 @@ comes from other fibres.
 Printed and written to benchmarks/results/hair_mesh_chiang_first_bounce.json.
 
 Usage: python benchmarks/hair_mesh_chiang_first_bounce.py [--rays 256] [--paths 4096]
-       [--texels 300] [--hairs light dark] [--exitance isotropic linear]
+       [--texels 2000] [--hairs light dark] [--exitance isotropic linear]
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--strands", type=int, default=500)
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--paths", type=int, default=4096)
-    ap.add_argument("--texels", type=int, default=300)
+    ap.add_argument("--texels", type=int, default=2000)
     ap.add_argument("--samples", type=int, default=8, help="direct samples J")
     ap.add_argument("--hairs", nargs="+", default=["light", "dark"], choices=list(HAIRS))
     ap.add_argument("--exitance", nargs="+", default=["isotropic", "linear"],
