@@ -34,7 +34,7 @@ Printed and written to benchmarks/results/hair_mesh_chiang_accuracy.json.
 Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 256]
        [--paths 4096] [--texels 2000] [--resolution 32] [--texels-per-strand 8]
        [--exitance isotropic linear quadratic second_order] [--samples 8]
-       [--rows exact exact_1 model_1 exact_denoised]
+       [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark]
 """
 
 from __future__ import annotations
@@ -83,6 +83,7 @@ def main(argv: list[str] | None = None) -> dict:
                     choices=["isotropic", "linear", "quadratic", "second_order"],
                     help="hair.chiang.exitance variants (each row prefixed by its name "
                          "when not isotropic)")
+    ap.add_argument("--hairs", nargs="+", default=list(HAIRS), choices=list(HAIRS))
     ap.add_argument("--rows", nargs="+", default=["exact", "exact_1", "model_1"],
                     choices=["exact", "exact_1", "model_1", "exact_denoised"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
@@ -103,7 +104,8 @@ def main(argv: list[str] | None = None) -> dict:
     out: dict = {"args": vars(args), "texels": {"mesh": t_m, "strands": space.count},
                  "results": {}}
     refs: dict = {}
-    for (name, chiang), model in ((h, e) for h in HAIRS.items() for e in args.exitance):
+    for (name, chiang), model in ((h, e) for h in HAIRS.items() for e in args.exitance
+                                  if h[0] in args.hairs):
         fibre = chiang_fibre(chiang, space)
         prefix = "" if model == "isotropic" else f"{model}:"
         for row, bounces, exitance in (("exact", 64, "exact"), ("exact_1", 1, "exact"),
