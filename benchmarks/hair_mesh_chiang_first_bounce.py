@@ -27,7 +27,7 @@ comes from other fibres.
 Printed and written to benchmarks/results/hair_mesh_chiang_first_bounce.json.
 
 Usage: python benchmarks/hair_mesh_chiang_first_bounce.py [--rays 256] [--paths 4096]
-       [--texels 2000] [--hairs light dark] [--exitance isotropic linear]
+       [--texels 2000] [--resolution 32] [--hairs light dark] [--exitance isotropic linear]
 """
 
 from __future__ import annotations
@@ -118,6 +118,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000)
+    ap.add_argument("--resolution", type=int, default=32,
+                    help="the head's atlas (the first bounce's figures in docs/hair.md "
+                         "are on 32²; a bake's is 512²)")
     ap.add_argument("--samples", type=int, default=8, help="direct samples J")
     ap.add_argument("--hairs", nargs="+", default=["light", "dark"], choices=list(HAIRS))
     ap.add_argument("--exitance", nargs="+", default=["isotropic", "linear"],
@@ -126,7 +129,7 @@ def main(argv: list[str] | None = None) -> dict:
                                          "hair_mesh_chiang_first_bounce.json"))
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        scene, texels = head_scene(Path(tmp), 32)
+        scene, texels = head_scene(Path(tmp), args.resolution)
     space = build_strand_space(head_hair(args.strands, "curly", seed=0), 8)
     tracer, fibres = hair_tracer(space, scene)
     points = place_measurement_points(hair_scene(space.hair), parse_spec(
