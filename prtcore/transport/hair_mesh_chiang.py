@@ -73,11 +73,13 @@ MESH_HIT_BYTES = 56
 
 
 def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
-                      transport) -> int:
+                      transport: TransportSpec) -> int:
     """The transport's own peak memory (bytes, beyond the process and the texels' and
     fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
-    ``t_m`` atlas and ``t_h`` strand texels, ``k`` lights (training + held-out), ``rays``
-    gather rays per texel and ``exitance``: the larger of two phases.
+    ``t_m`` atlas and ``t_h`` strand texels (the transport's arc pieces), ``k`` lights
+    (training + held-out), ``rays`` gather rays per strand texel (per piece) and
+    ``exitance``, with ``transport`` the spec the gathers' own estimates take: the larger
+    of two phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the assembly of the product, at most one entry per
