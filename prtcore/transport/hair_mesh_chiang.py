@@ -96,7 +96,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     139 089 + 20 000 texels, K = 528, M = 64, linear): peak 6.36 GiB in the solve."""
     f = EXITANCE_TERMS[exitance]
     n = t_m + t_h
-    entries = n * rays
+    entries = t_m * transport.gather_rays + t_h * rays  # the atlas keeps the spec's M
     product = entries * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f)
     gathers = (operator_for("surface").estimate_bytes(t_m, k, transport)
                + operator_for("fibre").estimate_bytes(t_h, k, transport)
@@ -104,7 +104,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                             + PRODUCT_BUILD_BYTES[1] * f)
                + t_h * rays * FIBRE_WEIGHT_BYTES * f)
     solve = (product + (f + 1) * n * k * 12 + (t_m + f * t_h) * k * 12
-             + t_m * rays * 12 + t_h * rays * MESH_HIT_BYTES
+             + t_m * transport.gather_rays * 12 + t_h * rays * MESH_HIT_BYTES
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
     return int(max(gathers, solve))
 
