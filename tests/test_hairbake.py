@@ -597,3 +597,25 @@ def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkey
                  tmp_path / "asked", quiet=True)
     for name in ("transfer.bin", "basis_00.exr"):
         assert sha256_file(out / name) == sha256_file(asked / name)
+
+
+def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_only():
+    """hair.denoise_neighbours "auto" with the Chiang fibre and a mesh is decided by the
+    share of the fibre gather's rays that met another fibre (dense_denoise): the 10k
+    curly head (0.68) is denoised with k = 64 (docs/hair.md: 11.7 / 13.0 % per texel,
+    bias kept), sparse hair is not (the filter bent 2–4 points of bias in on 500
+    strands), a given value is kept, and hair_spec leaves "auto" for the gather."""
+    from prtcore.hairbake import dense_denoise, hair_spec
+    from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS
+
+    spec = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True)
+    assert spec.hair.denoise_neighbours == "auto"
+    assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair.denoise_neighbours \
+        == DEFAULT_NEIGHBOURS  # hair alone: as before
+    dense = {"fibre": {"rays": 1000, "fibre_hits": 678}}
+    sparse = {"fibre": {"rays": 1000, "fibre_hits": 300}}
+    assert dense_denoise(spec, dense).hair.denoise_neighbours == DEFAULT_NEIGHBOURS
+    assert dense_denoise(spec, sparse).hair.denoise_neighbours == 0
+    given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
+                      with_mesh=True)
+    assert dense_denoise(given, dense) is given

@@ -187,11 +187,12 @@ def test_the_spec_key_and_its_default_per_fibre():
     assert hair_spec(parse_spec({})).hair.denoise_neighbours == 64
     assert hair_spec(parse_spec({})).hair.denoise_direction == "none"
     # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md): its fit
-    # takes the direction's second band; with a mesh it is not denoised by default
+    # takes the direction's second band; with a mesh how dense the hair is decides it,
+    # after the gather (tests/test_hairbake.py, dense_denoise)
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair
     assert (chiang.denoise_neighbours, chiang.denoise_direction) == (64, "t2")
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True).hair
-    assert (chiang.denoise_neighbours, chiang.denoise_direction) == (0, "t2")
+    assert (chiang.denoise_neighbours, chiang.denoise_direction) == ("auto", "t2")
     assert hair_spec(parse_spec({}), with_mesh=True).hair.denoise_neighbours == 64
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_direction": "none"}})
                      ).hair.denoise_direction == "none"

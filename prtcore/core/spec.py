@@ -300,8 +300,9 @@ class HairSpec:
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
-    #: "auto": 64, but 0 for "chiang" with a mesh (denoised, its strand texels' bias
-    #: grows: docs/hair.md, "Denoising the Chiang fibre")
+    #: "auto": 64; for "chiang" with a mesh 64 on dense hair (at least 0.6 of the fibre
+    #: gather's rays meet another fibre), else 0: on sparse hair the filter bends bias in
+    #: (prtcore.hairbake.dense_denoise; docs/hair.md)
     denoise_neighbours: int | str = "auto"
     #: the fibre-direction terms the denoiser's fit takes besides the plane: "none" | "t2"
     #: (the second band of the fibre's direction, five terms) | "t12" (also the first) |

@@ -114,8 +114,10 @@ DOCS: dict[str, str] = {
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
-    "hair.denoise_neighbours": "`auto` (64; 0 for `chiang` with a mesh: "
-                               "docs/hair.md, \"Denoising the Chiang fibre\"), or k "
+    "hair.denoise_neighbours": "`auto` (64; for `chiang` with a mesh 64 where at least "
+                               "0.6 of the fibre gather's rays meet another fibre, else "
+                               "0: docs/hair.md, \"The strand texels' bias with a mesh, "
+                               "on 2000 texels\"), or k "
                                "in 0–1024: every strand texel's indirect irradiance "
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "
