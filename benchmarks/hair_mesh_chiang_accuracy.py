@@ -72,6 +72,25 @@ from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS, denoise_dataset
 HAIRS = {"light": ChiangSpec(), "dark": ChiangSpec(eumelanin=1.3)}
 
 
+def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: int):
+    """The test head with ``strands`` curly strands: (scene, atlas texels, strand space,
+    tracer, fibres, 16 hull points, rows, n_m). ``rows`` are ``texels`` random atlas
+    texels (at most all of them: the first n_m) then as many strand texels, in the
+    combined numbering (seed 11: the same texels in every benchmark that calls this)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        scene, atlas = head_scene(Path(tmp), resolution)
+    space = build_strand_space(head_hair(strands, "curly", seed=0), texels_per_strand)
+    tracer, fibres = hair_tracer(space, scene)
+    points = place_measurement_points(hair_scene(space.hair), parse_spec(
+        {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
+    t_m = atlas.count
+    rng = np.random.default_rng(11)
+    n_m, n_h = min(texels, t_m), min(texels, space.count)
+    rows = np.concatenate([np.sort(rng.choice(t_m, n_m, replace=False)),
+                           np.sort(t_m + rng.choice(space.count, n_h, replace=False))])
+    return scene, atlas, space, tracer, fibres, points, rows, n_m
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--strands", type=int, default=500)
@@ -93,18 +112,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_accuracy.json"))
     args = ap.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
-        scene, texels = head_scene(Path(tmp), args.resolution)
-    space = build_strand_space(head_hair(args.strands, "curly", seed=0),
-                               args.texels_per_strand)
-    tracer, fibres = hair_tracer(space, scene)
-    points = place_measurement_points(hair_scene(space.hair), parse_spec(
-        {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
+    scene, texels, space, tracer, fibres, points, rows, n_m = head_setup(
+        args.strands, args.texels_per_strand, args.resolution, args.texels)
     t_m = texels.count
-    rng = np.random.default_rng(11)
-    n_m, n_h = min(args.texels, t_m), min(args.texels, space.count)
-    rows = np.concatenate([np.sort(rng.choice(t_m, n_m, replace=False)),
-                           np.sort(t_m + rng.choice(space.count, n_h, replace=False))])
     out: dict = {"args": vars(args), "texels": {"mesh": t_m, "strands": space.count},
                  "results": {}}
     refs: dict = {}

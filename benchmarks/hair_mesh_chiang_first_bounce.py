@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -45,18 +44,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.hair_mesh_accuracy import LIGHTS, head_scene  # noqa: E402
-from benchmarks.hair_mesh_chiang_accuracy import HAIRS  # noqa: E402
+from benchmarks.hair_mesh_accuracy import LIGHTS  # noqa: E402
+from benchmarks.hair_mesh_chiang_accuracy import HAIRS, head_setup  # noqa: E402
 from prtcore.core.bcsdf import scattering  # noqa: E402
 from prtcore.core.progress import StageTimer  # noqa: E402
-from prtcore.core.spec import TransportSpec, parse_spec  # noqa: E402
-from prtcore.intake.hair import hair_scene  # noqa: E402
-from prtcore.intake.points import place_measurement_points  # noqa: E402
-from prtcore.receivers.strands import build_strand_space  # noqa: E402
+from prtcore.core.spec import TransportSpec  # noqa: E402
 from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference  # noqa: E402
-from prtcore.scenes.hair import head_hair  # noqa: E402
-from prtcore.transport.fibre import hair_tracer  # noqa: E402
 from prtcore.transport.fibre_chiang import (  # noqa: E402
     EXITANCE_TERMS,
     chiang_direct,
@@ -128,17 +122,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_first_bounce.json"))
     args = ap.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
-        scene, texels = head_scene(Path(tmp), args.resolution)
-    space = build_strand_space(head_hair(args.strands, "curly", seed=0), 8)
-    tracer, fibres = hair_tracer(space, scene)
-    points = place_measurement_points(hair_scene(space.hair), parse_spec(
-        {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
+    scene, texels, space, tracer, fibres, points, rows, n_m = head_setup(
+        args.strands, 8, args.resolution, args.texels)
     t_m = texels.count
-    rng = np.random.default_rng(11)  # the strand texels of hair_mesh_chiang_accuracy.py
-    rng.choice(t_m, min(args.texels, t_m), replace=False)
-    picked = np.sort(rng.choice(space.count, min(args.texels, space.count), replace=False))
-    rows = t_m + picked
+    rows = rows[n_m:]  # the strand texels of hair_mesh_chiang_accuracy.py
+    picked = rows - t_m
     out: dict = {"args": vars(args), "results": {}}
     for hair in args.hairs:
         fibre = chiang_fibre(HAIRS[hair], space)
