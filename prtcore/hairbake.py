@@ -390,6 +390,9 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     blocks = harmonic_blocks_bound(spec.hair.harmonics, space) if everything and t else 3
     held = k if everything else min(k, FIRST_BOUNCE_LIGHTS)  # lights' harmonics at once
     whole = MEM_PROCESS + t * MEM_PER_TEXEL + segments * MEM_PER_FIBRE_SEGMENT
+    if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
+        return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
+            mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport))
     gather = operator_for("fibre").estimate_bytes(
         t, k, dataclasses.replace(spec.transport, gather_rays=m))
     entries = t * m * MEM_PER_OPERATOR_ENTRY  # one operator matrix
@@ -399,9 +402,6 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                 SOLVE_BLOCK_BYTES)
     after = light + max((1 + 2 * HARMONICS) * entries + 2 * t * held * 12,
                         (2 + 2 * HARMONICS) * entries, entries + solve)
-    if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
-        return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
-            mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport))
     est = whole + max(gather, after)
     if spec.hair.fibre == "chiang":  # each hit's data; with F > 1 coefficients the stacked
         # direct light's other F − 1 (the solve works in its buffer, transport/low_rank.py;
@@ -579,7 +579,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     return out, m, result, dict(timer.seconds), validation
 
 
-def dense_denoise(spec: BakeSpec, stats: dict) -> BakeSpec:
+def dense_denoise(spec: BakeSpec, stats: dict) -> tuple[BakeSpec, str | None]:
     """``hair.denoise_neighbours`` "auto" of the Chiang fibre with a mesh, resolved from
     the transport's ``stats``: :data:`~prtcore.transport.strand_denoise.DEFAULT_NEIGHBOURS`
     where at least :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` of the fibre
@@ -587,14 +587,18 @@ def dense_denoise(spec: BakeSpec, stats: dict) -> BakeSpec:
     (share 0.68, docs/hair.md "The strand texels' bias with a mesh, on 2000 texels"): the
     filter takes the strand texels from 16.6 / 23.9 % to 11.7 / 13.0 % with their bias
     kept (−0.3 / +1.7 %), and the bake passes (1.19×); on 500 sparse strands it bent
-    2–4 points of bias in. Any other value, or spec, is returned as it is."""
+    2–4 points of bias in. Returns the spec and the line saying what was chosen and why;
+    any other value, and its spec, come back as they are with None."""
     if spec.hair.denoise_neighbours != "auto":
-        return spec
+        return spec, None
     fibre = stats.get("fibre") or {}
     share = fibre.get("fibre_hits", 0) / max(fibre.get("rays", 0), 1)
+    k = DEFAULT_NEIGHBOURS if share >= SPARSE_FIBRE_SHARE else 0
     return dataclasses.replace(spec, hair=dataclasses.replace(
-        spec.hair, denoise_neighbours=DEFAULT_NEIGHBOURS if share >= SPARSE_FIBRE_SHARE
-        else 0))
+        spec.hair, denoise_neighbours=k)), (
+        f"hair.denoise_neighbours auto → {k}: {share:.0%} of the fibre gather's rays met "
+        f"another fibre ({'dense' if k else 'sparse'} hair: denoised from "
+        f"{SPARSE_FIBRE_SHARE:.0%})")
 
 
 def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
@@ -636,7 +640,9 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                       direct_estimator=spec.hair.direct,
                                       direct_samples=spec.hair.direct_samples,
                                       arc_subdivision=spec.hair.arc_subdivision)
-    spec = dense_denoise(spec, data.stats)
+    spec, why = dense_denoise(spec, data.stats)
+    if why is not None:
+        timer.note(f"[prtcore] {why}")
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,

@@ -614,8 +614,9 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_only():
         == DEFAULT_NEIGHBOURS  # hair alone: as before
     dense = {"fibre": {"rays": 1000, "fibre_hits": 678}}
     sparse = {"fibre": {"rays": 1000, "fibre_hits": 300}}
-    assert dense_denoise(spec, dense).hair.denoise_neighbours == DEFAULT_NEIGHBOURS
-    assert dense_denoise(spec, sparse).hair.denoise_neighbours == 0
+    assert dense_denoise(spec, dense)[0].hair.denoise_neighbours == DEFAULT_NEIGHBOURS
+    assert dense_denoise(spec, sparse)[0].hair.denoise_neighbours == 0
+    assert "68% of the fibre gather" in dense_denoise(spec, dense)[1]
     given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
                       with_mesh=True)
-    assert dense_denoise(given, dense) is given
+    assert dense_denoise(given, dense) == (given, None)
