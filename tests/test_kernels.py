@@ -108,28 +108,42 @@ def test_closing_steps_are_the_numpy_steps(monkeypatch, steps):
     assert got.dtype == np.float32 and np.array_equal(got, x)
 
 
-@pytest.mark.parametrize("f", [1, 4])
-def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f):
+@pytest.mark.parametrize("f, first", [(1, 0), (4, 0), (4, 20)])
+def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f, first):
     """RayBlockProduct against the CSR built block by block from the same rays (with
-    repeated (row, column) pairs and texels no ray leaves from), per colour channel."""
+    repeated (row, column) pairs and texels no ray leaves from), per colour channel. With
+    ``first``, the texels below it carry coefficient 0 alone (a hair + mesh bake's atlas
+    texels): their other weights and reads are ignored, and the operator has
+    T + (F − 1)(T − first) rows."""
     rng = np.random.default_rng(0)
     t, n, k = 50, 400, 5
     rows = np.sort(rng.integers(5, t - 5, n))  # rows 0–4 and 45–49 idle
     cols = rng.integers(0, t, n)
     weight = rng.normal(size=(n, f, 3)).astype(np.float32)
     read = rng.normal(size=(n, f)).astype(np.float32)
-    x = rng.normal(size=(f * t, 3 * k)).astype(np.float32)
-    got = RayBlockProduct(rows, cols, weight, read, t, threads=2)(x)
+    size = t + (f - 1) * (t - first)
+
+    def at(i, a):  # texel i's coefficient a, or -1 where it has none
+        return np.where(a == 0, i, np.where(i >= first, t + (a - 1) * (t - first) + i - first,
+                                             -1))
+
+    x = rng.normal(size=(size, 3 * k)).astype(np.float32)
+    product = RayBlockProduct(rows, cols, weight, read, t, threads=2, first=first)
+    assert product.shape == (size, size)
+    got = product(x)
     want = np.zeros_like(x, dtype=np.float64)
     for c in range(3):
-        m = sp.csr_matrix(
-            (np.concatenate([weight[:, a, c] * read[:, b] for a in range(f)
-                             for b in range(f)]),
-             (np.concatenate([rows + a * t for a in range(f) for _ in range(f)]),
-              np.concatenate([cols + b * t for _ in range(f) for b in range(f)]))),
-            shape=(f * t, f * t))
+        r = np.concatenate([at(rows, a) for a in range(f) for _ in range(f)])
+        q = np.concatenate([at(cols, b) for _ in range(f) for b in range(f)])
+        v = np.concatenate([weight[:, a, c] * read[:, b] for a in range(f)
+                            for b in range(f)])
+        keep = (r >= 0) & (q >= 0)
+        m = sp.csr_matrix((v[keep], (r[keep], q[keep])), shape=(size, size))
         want[:, c::3] = m @ x[:, c::3].astype(np.float64)
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+    for a in range(f):  # each coefficient's rows where the layout says
+        sl = product.coefficient_rows(a)
+        assert sl.stop - sl.start == (t if a == 0 else t - first)
     with pytest.raises(ValueError, match="sorted"):
         RayBlockProduct(rows[::-1], cols, weight, read, t)
 

@@ -77,34 +77,44 @@ class SparseProduct:
         return out
 
 
+@numba.njit(cache=True, inline="always")
+def _coefficient_row(i, a, t, first):  # pragma: no cover - compiled
+    """Row of texel i's coefficient a in RayBlockProduct's layout (a ≥ 1 needs i ≥ first)."""
+    return i if a == 0 else t + (a - 1) * (t - first) + (i - first)
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
-def ray_blocks(starts, row, col, weight, read, t, x, out):  # pragma: no cover - compiled
-    """out (F·T, c) ← Σ_r over rays: for row block a, ``weight[r, a, col % 3] ·
-    Σ_b read[r, b] · x[col[r] + b·T]`` added at row[r] + a·T (out zeroed here).
+def ray_blocks(starts, row, col, weight, read, t, first, x, out):  # pragma: no cover
+    """out (N, c) ← Σ_r over rays: for row coefficient a, ``weight[r, a, col % 3] ·
+    Σ_b read[r, b] · x[col[r]'s coefficient b]`` added at row[r]'s coefficient a (out
+    zeroed here). Texels below ``first`` carry coefficient 0 only (their other weights
+    and reads are skipped); coefficient a ≥ 1 of texel i ≥ first is row
+    ``T + (a − 1)(T − first) + i − first`` (with first = 0: ``i + a·T``).
 
     starts (n_chunks + 1,) int64 ray boundaries that never split one row's rays (rows
-    sorted); row, col (n,) int32; weight (n, F, 3) and read (n, F) float32; x (F·T, c)
+    sorted); row, col (n,) int32; weight (n, F, 3) and read (n, F) float32; x (N, c)
     float32 C-contiguous, c = 3·k columns with the colour channel fastest."""
     f = read.shape[1]
     c = x.shape[1]
     for ci in numba.prange(len(starts) - 1):
         acc = np.empty(c, dtype=x.dtype)
         if starts[ci] < starts[ci + 1]:
-            first = row[starts[ci]]
-            last = row[starts[ci + 1] - 1]
+            lo = row[starts[ci]]
+            hi = row[starts[ci + 1] - 1]
             for a in range(f):
-                for i in range(first, last + 1):
-                    out[i + a * t, :] = 0
+                for i in range(max(lo, first) if a else lo, hi + 1):
+                    out[_coefficient_row(i, a, t, first), :] = 0
         for r in range(starts[ci], starts[ci + 1]):
             acc[:] = 0
-            for b in range(f):
+            j = col[r]
+            for b in range(f if j >= first else 1):
                 v = read[r, b]
-                xb = x[col[r] + b * t]
+                xb = x[_coefficient_row(j, b, t, first)]
                 for k in range(c):
                     acc[k] += v * xb[k]
             i = row[r]
-            for a in range(f):
-                oa = out[i + a * t]
+            for a in range(f if i >= first else 1):
+                oa = out[_coefficient_row(i, a, t, first)]
                 w0, w1, w2 = weight[r, a, 0], weight[r, a, 1], weight[r, a, 2]
                 for k in range(0, c, 3):
                     oa[k] += w0 * acc[k]
@@ -121,19 +131,24 @@ class RayBlockProduct:
     sorted by row (as the fibre gather makes them); chunks of rays that never split a row
     go to the threads, so no two write the same row.
 
-    rows, cols (n,) int; weight (n, F, 3), read (n, F) float; texels T."""
+    rows, cols (n,) int; weight (n, F, 3), read (n, F) float; texels T. Texels below
+    ``first`` (a hair + mesh bake's atlas texels, Lambertian) carry coefficient 0 alone:
+    the operator is then N × N with N = T + (F − 1)(T − first), coefficient a ≥ 1 of
+    texel i at row ``T + (a − 1)(T − first) + i − first`` (:meth:`coefficient_rows`), and
+    those texels' other weights and reads are not used."""
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, weight: np.ndarray,
-                 read: np.ndarray, texels: int, threads: int = 2):
+                 read: np.ndarray, texels: int, threads: int = 2, first: int = 0):
         self.row = np.ascontiguousarray(rows, dtype=np.int32)
         self.col = np.ascontiguousarray(cols, dtype=np.int32)
         if len(self.row) > 1 and (np.diff(self.row) < 0).any():
             raise ValueError("RayBlockProduct: rays must be sorted by row")
         self.weight = np.ascontiguousarray(weight, dtype=np.float32)
         self.read = np.ascontiguousarray(read, dtype=np.float32)
-        self.t = int(texels)
+        self.t, self.first = int(texels), int(first)
         f = self.read.shape[1]
-        self.shape = (f * self.t, f * self.t)
+        n_rows = self.t + (f - 1) * (self.t - self.first)
+        self.shape = (n_rows, n_rows)
         self.threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
         # ray chunks, each boundary moved to the first ray of a row
         n = len(self.row)
@@ -144,17 +159,26 @@ class RayBlockProduct:
         self.starts = np.unique(cuts).astype(np.int64)
         # rows no ray starts from (texels with no fibre hits) stay zero: cleared per call
         self.idle = np.setdiff1d(np.arange(self.t), self.row)
+        self._idle_higher = self.idle[self.idle >= self.first] - self.first
+
+    def coefficient_rows(self, a: int) -> slice:
+        """The rows of coefficient ``a``: texels [0, T) for a = 0, [first, T) for a ≥ 1."""
+        if a == 0:
+            return slice(0, self.t)
+        start = self.t + (a - 1) * (self.t - self.first)
+        return slice(start, start + self.t - self.first)
 
     def __call__(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """x : (F·T, c) with c = 3·k; out : optional (F·T, c) float32 to fill."""
+        """x : (N, c) with c = 3·k; out : optional (N, c) float32 to fill."""
         x = np.ascontiguousarray(x, dtype=np.float32)
         if out is None:
             out = np.empty((self.shape[0], x.shape[1]), dtype=np.float32)
         numba.set_num_threads(self.threads)
-        ray_blocks(self.starts, self.row, self.col, self.weight, self.read, self.t, x, out)
-        f = self.read.shape[1]
-        for a in range(f):
-            out[self.idle + a * self.t] = 0
+        ray_blocks(self.starts, self.row, self.col, self.weight, self.read, self.t,
+                   self.first, x, out)
+        out[self.idle] = 0
+        for a in range(1, self.read.shape[1]):
+            out[self.coefficient_rows(a).start + self._idle_higher] = 0
         return out
 
 

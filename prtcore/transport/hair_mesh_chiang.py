@@ -85,9 +85,10 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       to fibres they keep, then the assembly of the product, at most one entry per
       gather ray of either gather (entries = (T_m + T_h) M; on the test head with 2000
       strands 30 % of that).
-    * **Solve.** The product, the stacked direct light (F (T_m + T_h), K, 3) float32 that
-      the solve works in (the atlas texels' F − 1 other coefficients zero but written by
-      every bounce), the sum of the bounces beside it ((T_m + T_h), K, 3), the first
+    * **Solve.** The product, the stacked direct light (T_m + F T_h, K, 3) float32 that
+      the solve works in (the atlas texels carry one coefficient: until 2026-12-06 they
+      carried F, all but the first zero, which cost the 10k head's second order 6.6 GiB),
+      the sum of the bounces beside it ((T_m + T_h), K, 3), the first
       bounce's near-field corrections (at most T_m + F T_h rows of (K, 3)), the surface
       gather's matrix and the fibre rays' mesh hits kept beside it, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
@@ -103,7 +104,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                + entries * (RAY_KEPT_BYTES + PRODUCT_BUILD_BYTES[0]
                             + PRODUCT_BUILD_BYTES[1] * f)
                + t_h * rays * FIBRE_WEIGHT_BYTES * f)
-    solve = (product + (f + 1) * n * k * 12 + (t_m + f * t_h) * k * 12
+    solve = (product + (n + (f - 1) * t_h + n) * k * 12 + (t_m + f * t_h) * k * 12
              + t_m * transport.gather_rays * 12 + t_h * rays * MESH_HIT_BYTES
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
     return int(max(gathers, solve))
@@ -138,8 +139,10 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
                         term_rays: tuple, hits: MeshHits, fibre: ChiangFibre, t_m: int,
                         t_h: int, rays: int, threads: int, exitance: str = "isotropic",
                         frames: tuple | None = None) -> RayBlockProduct:
-    """The operator W (see the module docstring) over the F coefficients of the T_m + T_h
-    receivers (row ``r + a (T_m + T_h)``; an atlas texel uses coefficient 0 only).
+    """The operator W (see the module docstring) over the receivers' coefficients: the
+    T_m + T_h receivers' first, then the strand texels' F − 1 others (an atlas texel
+    has coefficient 0 only; :class:`~prtcore.core.sparse.RayBlockProduct` with ``first``
+    = T_m, :meth:`~prtcore.core.sparse.RayBlockProduct.coefficient_rows`).
 
     mesh_rows: the surface gather's (T_m, T_m + T_h) CSR, whose atlas columns are kept;
     strand_rays: its rays to fibres (:meth:`StrandRays.rays`), each weighing 1/M_valid of
@@ -195,7 +198,7 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
         for p in parts:
             p[i] = None
     del order
-    return RayBlockProduct(*fields, t, threads)
+    return RayBlockProduct(*fields, t, threads, first=t_m)
 
 
 def chiang_hair_near_field(hits: MeshHits, texels: TexelSpace, fibre: ChiangFibre,
@@ -204,11 +207,13 @@ def chiang_hair_near_field(hits: MeshHits, texels: TexelSpace, fibre: ChiangFibr
                            ) -> list[NearField]:
     """:func:`prtcore.transport.hair_mesh.hair_near_field` for the Chiang fibre, one per
     exitance coefficient a: the fibre gather's mesh hits within ``reach`` footprints at
-    rows ``T_m + i + a (T_m + T_h)``, each weighted per channel by its ray's coefficient-a
-    weight × 2 / M (the strand rows' weights in :func:`chiang_mesh_product`)."""
+    strand texel i's coefficient-a row (``T_m + i`` for a = 0, ``T + (a − 1) T_h + i``
+    after, T = T_m + T_h: :func:`chiang_mesh_product`'s layout), each weighted per
+    channel by its ray's coefficient-a weight × 2 / M (the strand rows' weights there)."""
     close = np.flatnonzero(hits.t < near_field_reach(texels, reach)[hits.col])
     w = ray_weights(fibre, hits.row[close], hits.data[close], exitance, frames) * (2.0 / rays)
-    return [NearField(row=t_m + hits.row[close] + a * (t_m + t_h), col=hits.col[close],
+    return [NearField(row=hits.row[close] + (t_m if a == 0 else t_m + t_h + (a - 1) * t_h),
+                      col=hits.col[close],
                       triangle=hits.triangle[close], barycentric=hits.barycentric[close],
                       weight=w[a].astype(np.float32)) for a in range(len(w))]
 
@@ -225,9 +230,9 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     lights first, the texels' direct light not kept). The same rays as the diffuse
     fibre's bake; the hair's direct light is :func:`chiang_direct`'s. ``exitance``
     (``hair.chiang.exitance``): what transport carries of every strand texel's outgoing
-    radiance; with "linear" or "quadratic" the solve runs over F (T_m + T_h) rows, the
-    atlas texels' extra coefficients zero, and the few texels whose truncated exitance
-    dips below zero are clamped and counted."""
+    radiance; with more than the average the solve runs over T_m + F T_h rows (the atlas
+    texels have coefficient 0 alone), and the few texels whose truncated exitance dips
+    below zero are clamped and counted."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
@@ -251,7 +256,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     del term
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     r3 = tracer.rays_traced
-    direct = np.zeros((n_f * t, len(lights), 3), dtype=np.float32)
+    direct = np.zeros((product.shape[0], len(lights), 3), dtype=np.float32)
     with timer.stage("direct texels"):
         direct[:t_m] = direct_radiance(scene, tracer, lights, gather.direct_position,
                                        texels.normal, texels.albedo, timer, "direct texels")
@@ -273,10 +278,11 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         d = chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
                           fibre, exitance)
         for a in range(n_f):
-            direct[a * t + t_m:(a + 1) * t] = d[a]
+            rows = product.coefficient_rows(a)
+            direct[rows.start + (t_m if a == 0 else 0):rows.stop] = d[a]
         del d
     r6 = tracer.rays_traced
-    albedo = np.full((n_f * t, 3), 0.5)
+    albedo = np.full((product.shape[0], 3), 0.5)
     albedo[:t_m] = texels.albedo
     indirect, bounces, resid, solve_stats = solve_low_rank(
         product, albedo, direct, spec.max_bounces, spec.tolerance, rows=t, timer=timer,
