@@ -22,13 +22,15 @@ from prtcore.receivers.strands import build_strand_space
 from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
+from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import hair_tracer
-from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather
-from prtcore.transport.gather import HitMapper, gather_operator
+from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather, texel_frames
+from prtcore.transport.gather import HitMapper, NearField, gather_operator
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh_chiang import (
     StrandRays,
     bake_chiang_hair_mesh_dataset,
+    chiang_hair_near_field,
     chiang_mesh_product,
 )
 
@@ -92,6 +94,34 @@ def test_the_operator_is_the_surface_gather_above_and_albedo_weighted_rays_below
     on_mesh = np.zeros((t_m + t_h, 3), np.float32)
     on_mesh[:t_m] = 1
     assert (w(on_mesh)[t_m:] > 0).mean() > 0.05
+
+
+def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
+    """The fibre gather's near mesh hits with second-order exitance: one correction whose
+    hits are shaded once and weighted nine times equals the nine corrections each
+    coefficient's weights give alone, at the product's rows for that coefficient."""
+    scene, texels, space, tracer, fibres, _ = scalp
+    f, t_m, t_h = scene.triangle_count, texels.count, space.count
+    fibre = chiang_fibre(LIGHT_HAIR, space)
+    term = chiang_gather(space, tracer, fibres, f, 16, 1, fibre,
+                         mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
+    g = gather_operator(scene, texels, tracer, 16, 1)
+    direct = direct_radiance(scene, tracer, LIGHTS, g.direct_position, texels.normal,
+                             texels.albedo)
+    nf = chiang_hair_near_field(term.mesh_hits, texels, fibre, t_m, t_h, 2.0, 16,
+                                "second_order", texel_frames(space))
+    assert nf.count > 0 and nf.weight.shape == (nf.count, 9, 3)
+    rows, values = near_field_correction(scene, tracer, nf, LIGHTS, direct)
+    assert len(rows) == 9 * len(np.unique(nf.row)) and (np.diff(rows) > 0).all()
+    for a in range(9):
+        alone = NearField(row=nf.row + nf.offsets[a], col=nf.col, triangle=nf.triangle,
+                          barycentric=nf.barycentric,
+                          weight=np.ascontiguousarray(nf.weight[:, a]))
+        r, v = near_field_correction(scene, tracer, alone, LIGHTS, direct)
+        at = np.searchsorted(rows, r)
+        assert np.array_equal(rows[at], r) and np.array_equal(values[at], v)
+    # coefficient a ≥ 1 of strand texel i is row T + (a − 1) T_h + i (the product's)
+    assert rows.max() < t_m + t_h + 8 * t_h and rows.min() >= t_m
 
 
 def test_first_bounce_agrees_with_the_path_tracer_of_the_same_model(scalp):

@@ -128,11 +128,15 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
     ``Σ_hits w · (L_d(hit) − L_d[col])``. Costs one shadow ray per near hit and light.
     Returns rows (r,) int64, the receiving texels (sorted, unique), and their changes
     (r, K, 3) float32; :func:`prtcore.transport.solve.solve_indirect` adds them to the
-    first bounce.
+    first bounce. With per-coefficient weights (``near.offsets``, F of them, increasing
+    and at least the rows' span apart) each hit's change is shaded once and weighted F
+    times: rows (F r,), coefficient a's at ``rows + offsets[a]``.
     """
     k = direct_texels.shape[1]
     rows = np.unique(near.row)
-    out = np.zeros((len(rows), k, 3), dtype=np.float32)
+    offsets = np.zeros(1, np.int64) if near.offsets is None else near.offsets
+    r = len(rows)
+    out = np.zeros((len(offsets) * r, k, 3), dtype=np.float32)
     slot = np.searchsorted(rows, near.row)
     starts = range(0, near.count, NEAR_CHUNK)
     if timer is not None:
@@ -145,10 +149,16 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
         ld = direct_radiance(scene, tracer, lights, point, normal, albedo_at(scene, tri, bary))
         ld -= direct_texels[near.col[sl]]
         w = near.weight[sl]
-        ld *= w[:, None, None] if w.ndim == 1 else w[:, None, :]
         # rows are sorted: sum each run of equal rows, then add the runs (unique slots)
         sk = slot[sl]
         run = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
-        out[sk[run]] += np.add.reduceat(ld, run, axis=0)
+        if near.offsets is None:
+            ld *= w[:, None, None] if w.ndim == 1 else w[:, None, :]
+            out[sk[run]] += np.add.reduceat(ld, run, axis=0)
+            continue
+        for a in range(len(offsets)):  # the same shading, each coefficient's weights
+            out[a * r + sk[run]] += np.add.reduceat(ld * w[:, None, a, :], run, axis=0)
+    if near.offsets is not None:
+        rows = (rows[None, :] + offsets[:, None]).ravel()
     return rows, out
 

@@ -85,7 +85,9 @@ class NearField:
     row : (n,) int64 receiving texel, sorted; col : (n,) int64 the texel the hit maps to;
     triangle : (n,) int64 and barycentric : (n, 3) float64, the hit point;
     weight : (n,) float32 the ray's weight in the matrix row (1/M_valid), or (n, 3) one per
-    colour channel (the Chiang fibre's rays, weighted by its directional albedo).
+    colour channel (the Chiang fibre's rays, weighted by its directional albedo), or
+    (n, F, 3) one per exitance coefficient a, whose row is ``row + offsets[a]``;
+    offsets : (F,) int64 with such weights (None otherwise).
     """
 
     row: np.ndarray
@@ -93,6 +95,7 @@ class NearField:
     triangle: np.ndarray
     barycentric: np.ndarray
     weight: np.ndarray
+    offsets: np.ndarray | None = None
 
     @property
     def count(self) -> int:

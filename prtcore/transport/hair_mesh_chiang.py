@@ -204,18 +204,20 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
 def chiang_hair_near_field(hits: MeshHits, texels: TexelSpace, fibre: ChiangFibre,
                            t_m: int, t_h: int, reach: float, rays: int,
                            exitance: str = "isotropic", frames: tuple | None = None
-                           ) -> list[NearField]:
-    """:func:`prtcore.transport.hair_mesh.hair_near_field` for the Chiang fibre, one per
-    exitance coefficient a: the fibre gather's mesh hits within ``reach`` footprints at
-    strand texel i's coefficient-a row (``T_m + i`` for a = 0, ``T + (a − 1) T_h + i``
-    after, T = T_m + T_h: :func:`chiang_mesh_product`'s layout), each weighted per
-    channel by its ray's coefficient-a weight × 2 / M (the strand rows' weights there)."""
+                           ) -> NearField:
+    """:func:`prtcore.transport.hair_mesh.hair_near_field` for the Chiang fibre: the fibre
+    gather's mesh hits within ``reach`` footprints, each weighted per exitance
+    coefficient a and channel by its ray's coefficient-a weight × 2 / M (the strand rows'
+    weights in :func:`chiang_mesh_product`), at strand texel i's coefficient-a row
+    (``T_m + i`` for a = 0, ``T + (a − 1) T_h + i`` after, T = T_m + T_h: that product's
+    layout, offsets a T_h from the first). Shaded once for all F coefficients
+    (:func:`~prtcore.transport.direct.near_field_correction`)."""
     close = np.flatnonzero(hits.t < near_field_reach(texels, reach)[hits.col])
     w = ray_weights(fibre, hits.row[close], hits.data[close], exitance, frames) * (2.0 / rays)
-    return [NearField(row=hits.row[close] + (t_m if a == 0 else t_m + t_h + (a - 1) * t_h),
-                      col=hits.col[close],
-                      triangle=hits.triangle[close], barycentric=hits.barycentric[close],
-                      weight=w[a].astype(np.float32)) for a in range(len(w))]
+    return NearField(row=t_m + hits.row[close], col=hits.col[close],
+                     triangle=hits.triangle[close], barycentric=hits.barycentric[close],
+                     weight=np.ascontiguousarray(np.moveaxis(w, 0, 1), dtype=np.float32),
+                     offsets=np.arange(len(w), dtype=np.int64) * t_h)
 
 
 def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
@@ -268,11 +270,11 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                           timer)
         reach = spec.near_field if hair_near is None else hair_near
         if reach > 0 and hits.row.size:
-            for nf in chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach,
-                                             spec.gather_rays, exitance, frames):
-                if nf.count:
-                    first = add_first_bounce(first, near_field_correction(
-                        scene, tracer, nf, lights, direct[:t_m], timer))
+            nf = chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach,
+                                        spec.gather_rays, exitance, frames)
+            if nf.count:
+                first = add_first_bounce(first, near_field_correction(
+                    scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
     with timer.stage("direct fibres"):
         d = chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
