@@ -90,6 +90,7 @@ from prtcore.transport.fibre import (
     STACKED_HARMONICS,
     STRAIGHT_TURN_DEG,
     direct_sample_count,
+    fibre_share,
     hair_tracer,
     harmonic_blocks_bound,
 )
@@ -182,7 +183,7 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     mesh, "auto" is :data:`~prtcore.transport.noise.DENOISE_FALLBACK` texels, the filter of
     the mesh's atlas rows; hair alone has no atlas: 0),
     ``hair.denoise_neighbours = "auto"`` resolved (64; for the Chiang fibre with a mesh
-    after its gather, by how dense the hair is: :func:`dense_denoise`) and
+    before its transport, by how dense the hair is: :func:`dense_hair`) and
     ``hair.denoise_direction``
     ("t2" for the Chiang fibre, "none" for the diffuse one), ``hair.direct_samples =
     "auto"`` resolved for the diffuse fibre
@@ -213,7 +214,7 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         # measured in docs/hair.md, "Denoising the strand texels" and "Denoising the
         # Chiang fibre" (hair alone within the per-texel bounds, and the verdict passes
         # on more points: "More measurement points, no more transport"); the Chiang
-        # fibre with a mesh is decided after its gather (dense_denoise)
+        # fibre with a mesh is decided by how dense the hair is (dense_hair)
         denoise = DEFAULT_NEIGHBOURS
     direction = spec.hair.denoise_direction
     if direction == "auto":  # docs/hair.md, "Denoising the Chiang fibre"
@@ -444,7 +445,8 @@ def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                     limit_bytes: int, mesh_texels: int = 0) -> tuple[BakeSpec, str | None]:
     """``hair.chiang.exitance = "auto"`` resolved: second-order exitance when the bake
     denoises its strand texels (``hair.denoise_neighbours`` > 1: the default for hair
-    alone) or traces at
+    alone, and for dense hair with a mesh, :func:`dense_hair`, which asks again once it
+    knows) or traces at
     least :data:`SECOND_ORDER_RAYS` gather rays per texel, and its memory estimate with it
     is within ``limit_bytes``; else :data:`AUTO_EXITANCE` (linear) when that fits, else
     isotropic (a quarter of the stacked direct light; docs/hair.md).
@@ -452,7 +454,7 @@ def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     taken, or None. Any other value, and the diffuse fibre, are kept."""
     if spec.hair.fibre != "chiang" or spec.hair.chiang.exitance != "auto":
         return spec, None
-    # "auto" (hair_spec's to resolve) counts as not denoised
+    # "auto" (dense_hair's to resolve, with a mesh) counts as not denoised
     denoised = spec.hair.denoise_neighbours not in ("auto", 0, 1)
     tried = (["second_order"] if denoised or spec.transport.gather_rays >= SECOND_ORDER_RAYS
              else []) + [AUTO_EXITANCE]
@@ -501,11 +503,21 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     space, hair, scene = intake.strands, intake.hair, intake.scene
     spec = arc_pieces(spec, space)
     mesh_texels = intake.texels.mesh.count if scene is not None else 0
+    exitance_auto = spec.hair.chiang.exitance == "auto"
     spec, why = chiang_exitance(asset, space, spec, limits.max_bake_bytes, mesh_texels)
     if why is not None:
         timer.note(f"[prtcore] {why}")
     check_hair_memory(asset, space, spec, limits.max_bake_bytes, mesh_texels=mesh_texels)
     tracer, fibres = hair_tracer(space, scene)
+    if scene is not None and spec.hair.denoise_neighbours == "auto":  # the Chiang fibre's
+        with timer.stage("hair density"):
+            share = fibre_share(space, tracer, scene.triangle_count,
+                                spec.transport.gather_rays, spec.transport.seed)
+        spec, lines = dense_hair(asset, space, spec, share, limits.max_bake_bytes,
+                                 mesh_texels, exitance_auto)
+        for line in lines:
+            timer.note(f"[prtcore] {line}")
+        intake = dataclasses.replace(intake, spec=spec)
     m = method(METHOD)
     inputs, result = _transport_and_fit(spec, intake, tracer, fibres, m, timer)
     if grow_points:  # refitted on more points first: they need no transport
@@ -528,7 +540,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
             stats["points_tried"] = points_tried
         inputs = dataclasses.replace(inputs, data=dataclasses.replace(inputs.data,
                                                                       stats=stats))
-    spec = inputs.spec  # as the transport resolved it (dense_denoise)
+    spec = inputs.spec  # as the passes ran it
 
     def write(tmp: Path) -> dict:
         write_hair(tmp / "asset.hair", hair)
@@ -579,26 +591,36 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     return out, m, result, dict(timer.seconds), validation
 
 
-def dense_denoise(spec: BakeSpec, stats: dict) -> tuple[BakeSpec, str | None]:
-    """``hair.denoise_neighbours`` "auto" of the Chiang fibre with a mesh, resolved from
-    the transport's ``stats``: :data:`~prtcore.transport.strand_denoise.DEFAULT_NEIGHBOURS`
-    where at least :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` of the fibre
-    gather's rays met another fibre (dense hair), else 0. Measured on the 10k curly head
-    (share 0.68, docs/hair.md "The strand texels' bias with a mesh, on 2000 texels"): the
-    filter takes the strand texels from 16.6 / 23.9 % to 11.7 / 13.0 % with their bias
-    kept (−0.3 / +1.7 %), and the bake passes (1.19×); on 500 sparse strands it bent
-    2–4 points of bias in. Returns the spec and the line saying what was chosen and why;
-    any other value, and its spec, come back as they are with None."""
+def dense_hair(asset: str | Path, space: StrandSpace, spec: BakeSpec, share: float,
+               limit_bytes: int, mesh_texels: int, exitance_auto: bool
+               ) -> tuple[BakeSpec, list[str]]:
+    """The Chiang fibre with a mesh: ``hair.denoise_neighbours`` "auto" resolved from
+    ``share``, the share of the fibre gather's rays that meet another fibre
+    (:func:`~prtcore.transport.fibre.fibre_share`, traced before the transport):
+    :data:`~prtcore.transport.strand_denoise.DEFAULT_NEIGHBOURS` where it is at least
+    :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` (dense hair), else 0; and, where
+    ``hair.chiang.exitance`` was "auto" (``exitance_auto``) and the strand texels are
+    now denoised, the exitance chosen again by :func:`chiang_exitance` (second order
+    where its memory estimate fits). Measured on the 10k curly head (share 0.68,
+    docs/hair.md "Dense hair with a mesh: second order, denoised"): its strand texels
+    11.7 % per texel with linear exitance denoised, 8.5 % with the second order, the
+    bias within 0.3 %; on 500 sparse strands the filter bent 2–4 points of bias in, and
+    undenoised the second order is noisier than linear. Returns the spec and the lines
+    saying what was chosen and why; any other value of the key comes back as it is."""
     if spec.hair.denoise_neighbours != "auto":
-        return spec, None
-    fibre = stats.get("fibre") or {}
-    share = fibre.get("fibre_hits", 0) / max(fibre.get("rays", 0), 1)
+        return spec, []
     k = DEFAULT_NEIGHBOURS if share >= SPARSE_FIBRE_SHARE else 0
-    return dataclasses.replace(spec, hair=dataclasses.replace(
-        spec.hair, denoise_neighbours=k)), (
-        f"hair.denoise_neighbours auto → {k}: {share:.0%} of the fibre gather's rays met "
-        f"another fibre ({'dense' if k else 'sparse'} hair: denoised from "
-        f"{SPARSE_FIBRE_SHARE:.0%})")
+    spec = dataclasses.replace(spec, hair=dataclasses.replace(
+        spec.hair, denoise_neighbours=k))
+    lines = [f"hair.denoise_neighbours auto → {k}: {share:.0%} of the fibre gather's rays "
+             f"meet another fibre ({'dense' if k else 'sparse'} hair: denoised from "
+             f"{SPARSE_FIBRE_SHARE:.0%})"]
+    if k and exitance_auto:
+        spec, why = chiang_exitance(asset, space, _with_exitance(spec, "auto"),
+                                    limit_bytes, mesh_texels)
+        lines.append(why or f"hair.chiang.exitance auto → {spec.hair.chiang.exitance}: "
+                            "the strand texels are denoised")
+    return spec, lines
 
 
 def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
@@ -640,9 +662,6 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                       direct_estimator=spec.hair.direct,
                                       direct_samples=spec.hair.direct_samples,
                                       arc_subdivision=spec.hair.arc_subdivision)
-    spec, why = dense_denoise(spec, data.stats)
-    if why is not None:
-        timer.note(f"[prtcore] {why}")
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,

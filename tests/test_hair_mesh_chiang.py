@@ -23,7 +23,7 @@ from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.direct import direct_radiance, near_field_correction
-from prtcore.transport.fibre import hair_tracer
+from prtcore.transport.fibre import fibre_share, hair_tracer
 from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather, texel_frames
 from prtcore.transport.gather import HitMapper, NearField, gather_operator
 from prtcore.transport.hair import bake_hair_dataset
@@ -122,6 +122,20 @@ def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
         assert np.array_equal(rows[at], r) and np.array_equal(values[at], v)
     # coefficient a ≥ 1 of strand texel i is row T + (a − 1) T_h + i (the product's)
     assert rows.max() < t_m + t_h + 8 * t_h and rows.min() >= t_m
+
+
+def test_the_share_of_rays_meeting_a_fibre_is_known_before_the_gather(scalp):
+    """fibre_share, traced on 4096 texels before the transport (how dense the hair is:
+    hairbake.dense_hair), reads what the fibre gather's stats give once it is traced."""
+    scene, texels, space, tracer, fibres, _ = scalp
+    f = scene.triangle_count
+    term = chiang_gather(space, tracer, fibres, f, 32, 1, chiang_fibre(LIGHT_HAIR, space),
+                         mesh_texels=HitMapper(scene, texels, tracer),
+                         mesh_columns=texels.count)
+    gathered = term.stats["fibre_hits"] / term.stats["rays"]
+    share = fibre_share(space, tracer, f, 32, 0)
+    assert 0.05 < gathered < 0.6 and abs(share - gathered) < 0.02, (share, gathered)
+    assert fibre_share(space, tracer, f, 32, 0) == share  # seeded
 
 
 def test_first_bounce_agrees_with_the_path_tracer_of_the_same_model(scalp):

@@ -599,24 +599,44 @@ def test_a_failed_verdict_bakes_once_more_with_twice_the_lights(tmp_path, monkey
         assert sha256_file(out / name) == sha256_file(asked / name)
 
 
-def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_only():
+def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order():
     """hair.denoise_neighbours "auto" with the Chiang fibre and a mesh is decided by the
-    share of the fibre gather's rays that met another fibre (dense_denoise): the 10k
-    curly head (0.68) is denoised with k = 64 (docs/hair.md: 11.7 / 13.0 % per texel,
-    bias kept), sparse hair is not (the filter bent 2–4 points of bias in on 500
-    strands), a given value is kept, and hair_spec leaves "auto" for the gather."""
-    from prtcore.hairbake import dense_denoise, hair_spec
+    share of the fibre gather's rays that meet another fibre, traced before the transport
+    (dense_hair): dense hair (the 10k curly head's 0.68) is denoised with k = 64 and, its
+    exitance "auto", asked again for the second order (docs/hair.md: 8.5 % per texel
+    against linear's 11.7 %), which it takes where its memory fits and says why not where
+    it does not; sparse hair is not denoised and keeps linear (the filter bent 2–4 points
+    of bias in on 500 strands); a given value is kept, and hair_spec leaves "auto"."""
+    from prtcore.hairbake import chiang_exitance, dense_hair, hair_spec
+    from prtcore.scenes.hair import head_hair
     from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS
 
+    space = build_strand_space(head_hair(500, "curly", seed=0), 8)
     spec = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True)
     assert spec.hair.denoise_neighbours == "auto"
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair.denoise_neighbours \
         == DEFAULT_NEIGHBOURS  # hair alone: as before
-    dense = {"fibre": {"rays": 1000, "fibre_hits": 678}}
-    sparse = {"fibre": {"rays": 1000, "fibre_hits": 300}}
-    assert dense_denoise(spec, dense)[0].hair.denoise_neighbours == DEFAULT_NEIGHBOURS
-    assert dense_denoise(spec, sparse)[0].hair.denoise_neighbours == 0
-    assert "68% of the fibre gather" in dense_denoise(spec, dense)[1]
+    limit, atlas = 16 * 2**30, 1000
+    spec, why = chiang_exitance("h.hair", space, spec, limit, mesh_texels=atlas)
+    assert spec.hair.chiang.exitance == "linear" and why is None  # not denoised yet
+
+    dense, lines = dense_hair("h.hair", space, spec, 0.678, limit, atlas, True)
+    assert dense.hair.denoise_neighbours == DEFAULT_NEIGHBOURS
+    assert dense.hair.chiang.exitance == "second_order"
+    assert "68% of the fibre gather" in lines[0] and "second_order" in lines[1]
+    sparse, lines = dense_hair("h.hair", space, spec, 0.3, limit, atlas, True)
+    assert sparse.hair.denoise_neighbours == 0 and sparse.hair.chiang.exitance == "linear"
+    assert len(lines) == 1 and "sparse" in lines[0]
+    # a given exitance is kept; the second order over the limit falls back to linear
+    kept, _ = dense_hair("h.hair", space, spec, 0.678, limit, atlas, False)
+    assert kept.hair.chiang.exitance == "linear"
+    from prtcore.hairbake import check_hair_memory
+    linear = check_hair_memory("h.hair", space, spec, limit, mesh_texels=atlas)
+    small, lines = dense_hair("h.hair", space, spec, 0.678, int(linear * 1.01), atlas, True)
+    assert small.hair.chiang.exitance == "linear" and small.hair.denoise_neighbours == 64
+    assert "with second_order exitance" in lines[1]
     given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
                       with_mesh=True)
-    assert dense_denoise(given, dense) == (given, None)
+    assert dense_hair("h.hair", space, given, 0.678, limit, atlas, True) == (given, [])
+
+

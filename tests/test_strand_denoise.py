@@ -188,7 +188,7 @@ def test_the_spec_key_and_its_default_per_fibre():
     assert hair_spec(parse_spec({})).hair.denoise_direction == "none"
     # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md): its fit
     # takes the direction's second band; with a mesh how dense the hair is decides it,
-    # after the gather (tests/test_hairbake.py, dense_denoise)
+    # before the transport (tests/test_hairbake.py, dense_hair)
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair
     assert (chiang.denoise_neighbours, chiang.denoise_direction) == (64, "t2")
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True).hair

@@ -275,7 +275,8 @@ class ChiangSpec:
     #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
     #: solve), "second_order" (the whole second order: nine terms), "isotropic" (the
     #: average alone, the paper's: 38 %, the least memory) or "auto": second_order with
-    #: ≥ 256 gather rays, else linear, where the bake's memory estimate allows it, else
+    #: ≥ 256 gather rays or denoised strand texels (hair alone; dense hair with a
+    #: mesh), else linear, where the bake's memory estimate allows it, else
     #: isotropic (prtcore.hairbake.chiang_exitance); docs/hair.md
     exitance: str = "auto"
 
@@ -301,8 +302,8 @@ class HairSpec:
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
     #: "auto": 64; for "chiang" with a mesh 64 on dense hair (at least 0.6 of the fibre
-    #: gather's rays meet another fibre), else 0: on sparse hair the filter bends bias in
-    #: (prtcore.hairbake.dense_denoise; docs/hair.md)
+    #: gather's rays meet another fibre, traced before the transport), else 0: on sparse
+    #: hair the filter bends bias in (prtcore.hairbake.dense_hair; docs/hair.md)
     denoise_neighbours: int | str = "auto"
     #: the fibre-direction terms the denoiser's fit takes besides the plane: "none" | "t2"
     #: (the second band of the fibre's direction, five terms) | "t12" (also the first) |

@@ -90,7 +90,9 @@ DOCS: dict[str, str] = {
     "chiang.beta_n": "azimuthal roughness, 0.1–1",
     "chiang.alpha_deg": "cuticle tilt in degrees, −10–10",
     "chiang.eta": "index of refraction of the fibre, 1–3",
-    "chiang.exitance": "`auto` (`second_order` with `transport.gather_rays` ≥ 256, "
+    "chiang.exitance": "`auto` (`second_order` with `transport.gather_rays` ≥ 256 or "
+                       "where the strand texels are denoised (hair alone, or dense "
+                       "hair with a mesh), "
                        "else `linear`, where the bake's memory estimate is within "
                        "`max_bake_bytes`, else the next one down, and the run says so) · "
                        "`linear` (transport carries each texel's direction-averaged "
@@ -115,9 +117,9 @@ DOCS: dict[str, str] = {
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
     "hair.denoise_neighbours": "`auto` (64; for `chiang` with a mesh 64 where at least "
-                               "0.6 of the fibre gather's rays meet another fibre, else "
-                               "0: docs/hair.md, \"The strand texels' bias with a mesh, "
-                               "on 2000 texels\"), or k "
+                               "0.6 of the fibre gather's rays meet another fibre, traced "
+                               "on 4096 texels before the transport, else 0: docs/hair.md, "
+                               "\"Dense hair with a mesh: second order, denoised\"), or k "
                                "in 0–1024: every strand texel's indirect irradiance "
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "

@@ -559,6 +559,30 @@ STRAIGHT_TURN_DEG = 30.0
 SPARSE_FIBRE_SHARE = 0.6
 
 
+#: strand texels whose gather rays :func:`fibre_share` traces before a bake
+SHARE_TEXELS = 4096
+
+
+def fibre_share(space: StrandSpace, tracer: RayTracer, mesh_faces: int, rays: int,
+                seed: int, texels: int = SHARE_TEXELS) -> float:
+    """The share of the fibre gather's cosine rays that first meet another fibre (what
+    :func:`fibre_gather`'s stats give as ``fibre_hits / rays``), estimated before any
+    transport from ``rays`` rays on each of at most ``texels`` random strand texels (a
+    bake's choices that hang on how dense the hair is, made before the memory they
+    cost is spent: ``prtcore.hairbake.dense_hair``). ``mesh_faces``: the scene
+    triangles before the fibre tubes in ``tracer``. On the 10k curly head 0.68 (4096
+    texels × 64 rays) as its gather's; on 500 strands 0.15."""
+    rng = np.random.default_rng([seed, 9])
+    pick = np.sort(rng.choice(space.count, min(space.count, texels), replace=False))
+    texel = np.repeat(pick, max(rays, 1))
+    n = len(texel)
+    arc = space.arc[texel, 0] + rng.random(n) * (space.arc[texel, 1] - space.arc[texel, 0])
+    origin, normal, _ = space.surface_points(texel, arc, 2 * np.pi * rng.random(n))
+    d = directions_around(normal, np.sqrt(rng.random(n)), 2 * np.pi * rng.random(n))
+    hits = tracer.intersect(origin, d)
+    return float(np.mean(hits.triangle >= mesh_faces)) if n else 0.0
+
+
 def harmonic_receivers(harmonics: str, space: StrandSpace,
                        straight_turn: float = STRAIGHT_TURN_DEG,
                        fibre_share: float | None = None) -> bool | np.ndarray:
