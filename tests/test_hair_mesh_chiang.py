@@ -23,9 +23,9 @@ from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.direct import direct_radiance, near_field_correction
-from prtcore.transport.fibre import fibre_share, hair_tracer
+from prtcore.transport.fibre import NEAR_SHARE_MARGIN, hair_density, hair_tracer
 from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather, texel_frames
-from prtcore.transport.gather import HitMapper, NearField, gather_operator
+from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh_chiang import (
     StrandRays,
@@ -124,18 +124,27 @@ def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
     assert rows.max() < t_m + t_h + 8 * t_h and rows.min() >= t_m
 
 
-def test_the_share_of_rays_meeting_a_fibre_is_known_before_the_gather(scalp):
-    """fibre_share, traced on 4096 texels before the transport (how dense the hair is:
-    hairbake.dense_hair), reads what the fibre gather's stats give once it is traced."""
+def test_how_dense_the_hair_is_is_known_before_the_gather(scalp):
+    """hair_density, traced on 4096 texels before the transport (hairbake.dense_hair),
+    reads the share of rays meeting a fibre that the fibre gather's stats give once it
+    is traced, and bounds the share of strand texels with near-field rows (the memory
+    estimate's) from above."""
     scene, texels, space, tracer, fibres, _ = scalp
-    f = scene.triangle_count
-    term = chiang_gather(space, tracer, fibres, f, 32, 1, chiang_fibre(LIGHT_HAIR, space),
-                         mesh_texels=HitMapper(scene, texels, tracer),
-                         mesh_columns=texels.count)
+    f, t_m, t_h = scene.triangle_count, texels.count, space.count
+    fibre = chiang_fibre(LIGHT_HAIR, space)
+    term = chiang_gather(space, tracer, fibres, f, 32, 1, fibre,
+                         mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
     gathered = term.stats["fibre_hits"] / term.stats["rays"]
-    share = fibre_share(space, tracer, f, 32, 0)
-    assert 0.05 < gathered < 0.6 and abs(share - gathered) < 0.02, (share, gathered)
-    assert fibre_share(space, tracer, f, 32, 0) == share  # seeded
+    nf = chiang_hair_near_field(term.mesh_hits, texels, fibre, t_m, t_h, 1.0, 32)
+    near = len(np.unique(nf.row)) / t_h
+    reach = float(near_field_reach(texels, 1.0).max())
+    density = hair_density(space, tracer, f, 32, 0, near=reach)
+    assert 0.05 < gathered < 0.6 and abs(density.fibre_share - gathered) < 0.02
+    # above it by the margin and by the largest texel's reach standing for every texel's
+    # (measured: 0.571 gathered, 0.618 + 0.05 traced before, on this 32² atlas)
+    assert 0.05 < near and near <= density.near_share <= near + NEAR_SHARE_MARGIN + 0.1
+    assert hair_density(space, tracer, f, 32, 0, near=reach) == density  # seeded
+    assert hair_density(space, tracer, f, 32, 0).near_share == NEAR_SHARE_MARGIN
 
 
 def test_first_bounce_agrees_with_the_path_tracer_of_the_same_model(scalp):

@@ -609,6 +609,7 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     of bias in on 500 strands); a given value is kept, and hair_spec leaves "auto"."""
     from prtcore.hairbake import chiang_exitance, dense_hair, hair_spec
     from prtcore.scenes.hair import head_hair
+    from prtcore.transport.fibre import HairDensity
     from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS
 
     space = build_strand_space(head_hair(500, "curly", seed=0), 8)
@@ -620,23 +621,25 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     spec, why = chiang_exitance("h.hair", space, spec, limit, mesh_texels=atlas)
     assert spec.hair.chiang.exitance == "linear" and why is None  # not denoised yet
 
-    dense, lines = dense_hair("h.hair", space, spec, 0.678, limit, atlas, True)
+    dense, lines = dense_hair("h.hair", space, spec, HairDensity(0.678, 1.0), limit, atlas, True)
     assert dense.hair.denoise_neighbours == DEFAULT_NEIGHBOURS
     assert dense.hair.chiang.exitance == "second_order"
     assert "68% of the fibre gather" in lines[0] and "second_order" in lines[1]
-    sparse, lines = dense_hair("h.hair", space, spec, 0.3, limit, atlas, True)
+    sparse, lines = dense_hair("h.hair", space, spec, HairDensity(0.3, 1.0), limit, atlas, True)
     assert sparse.hair.denoise_neighbours == 0 and sparse.hair.chiang.exitance == "linear"
     assert len(lines) == 1 and "sparse" in lines[0]
     # a given exitance is kept; the second order over the limit falls back to linear
-    kept, _ = dense_hair("h.hair", space, spec, 0.678, limit, atlas, False)
+    kept, _ = dense_hair("h.hair", space, spec, HairDensity(0.678, 1.0), limit, atlas, False)
     assert kept.hair.chiang.exitance == "linear"
     from prtcore.hairbake import check_hair_memory
     linear = check_hair_memory("h.hair", space, spec, limit, mesh_texels=atlas)
-    small, lines = dense_hair("h.hair", space, spec, 0.678, int(linear * 1.01), atlas, True)
+    dense_share = HairDensity(0.678, 1.0)
+    small, lines = dense_hair("h.hair", space, spec, dense_share, int(linear * 1.01), atlas,
+                              True)
     assert small.hair.chiang.exitance == "linear" and small.hair.denoise_neighbours == 64
     assert "with second_order exitance" in lines[1]
     given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
                       with_mesh=True)
-    assert dense_hair("h.hair", space, given, 0.678, limit, atlas, True) == (given, [])
+    assert dense_hair("h.hair", space, given, dense_share, limit, atlas, True) == (given, [])
 
 

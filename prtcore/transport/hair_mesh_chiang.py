@@ -73,13 +73,15 @@ MESH_HIT_BYTES = 56
 
 
 def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
-                      transport: TransportSpec) -> int:
+                      transport: TransportSpec, near_share: float = 1.0) -> int:
     """The transport's own peak memory (bytes, beyond the process and the texels' and
     fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
     ``t_m`` atlas and ``t_h`` strand texels (the transport's arc pieces), ``k`` lights
     (training + held-out), ``rays`` gather rays per strand texel (per piece) and
-    ``exitance``, with ``transport`` the spec the gathers' own estimates take: the larger
-    of two phases.
+    ``exitance``, with ``transport`` the spec the gathers' own estimates take, and
+    ``near_share`` the share of strand texels whose near-field corrections are kept
+    (:attr:`~prtcore.transport.fibre.HairDensity.near_share`; 1: all): the larger of
+    two phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the assembly of the product, at most one entry per
@@ -89,7 +91,8 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       the solve works in (the atlas texels carry one coefficient: until 2026-12-06 they
       carried F, all but the first zero, which cost the 10k head's second order 6.6 GiB),
       the sum of the bounces beside it ((T_m + T_h), K, 3), the first
-      bounce's near-field corrections (at most T_m + F T_h rows of (K, 3)), the surface
+      bounce's near-field corrections (at most T_m + F T_h rows of (K, 3); T_m + F ×
+      ``near_share`` T_h: on the 10k head 0.40 of its strand texels), the surface
       gather's matrix and the fibre rays' mesh hits kept beside it, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
 
@@ -104,7 +107,8 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                + entries * (RAY_KEPT_BYTES + PRODUCT_BUILD_BYTES[0]
                             + PRODUCT_BUILD_BYTES[1] * f)
                + t_h * rays * FIBRE_WEIGHT_BYTES * f)
-    solve = (product + (n + (f - 1) * t_h + n) * k * 12 + (t_m + f * t_h) * k * 12
+    near = t_m + f * min(1.0, near_share) * t_h
+    solve = (product + (n + (f - 1) * t_h + n) * k * 12 + near * k * 12
              + t_m * transport.gather_rays * 12 + t_h * rays * MESH_HIT_BYTES
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
     return int(max(gathers, solve))
