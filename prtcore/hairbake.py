@@ -334,12 +334,12 @@ def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
 
 
 def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
-                      limit_bytes: int, mesh_texels: int = 0, near_share: float = 1.0
-                      ) -> int:
+                      limit_bytes: int, mesh_texels: int = 0,
+                      density: HairDensity | None = None) -> int:
     """The bake's estimated peak memory against ``limit_bytes``; returns the estimate.
-    ``near_share``: the Chiang fibre with a mesh, the share of strand texels with
-    near-field rows (:func:`~prtcore.transport.fibre.hair_density`; 1 before it is
-    traced).
+    ``density``: the Chiang fibre with a mesh, how dense the hair is
+    (:func:`~prtcore.transport.fibre.hair_density`; None before it is traced: every
+    gather ray an entry, every strand texel with near-field rows).
 
     **Phases.** The transport's arrays do not all live at once, so the estimate is the
     larger of two phases, each on top of what the whole transport holds (the process,
@@ -399,7 +399,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     whole = MEM_PROCESS + t * MEM_PER_TEXEL + segments * MEM_PER_FIBRE_SEGMENT
     if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
         return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
-            mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport, near_share))
+            mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport, density))
     gather = operator_for("fibre").estimate_bytes(
         t, k, dataclasses.replace(spec.transport, gather_rays=m))
     entries = t * m * MEM_PER_OPERATOR_ENTRY  # one operator matrix
@@ -448,8 +448,8 @@ def _with_exitance(spec: BakeSpec, exitance: str) -> BakeSpec:
 
 
 def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
-                    limit_bytes: int, mesh_texels: int = 0, near_share: float = 1.0
-                    ) -> tuple[BakeSpec, str | None]:
+                    limit_bytes: int, mesh_texels: int = 0,
+                    density: HairDensity | None = None) -> tuple[BakeSpec, str | None]:
     """``hair.chiang.exitance = "auto"`` resolved: second-order exitance when the bake
     denoises its strand texels (``hair.denoise_neighbours`` > 1: the default for hair
     alone, and for dense hair with a mesh, :func:`dense_hair`, which asks again once it
@@ -470,7 +470,7 @@ def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         candidate = _with_exitance(spec, exitance)
         try:
             check_hair_memory(asset, space, candidate, limit_bytes, mesh_texels=mesh_texels,
-                              near_share=near_share)
+                              density=density)
         except LimitExceeded as e:
             refused.append(f"with {exitance} exitance {e.what} (limit {e.limit})")
             continue
@@ -517,14 +517,14 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         timer.note(f"[prtcore] {why}")
     check_hair_memory(asset, space, spec, limits.max_bake_bytes, mesh_texels=mesh_texels)
     tracer, fibres = hair_tracer(space, scene)
-    near_share = 1.0  # every strand texel's near-field rows, until hair_density says
+    density = None  # every ray an entry, every texel near rows, until hair_density says
     if scene is not None and spec.hair.denoise_neighbours == "auto":  # the Chiang fibre's
         with timer.stage("hair density"):
             density = hair_density(space, tracer, scene.triangle_count,
                                    spec.transport.gather_rays, spec.transport.seed,
                                    near=float(near_field_reach(
-                                       intake.texels.mesh, spec.transport.near_field).max()))
-        near_share = density.near_share
+                                       intake.texels.mesh, spec.transport.near_field).max()),
+                                   atlas=intake.texels.mesh)
         spec, lines = dense_hair(asset, space, spec, density, limits.max_bake_bytes,
                                  mesh_texels, exitance_auto)
         for line in lines:
@@ -536,7 +536,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         inputs, result = _more_points(inputs, result, tracer, m, timer)
         spec, intake = inputs.spec, inputs.intake
     more = _more_lights(spec, result.verdict, asset, space, limits,
-                        mesh_texels, near_share) if grow else None
+                        mesh_texels, density) if grow else None
     if more is not None:  # one more pass with twice the lights; the report lists both
         first = _tried(spec, result)
         timer.note(f"[prtcore] lights             {spec.lights.count} → {more.lights.count}"
@@ -613,9 +613,9 @@ def dense_hair(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` (dense hair), else 0; and, where
     ``hair.chiang.exitance`` was "auto" (``exitance_auto``) and the strand texels are
     now denoised, the exitance chosen again by :func:`chiang_exitance` (second order
-    where its memory estimate fits, its near-field rows counted at ``density``'s
-    ``near_share``). Measured on the 10k curly head (share 0.68,
-    docs/hair.md "Dense hair with a mesh: second order, denoised"): its strand texels
+    where its memory estimate fits, its near-field rows and entries counted at
+    ``density``'s shares). Measured on the 10k curly head (share 0.68, docs/hair.md
+    "Dense hair with a mesh: second order, denoised"): its strand texels
     11.7 % per texel with linear exitance denoised, 8.5 % with the second order, the
     bias within 0.3 %; on 500 sparse strands the filter bent 2–4 points of bias in, and
     undenoised the second order is noisier than linear. Returns the spec and the lines
@@ -631,7 +631,7 @@ def dense_hair(asset: str | Path, space: StrandSpace, spec: BakeSpec,
              f"{SPARSE_FIBRE_SHARE:.0%})"]
     if k and exitance_auto:
         spec, why = chiang_exitance(asset, space, _with_exitance(spec, "auto"),
-                                    limit_bytes, mesh_texels, density.near_share)
+                                    limit_bytes, mesh_texels, density)
         lines.append(why or f"hair.chiang.exitance auto → {spec.hair.chiang.exitance}: "
                             "the strand texels are denoised")
     return spec, lines
@@ -773,8 +773,8 @@ def _tried(spec: BakeSpec, result) -> dict:
 
 
 def _more_lights(spec: BakeSpec, verdict: dict, asset, space: StrandSpace,
-                 limits: IntakeLimits, mesh_texels: int, near_share: float = 1.0
-                 ) -> BakeSpec | None:
+                 limits: IntakeLimits, mesh_texels: int,
+                 density: HairDensity | None = None) -> BakeSpec | None:
     """The spec of a second pass with twice the training lights, or None. A bake whose
     ``lights.count`` was "auto" and whose verdict failed because the transfer is more than
     ``validate.target_ratio`` × the projection bound (after :func:`_more_points`, when the
@@ -790,7 +790,7 @@ def _more_lights(spec: BakeSpec, verdict: dict, asset, space: StrandSpace,
         spec.lights, count=2 * spec.lights.count))
     try:
         check_hair_memory(asset, space, more, limits.max_bake_bytes, mesh_texels=mesh_texels,
-                          near_share=near_share)
+                          density=density)
     except LimitExceeded:
         return None
     return more

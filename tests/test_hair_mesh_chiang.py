@@ -23,7 +23,7 @@ from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.direct import direct_radiance, near_field_correction
-from prtcore.transport.fibre import NEAR_SHARE_MARGIN, hair_density, hair_tracer
+from prtcore.transport.fibre import SHARE_MARGIN, hair_density, hair_tracer
 from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather, texel_frames
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair import bake_hair_dataset
@@ -138,13 +138,21 @@ def test_how_dense_the_hair_is_is_known_before_the_gather(scalp):
     nf = chiang_hair_near_field(term.mesh_hits, texels, fibre, t_m, t_h, 1.0, 32)
     near = len(np.unique(nf.row)) / t_h
     reach = float(near_field_reach(texels, 1.0).max())
-    density = hair_density(space, tracer, f, 32, 0, near=reach)
+    density = hair_density(space, tracer, f, 32, 0, near=reach, atlas=texels)
     assert 0.05 < gathered < 0.6 and abs(density.fibre_share - gathered) < 0.02
+    # entries: the fibre gather's rays that hit, and the atlas's (its CSR and its rays to
+    # fibres), bounded by the shares of rays that hit
+    hit = (term.stats["fibre_hits"] + term.stats["mesh_hits"]) / term.stats["rays"]
+    assert hit <= density.hit_share <= hit + SHARE_MARGIN + 0.02
+    g = gather_operator(scene, texels, tracer, 32, 1,
+                        foreign=(strands := StrandRays(space, fibres, f, seed=1)))
+    atlas_entries = g.matrix.tocsc()[:, :t_m].nnz + len(strands.rays()[0])
+    assert atlas_entries <= density.atlas_hit_share * t_m * 32
     # above it by the margin and by the largest texel's reach standing for every texel's
     # (measured: 0.571 gathered, 0.618 + 0.05 traced before, on this 32² atlas)
-    assert 0.05 < near and near <= density.near_share <= near + NEAR_SHARE_MARGIN + 0.1
-    assert hair_density(space, tracer, f, 32, 0, near=reach) == density  # seeded
-    assert hair_density(space, tracer, f, 32, 0).near_share == NEAR_SHARE_MARGIN
+    assert 0.05 < near and near <= density.near_share <= near + SHARE_MARGIN + 0.1
+    assert hair_density(space, tracer, f, 32, 0, near=reach, atlas=texels) == density
+    assert hair_density(space, tracer, f, 32, 0).near_share == SHARE_MARGIN
 
 
 def test_first_bounce_agrees_with_the_path_tracer_of_the_same_model(scalp):

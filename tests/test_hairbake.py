@@ -224,12 +224,13 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, c
     Measured: hair 739–774 MiB, estimate 882 MiB (1.2×); hair + mesh 2.27 GiB, estimate
     3.70 GiB (1.63×: mesh_bounces' stacked terms are counted on both phases; at 10k
     strands 1.61–1.74×, docs/hair.md), so its looseness is held to 1.8×. With the Chiang
-    fibre 2.72 GiB, estimate 4.97 GiB (1.83×: at this K the assembly of the product sets
-    the estimate, and it counts an entry for every gather ray, while on this convex head
-    most of the atlas's rays escape), held to 2×. Until 2026-12-06 the Chiang fibre's
-    estimate was the diffuse fibre's terms with its own added: 2.1× at 2000 strands and
-    K = 528, and 6.90 GiB here against 3.25 GiB, whose product was then assembled in
-    float64."""
+    fibre the estimate is the bake's, after its density probe (hair_density: the shares
+    of rays that hit and of texels with near-field rows): 2.16 GiB, estimate 3.56 GiB
+    (1.65×), held to 2×. Before the probe it counted an entry for every gather ray
+    (on this convex head half the atlas's rays escape) and near-field rows for every
+    strand texel: 4.97 GiB, 2.3× the peak once the atlas texels stopped carrying F
+    coefficients (2.72 → 2.16 GiB). Until 2026-12-06 the Chiang fibre's estimate was
+    the diffuse fibre's terms with its own added: 6.90 GiB here against 3.25 GiB."""
     with_mesh = case != "hair"
     import subprocess
     import sys
@@ -265,9 +266,21 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, c
     s = hair_spec(parse_spec(spec), with_mesh=with_mesh)
     intake = run_hair_intake(asset, s, StageTimer(quiet=True), IntakeLimits(), mesh,
                              run_intake)
+    density = None
+    if case.endswith("chiang"):  # as the bake estimates it once the probe is traced
+        from prtcore.transport.fibre import hair_density, hair_tracer
+        from prtcore.transport.gather import near_field_reach
+        mesh_texels = intake.texels.mesh
+        tracer, _ = hair_tracer(intake.strands, intake.scene)
+        density = hair_density(intake.strands, tracer, intake.scene.triangle_count,
+                               s.transport.gather_rays, s.transport.seed,
+                               near=float(near_field_reach(mesh_texels,
+                                                           s.transport.near_field).max()),
+                               atlas=mesh_texels)
     est = check_hair_memory(asset, intake.strands, s, 1 << 62,
-                            mesh_texels=intake.texels.mesh.count if with_mesh else 0)
-    print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB")
+                            mesh_texels=intake.texels.mesh.count if with_mesh else 0,
+                            density=density)
+    print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB, {density}")
     loose = 2.0 if case.endswith("chiang") else 1.8 if with_mesh else 1.6
     assert peak <= est <= loose * peak, (peak, est)
 
@@ -294,12 +307,13 @@ def test_the_140k_hairball_fits_the_default_memory_limit_and_k_scales_the_estima
         check_hair_memory("ball.hair", space, more, limit)
 
 
-def test_the_10k_head_with_the_chiang_fibre_takes_linear_exitance_under_the_default_limit():
+def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_default_limit():
     """The 10k curly head on the head mesh's 139 089 atlas texels, Chiang fibre, the
-    default 512 + 16 lights: linear exitance measured 9.81 GiB peak (docs/hair.md). Its
-    estimate lies between that and the default limit, so ``auto`` takes linear. Before
-    the Chiang fibre with a mesh had its own model the estimate was 18.84 GiB and the
-    bake took isotropic. Second order, which the default rays do not call for, is over."""
+    default 512 + 16 lights. Before its density is traced ``auto`` takes linear (its
+    estimate lies between the 9.81 GiB peak measured before the atlas texels carried one
+    coefficient, and the default limit; with the diffuse fibre's model it was 18.84 GiB
+    and the bake took isotropic), and the second order is over the limit. Once traced,
+    the hair is dense, so denoised, and the second order fits (docs/hair.md)."""
     from prtcore.core.limits import IntakeLimits
     from prtcore.hairbake import check_hair_memory, chiang_exitance, hair_spec
     from prtcore.scenes.hair import head_hair
@@ -315,6 +329,18 @@ def test_the_10k_head_with_the_chiang_fibre_takes_linear_exitance_under_the_defa
         "exitance": "second_order"}}}), with_mesh=True)
     with pytest.raises(LimitExceeded, match=r"head.hair: .*139089 atlas texels"):
         check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
+    # once its density is traced (the shares measured on this head, hair_density) it is
+    # dense, denoised, and the second order's estimate (14.0 GiB: entries and near-field
+    # rows at their shares, not every ray's and every texel's) fits the default limit
+    from prtcore.hairbake import dense_hair
+    from prtcore.transport.fibre import HairDensity
+    density = HairDensity(0.679, 0.093, 0.806, 0.786)
+    dense, lines = dense_hair("head.hair", space, got, density, limit, atlas, True)
+    assert lines[-1].endswith("the strand texels are denoised")
+    assert (dense.hair.chiang.exitance, dense.hair.denoise_neighbours) == ("second_order", 64)
+    est = check_hair_memory("head.hair", space, dense, limit, mesh_texels=atlas,
+                            density=density)
+    assert 13 * 2**30 < est < limit, est / 2**30
 
 
 CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}

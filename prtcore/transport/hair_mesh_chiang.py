@@ -41,7 +41,7 @@ from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
-from prtcore.transport.fibre import MeshHits
+from prtcore.transport.fibre import HairDensity, MeshHits
 from prtcore.transport.fibre_chiang import (
     EXITANCE_TERMS,
     ChiangFibre,
@@ -73,41 +73,47 @@ MESH_HIT_BYTES = 56
 
 
 def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
-                      transport: TransportSpec, near_share: float = 1.0) -> int:
+                      transport: TransportSpec, density: HairDensity | None = None) -> int:
     """The transport's own peak memory (bytes, beyond the process and the texels' and
     fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
     ``t_m`` atlas and ``t_h`` strand texels (the transport's arc pieces), ``k`` lights
     (training + held-out), ``rays`` gather rays per strand texel (per piece) and
     ``exitance``, with ``transport`` the spec the gathers' own estimates take, and
-    ``near_share`` the share of strand texels whose near-field corrections are kept
-    (:attr:`~prtcore.transport.fibre.HairDensity.near_share`; 1: all): the larger of
-    two phases.
+    ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
+    transport; None: every ray a hit and every strand texel with near-field rows) the
+    shares of rays that make product entries and of strand texels whose near-field
+    corrections are kept: the larger of two phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the assembly of the product, at most one entry per
-      gather ray of either gather (entries = (T_m + T_h) M; on the test head with 2000
-      strands 30 % of that).
+      gather ray of either gather that hits something (entries ≤ (T_m a_m + T_h a_h) M
+      with ``density``'s shares of rays that hit; on the 10k head 11.3 M entries, 74 %
+      of (T_m + T_h) M).
     * **Solve.** The product, the stacked direct light (T_m + F T_h, K, 3) float32 that
       the solve works in (the atlas texels carry one coefficient: until 2026-12-06 they
       carried F, all but the first zero, which cost the 10k head's second order 6.6 GiB),
       the sum of the bounces beside it ((T_m + T_h), K, 3), the first
       bounce's near-field corrections (at most T_m + F T_h rows of (K, 3); T_m + F ×
-      ``near_share`` T_h: on the 10k head 0.40 of its strand texels), the surface
+      ``near_share`` T_h: on the 10k head 4.4 % of its strand texels), the surface
       gather's matrix and the fibre rays' mesh hits kept beside it, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
 
     Measured (benchmarks/stage_memory.py, 2000 curly strands on the head, 512² atlas:
-    139 089 + 20 000 texels, K = 528, M = 64, linear): peak 6.36 GiB in the solve."""
+    139 089 + 20 000 texels, K = 528, M = 64, linear): peak 6.36 GiB in the solve, 3.75
+    GiB once the atlas texels carried one coefficient (estimate 6.87 GiB without the
+    density probe)."""
     f = EXITANCE_TERMS[exitance]
     n = t_m + t_h
-    entries = t_m * transport.gather_rays + t_h * rays  # the atlas keeps the spec's M
+    d = density or HairDensity(1.0)  # at most one entry per gather ray; the atlas keeps
+    entries = (t_m * transport.gather_rays * d.atlas_hit_share  # the spec's M
+               + t_h * rays * d.hit_share)
     product = entries * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f)
     gathers = (operator_for("surface").estimate_bytes(t_m, k, transport)
                + operator_for("fibre").estimate_bytes(t_h, k, transport)
                + entries * (RAY_KEPT_BYTES + PRODUCT_BUILD_BYTES[0]
                             + PRODUCT_BUILD_BYTES[1] * f)
-               + t_h * rays * FIBRE_WEIGHT_BYTES * f)
-    near = t_m + f * min(1.0, near_share) * t_h
+               + t_h * rays * d.hit_share * FIBRE_WEIGHT_BYTES * f)
+    near = t_m + f * d.near_share * t_h
     solve = (product + (n + (f - 1) * t_h + n) * k * 12 + near * k * 12
              + t_m * transport.gather_rays * 12 + t_h * rays * MESH_HIT_BYTES
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
