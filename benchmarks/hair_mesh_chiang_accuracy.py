@@ -43,6 +43,7 @@ Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 64
        [--paths 4096] [--texels 2000] [--resolution 512] [--texels-per-strand 8]
        [--exitance isotropic linear quadratic second_order] [--samples 8]
        [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark] [--second-seed]
+       [--neighbours 64 128]
 """
 
 from __future__ import annotations
@@ -99,10 +100,11 @@ def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: in
 
 
 def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: str,
-          rows: np.ndarray, denoised: bool) -> tuple[np.ndarray, float]:
+          rows: np.ndarray, neighbours: int) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
-    so a denoised row reuses its bake), denoised as a bake denoises when asked: the
-    indirect light at ``rows`` (n, K, 3) float64 and the seconds it took."""
+    so a denoised row reuses its bake), denoised as a bake denoises with ``neighbours``
+    k > 0 (and its atlas filtered): the indirect light at ``rows`` (n, K, 3) float64 and
+    the seconds it took."""
     scene, texels, space, fibres, points, tracer = setup
     key = (transport.max_bounces, transport.seed)
     if key not in bakes:
@@ -111,9 +113,9 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
             StageTimer(quiet=True), fibre, exitance=exitance), time.perf_counter() - t0)
     data, seconds = bakes[key]
-    if denoised:
+    if neighbours:
         t0 = time.perf_counter()
-        data = denoise_dataset(data, space, DEFAULT_NEIGHBOURS, albedo=texel_albedo(fibre),
+        data = denoise_dataset(data, space, neighbours, albedo=texel_albedo(fibre),
                                first_row=texels.count, direction="t2")
         # the atlas rows through the bake's seam-aware filter, into a new array
         atlas = denoise_lightmaps(texels, data.indirect[:texels.count], DENOISE_FALLBACK)
@@ -142,6 +144,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--hairs", nargs="+", default=list(HAIRS), choices=list(HAIRS))
     ap.add_argument("--rows", nargs="+", default=["exact", "exact_1", "model_1"],
                     choices=["exact", "exact_1", "model_1", "exact_denoised"])
+    ap.add_argument("--neighbours", type=int, nargs="+", default=[DEFAULT_NEIGHBOURS],
+                    help="the denoiser's k for exact_denoised (others than the default "
+                         "are rows exact_denoised_k{k}, on the same bakes)")
     ap.add_argument("--second-seed", action="store_true",
                     help="also bake with seed 1: each row's systematic error (the fast "
                          "path's noise removed with the two bakes) and its noise")
@@ -161,16 +166,17 @@ def main(argv: list[str] | None = None) -> dict:
         prefix = ("" if model == "isotropic" else f"{model}:") + (
             f"M{m}:" if len(args.rays) > 1 else "")
         bakes: dict = {}  # (bounces, seed) -> (dataset, seconds)
-        for row, bounces, exitance in (("exact", 64, "exact"), ("exact_1", 1, "exact"),
-                                       ("model_1", 1, model), ("exact_denoised", 64, "exact")):
+        for row, bounces, exitance, k in (
+                ("exact", 64, "exact", 0), ("exact_1", 1, "exact", 0),
+                ("model_1", 1, model, 0),
+                *(("exact_denoised", 64, "exact", k) for k in args.neighbours)):
             if row not in args.rows:
                 continue
-            denoised = row == "exact_denoised"
-            row = prefix + row
+            row = prefix + row + ("" if k in (0, DEFAULT_NEIGHBOURS) else f"_k{k}")
             runs = [_bake(bakes, (scene, texels, space, fibres, points, tracer), fibre,
                           TransportSpec(gather_rays=m, direct_samples=args.samples,
                                         seed=seed, max_bounces=bounces), model, rows,
-                          denoised) for seed in seeds]
+                          k) for seed in seeds]
             t1 = time.perf_counter()
             key = (name, bounces, exitance)  # the exact rows share their reference
             if key not in refs:
