@@ -603,27 +603,35 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     return out, m, result, dict(timer.seconds), validation
 
 
+#: ``hair.denoise_neighbours`` "auto" on dense hair with the Chiang fibre and a mesh: on
+#: the 10k curly head (second order, M = 64) k = 64 left 8.5 % / 10.9 % per texel (light
+#: / dark hair), k = 128 7.5 % / 8.7 % with the bias within 1.3 %, k = 256 bent 2.7 % in
+#: (docs/hair.md, "Dense hair with a mesh: second order, denoised")
+DENSE_MESH_NEIGHBOURS = 128
+
+
 def dense_hair(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                density: HairDensity, limit_bytes: int, mesh_texels: int,
                exitance_auto: bool) -> tuple[BakeSpec, list[str]]:
     """The Chiang fibre with a mesh: ``hair.denoise_neighbours`` "auto" resolved from
     ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
     transport), by the share of the fibre gather's rays that meet another fibre:
-    :data:`~prtcore.transport.strand_denoise.DEFAULT_NEIGHBOURS` where it is at least
+    :data:`DENSE_MESH_NEIGHBOURS` (128) where it is at least
     :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` (dense hair), else 0; and, where
     ``hair.chiang.exitance`` was "auto" (``exitance_auto``) and the strand texels are
     now denoised, the exitance chosen again by :func:`chiang_exitance` (second order
     where its memory estimate fits, its near-field rows and entries counted at
     ``density``'s shares). Measured on the 10k curly head (share 0.68, docs/hair.md
-    "Dense hair with a mesh: second order, denoised"): its strand texels
-    11.7 % per texel with linear exitance denoised, 8.5 % with the second order, the
-    bias within 0.3 %; on 500 sparse strands the filter bent 2–4 points of bias in, and
-    undenoised the second order is noisier than linear. Returns the spec and the lines
-    saying what was chosen and why; any other value of the key comes back as it is."""
+    "Dense hair with a mesh: second order, denoised"): its light strand texels
+    11.7 % per texel with linear exitance denoised (k = 64), 8.5 % with the second
+    order, 7.5 % with k = 128, the bias within 1.3 %; on 500 sparse strands the filter
+    bent 2–4 points of bias in, and undenoised the second order is noisier than
+    linear. Returns the spec and the lines saying what was chosen and why; any other
+    value of the key comes back as it is."""
     if spec.hair.denoise_neighbours != "auto":
         return spec, []
     share = density.fibre_share
-    k = DEFAULT_NEIGHBOURS if share >= SPARSE_FIBRE_SHARE else 0
+    k = DENSE_MESH_NEIGHBOURS if share >= SPARSE_FIBRE_SHARE else 0
     spec = dataclasses.replace(spec, hair=dataclasses.replace(
         spec.hair, denoise_neighbours=k))
     lines = [f"hair.denoise_neighbours auto → {k}: {share:.0%} of the fibre gather's rays "

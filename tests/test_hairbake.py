@@ -337,7 +337,8 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
     density = HairDensity(0.679, 0.093, 0.806, 0.786)
     dense, lines = dense_hair("head.hair", space, got, density, limit, atlas, True)
     assert lines[-1].endswith("the strand texels are denoised")
-    assert (dense.hair.chiang.exitance, dense.hair.denoise_neighbours) == ("second_order", 64)
+    assert (dense.hair.chiang.exitance, dense.hair.denoise_neighbours) == ("second_order",
+                                                                            128)
     est = check_hair_memory("head.hair", space, dense, limit, mesh_texels=atlas,
                             density=density)
     assert 13 * 2**30 < est < limit, est / 2**30
@@ -633,7 +634,7 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     against linear's 11.7 %), which it takes where its memory fits and says why not where
     it does not; sparse hair is not denoised and keeps linear (the filter bent 2–4 points
     of bias in on 500 strands); a given value is kept, and hair_spec leaves "auto"."""
-    from prtcore.hairbake import chiang_exitance, dense_hair, hair_spec
+    from prtcore.hairbake import DENSE_MESH_NEIGHBOURS, chiang_exitance, dense_hair, hair_spec
     from prtcore.scenes.hair import head_hair
     from prtcore.transport.fibre import HairDensity
     from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS
@@ -648,7 +649,7 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     assert spec.hair.chiang.exitance == "linear" and why is None  # not denoised yet
 
     dense, lines = dense_hair("h.hair", space, spec, HairDensity(0.678, 1.0), limit, atlas, True)
-    assert dense.hair.denoise_neighbours == DEFAULT_NEIGHBOURS
+    assert dense.hair.denoise_neighbours == DENSE_MESH_NEIGHBOURS
     assert dense.hair.chiang.exitance == "second_order"
     assert "68% of the fibre gather" in lines[0] and "second_order" in lines[1]
     sparse, lines = dense_hair("h.hair", space, spec, HairDensity(0.3, 1.0), limit, atlas, True)
@@ -662,7 +663,7 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     dense_share = HairDensity(0.678, 1.0)
     small, lines = dense_hair("h.hair", space, spec, dense_share, int(linear * 1.01), atlas,
                               True)
-    assert small.hair.chiang.exitance == "linear" and small.hair.denoise_neighbours == 64
+    assert small.hair.chiang.exitance == "linear" and small.hair.denoise_neighbours == 128
     assert "with second_order exitance" in lines[1]
     given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
                       with_mesh=True)

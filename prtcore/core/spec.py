@@ -301,7 +301,7 @@ class HairSpec:
     harmonics: str = "auto"
     #: k: every strand texel's indirect light from a local linear fit through its k nearest
     #: texels in space (prtcore.transport.strand_denoise; docs/hair.md); 0 or 1: off;
-    #: "auto": 64; for "chiang" with a mesh 64 on dense hair (at least 0.6 of the fibre
+    #: "auto": 64; for "chiang" with a mesh 128 on dense hair (at least 0.6 of the fibre
     #: gather's rays meet another fibre, traced before the transport), else 0: on sparse
     #: hair the filter bends bias in (prtcore.hairbake.dense_hair; docs/hair.md)
     denoise_neighbours: int | str = "auto"

@@ -116,7 +116,7 @@ DOCS: dict[str, str] = {
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
-    "hair.denoise_neighbours": "`auto` (64; for `chiang` with a mesh 64 where at least "
+    "hair.denoise_neighbours": "`auto` (64; for `chiang` with a mesh 128 where at least "
                                "0.6 of the fibre gather's rays meet another fibre, traced "
                                "on 4096 texels before the transport, else 0: docs/hair.md, "
                                "\"Dense hair with a mesh: second order, denoised\"), or k "

@@ -228,20 +228,24 @@ def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
 
 def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                       drawn: tuple, harmonics: int, block: int, progress: bool,
-                      weight: Callable | None = None) -> FibreDirect | np.ndarray:
+                      weight: Callable | None = None,
+                      out: Sequence[np.ndarray] | None = None
+                      ) -> FibreDirect | np.ndarray | Sequence[np.ndarray]:
     """:func:`fibre_direct` for ``lights`` from :func:`direct_samples`' ``drawn``,
     ``block`` texels at a time (a progress bar over them with ``progress``).
     weight : another fibre's weighting of the samples instead of the texel's ρ,
     ``weight(idx (n,) texels, origin (n, J, 3), lights, rad (n, J, K, 3) float32)`` →
     (F, n, K, 3) float32, the F weighted means of the samples' ``E/π · max(0, n·ωl) · V``
     (``rad``; :mod:`prtcore.transport.fibre_chiang`); the result is then those means
-    (F, T, K, 3) float32 (no harmonics)."""
+    (F, T, K, 3) float32 (no harmonics), or written into ``out``, F (T, K, 3) float32
+    arrays (views of a larger one: a hair + mesh bake's stacked direct light), and
+    ``out`` returned."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
     if weight is None:
         mean = np.empty((t, k, 3), dtype=np.float32)
         harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
-    weighted = None  # (F, T, K, 3), allocated when the weight's F is known
+    weighted = out  # (F, T, K, 3), allocated when the weight's F is known
     blocks = range(0, t, block)
     for a in bar(blocks, "direct fibres", total=len(blocks)) if progress else blocks:
         idx = order[a:a + block]
@@ -255,7 +259,8 @@ def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Li
             w = weight(idx, origin[idx], lights, rad)
             if weighted is None:
                 weighted = np.empty((len(w), t, k, 3), dtype=np.float32)
-            weighted[:, idx] = w
+            for i in range(len(w)):  # each coefficient's rows (views need not stack)
+                weighted[i][idx] = w[i]
             continue
         mean[idx] = rad.mean(axis=1)
         for h in range(harmonics):

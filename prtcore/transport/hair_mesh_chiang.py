@@ -287,12 +287,13 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                     scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
     with timer.stage("direct fibres"):
-        d = chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
-                          fibre, exitance)
+        views = []  # each coefficient's strand rows of the stacked direct light
         for a in range(n_f):
             rows = product.coefficient_rows(a)
-            direct[rows.start + (t_m if a == 0 else 0):rows.stop] = d[a]
-        del d
+            views.append(direct[rows.start + (t_m if a == 0 else 0):rows.stop])
+        chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
+                      fibre, exitance, out=views)
+        del views
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
     albedo[:t_m] = texels.albedo
