@@ -20,10 +20,11 @@ colour) and dark hair (eumelanin 1.3):
   (``linear:exact`` …), whose ``model_1`` reference weights each fibre hit by the
   projection's kernel;
 * ``exact_denoised``: all bounces as a bake ships them: the strand texels denoised
-  (prtcore.transport.strand_denoise: k = 64, the plane and the fibre's direction, ``t2``,
-  what the Chiang fibre takes when it denoises) and the atlas texels through the bake's
-  seam-aware filter (``fit.denoise`` "auto": DENOISE_FALLBACK texels; until 2026-12-06
-  this row left them as traced).
+  (prtcore.transport.strand_denoise: k = 64, or each of ``--neighbours`` (rows
+  ``exact_denoised_k{k}``; a bake of dense hair with a mesh takes 128), the plane and the
+  fibre's direction, ``t2``, what the Chiang fibre takes when it denoises) and the
+  atlas texels through the bake's seam-aware filter (``fit.denoise`` "auto":
+  DENOISE_FALLBACK texels; until 2026-12-06 this row left them as traced).
 * with ``--second-seed`` each row is baked twice (seeds 0 and 1), and printed with its
   systematic error (the fast path's noise removed too: what more rays cannot take) and
   that noise.
