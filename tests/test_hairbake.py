@@ -331,7 +331,8 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
         check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
     # once its density is traced (the shares measured on this head, hair_density) it is
     # dense, denoised, and the second order's estimate (14.0 GiB: entries and near-field
-    # rows at their shares, not every ray's and every texel's) fits the default limit
+    # rows at their shares, not every ray's and every texel's) fits the default limit,
+    # above the 11.29 GiB peak RSS that bake measured (docs/hair.md)
     from prtcore.hairbake import dense_hair
     from prtcore.transport.fibre import HairDensity
     density = HairDensity(0.679, 0.093, 0.806, 0.786)
@@ -341,7 +342,7 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
                                                                             128)
     est = check_hair_memory("head.hair", space, dense, limit, mesh_texels=atlas,
                             density=density)
-    assert 13 * 2**30 < est < limit, est / 2**30
+    assert 11.29 * 2**30 < est < limit, est / 2**30
 
 
 CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}
