@@ -102,7 +102,6 @@ from prtcore.transport.fibre_chiang import (
     chiang_fibre,
     texel_albedo,
 )
-from prtcore.transport.gather import near_field_reach
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset, per_piece
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset, chiang_mesh_bytes
@@ -522,9 +521,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
         with timer.stage("hair density"):
             density = hair_density(space, tracer, scene.triangle_count,
                                    spec.transport.gather_rays, spec.transport.seed,
-                                   near=float(near_field_reach(
-                                       intake.texels.mesh, spec.transport.near_field).max()),
-                                   atlas=intake.texels.mesh)
+                                   atlas=intake.texels.mesh,
+                                   near_field=spec.transport.near_field)
         spec, lines = dense_hair(asset, space, spec, density, limits.max_bake_bytes,
                                  mesh_texels, exitance_auto)
         for line in lines:

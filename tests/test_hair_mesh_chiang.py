@@ -25,7 +25,7 @@ from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import SHARE_MARGIN, hair_density, hair_tracer
 from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather, texel_frames
-from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
+from prtcore.transport.gather import HitMapper, NearField, gather_operator
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh_chiang import (
     StrandRays,
@@ -137,8 +137,7 @@ def test_how_dense_the_hair_is_is_known_before_the_gather(scalp):
     gathered = term.stats["fibre_hits"] / term.stats["rays"]
     nf = chiang_hair_near_field(term.mesh_hits, texels, fibre, t_m, t_h, 1.0, 32)
     near = len(np.unique(nf.row)) / t_h
-    reach = float(near_field_reach(texels, 1.0).max())
-    density = hair_density(space, tracer, f, 32, 0, near=reach, atlas=texels)
+    density = hair_density(space, tracer, f, 32, 0, atlas=texels, near_field=1.0)
     assert 0.05 < gathered < 0.6 and abs(density.fibre_share - gathered) < 0.02
     # entries: the fibre gather's rays that hit, and the atlas's (its CSR and its rays to
     # fibres), bounded by the shares of rays that hit
@@ -151,7 +150,7 @@ def test_how_dense_the_hair_is_is_known_before_the_gather(scalp):
     # above it by the margin and by the largest texel's reach standing for every texel's
     # (measured: 0.571 gathered, 0.618 + 0.05 traced before, on this 32² atlas)
     assert 0.05 < near and near <= density.near_share <= near + SHARE_MARGIN + 0.1
-    assert hair_density(space, tracer, f, 32, 0, near=reach, atlas=texels) == density
+    assert hair_density(space, tracer, f, 32, 0, atlas=texels, near_field=1.0) == density
     assert hair_density(space, tracer, f, 32, 0).near_share == SHARE_MARGIN
 
 

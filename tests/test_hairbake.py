@@ -269,14 +269,10 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, c
     density = None
     if case.endswith("chiang"):  # as the bake estimates it once the probe is traced
         from prtcore.transport.fibre import hair_density, hair_tracer
-        from prtcore.transport.gather import near_field_reach
-        mesh_texels = intake.texels.mesh
         tracer, _ = hair_tracer(intake.strands, intake.scene)
         density = hair_density(intake.strands, tracer, intake.scene.triangle_count,
                                s.transport.gather_rays, s.transport.seed,
-                               near=float(near_field_reach(mesh_texels,
-                                                           s.transport.near_field).max()),
-                               atlas=mesh_texels)
+                               atlas=intake.texels.mesh, near_field=s.transport.near_field)
     est = check_hair_memory(asset, intake.strands, s, 1 << 62,
                             mesh_texels=intake.texels.mesh.count if with_mesh else 0,
                             density=density)

@@ -76,13 +76,13 @@ from prtcore.core.raytrace import RayTracer, default_threads
 from prtcore.core.scene import Light, Scene
 from prtcore.core.sparse import SparseProduct
 from prtcore.core.spec import DIRECT_ESTIMATORS, TransportSpec
-from prtcore.core.tolerances import offset_origins
 from prtcore.emitters.base import emitter_for
 from prtcore.receivers.strands import StrandSpace, azimuth_frame, texel_turn
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import TransportOperator, register
 from prtcore.transport.direct import direct_radiance
 from prtcore.transport.fibre_facing import facing_direct, facing_samples
+from prtcore.transport.gather import hit_share, near_field_reach
 
 #: rays per intersect call of the fibre gather
 FIBRE_BATCH = 1 << 18
@@ -594,18 +594,18 @@ def _bounded(share: float) -> float:
 
 
 def hair_density(space: StrandSpace, tracer: RayTracer, mesh_faces: int, rays: int,
-                 seed: int, near: float = 0.0, texels: int = SHARE_TEXELS,
-                 atlas: TexelSpace | None = None) -> HairDensity:
+                 seed: int, atlas: TexelSpace | None = None, near_field: float = 0.0,
+                 texels: int = SHARE_TEXELS) -> HairDensity:
     """:class:`HairDensity` from ``rays`` cosine gather rays on each of at most
-    ``texels`` random strand texels (and as many atlas texels of ``atlas``, from their
-    sample points along their shading normals), traced before any transport: a bake's
-    choices that hang on how dense the hair is, made before the memory they cost is
-    spent (``prtcore.hairbake.dense_hair``). ``mesh_faces``: the scene triangles before
-    the fibre tubes in ``tracer``; ``near``: the farthest a mesh hit counts as near field
-    (world units; the largest atlas texel's reach bounds every texel's). On the 10k
-    curly head (4096 texels × 64 rays): 0.679 meet a fibre (its gather's 0.678), 0.756
-    anything, 4.3 % of its strand texels have a near mesh hit (its gather's 4.4 %), and
-    0.74 of its atlas's rays meet something (before the margins)."""
+    ``texels`` random strand texels (and as many texels of the mesh's ``atlas``, as its
+    gather traces them, :func:`~prtcore.transport.gather.hit_share`), traced before any
+    transport: a bake's choices that hang on how dense the hair is, made before the
+    memory they cost is spent (``prtcore.hairbake.dense_hair``). ``mesh_faces``: the
+    scene triangles before the fibre tubes in ``tracer``; ``near_field``: the transport's
+    near-field reach in atlas texel footprints (the largest texel's reach bounds every
+    texel's). On the 10k curly head (4096 texels × 64 rays): 0.679 meet a fibre (its
+    gather's 0.678), 0.756 anything, 4.3 % of its strand texels have a near mesh hit (its
+    gather's 4.4 %), and 0.74 of its atlas's rays meet something (before the margins)."""
     rng = np.random.default_rng([seed, 9])
     pick = np.sort(rng.choice(space.count, min(space.count, texels), replace=False))
     m = max(rays, 1)
@@ -618,17 +618,11 @@ def hair_density(space: StrandSpace, tracer: RayTracer, mesh_faces: int, rays: i
     d = directions_around(normal, np.sqrt(rng.random(n)), 2 * np.pi * rng.random(n))
     hits = tracer.intersect(origin, d)
     fibre = hits.triangle >= mesh_faces
+    near = float(near_field_reach(atlas, near_field).max()) if atlas is not None \
+        and atlas.count else 0.0
     close = (hits.hit & ~fibre & hits.front & (hits.t < near)).reshape(len(pick), m)
-    atlas_hits = 1.0
-    if atlas is not None and atlas.count:
-        at = np.repeat(np.sort(rng.choice(atlas.count, min(atlas.count, texels),
-                                          replace=False)), m)
-        up = np.where((np.sum(atlas.geometric_normal[at] * atlas.normal[at], axis=1)
-                       < 0)[:, None], -atlas.geometric_normal[at], atlas.geometric_normal[at])
-        o = offset_origins(atlas.position[at], up, tracer.scale)
-        du = directions_around(atlas.normal[at], np.sqrt(rng.random(len(at))),
-                               2 * np.pi * rng.random(len(at)))
-        atlas_hits = _bounded(float(np.mean(tracer.intersect(o, du).hit)))
+    atlas_hits = 1.0 if atlas is None or not atlas.count else _bounded(
+        hit_share(atlas, tracer, m, texels, rng))
     return HairDensity(float(np.mean(fibre)), _bounded(float(close.any(axis=1).mean())),
                        _bounded(float(np.mean(hits.hit))), atlas_hits)
 

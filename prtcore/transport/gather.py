@@ -40,7 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from prtcore.core.geometry import orthonormal_frame
+from prtcore.core.geometry import directions_around, orthonormal_frame
 from prtcore.core.memory import release_free_memory
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
@@ -429,6 +429,29 @@ def build_gather_operator(scene: Scene, texels: TexelSpace, tracer: RayTracer, r
     return gather_operator(scene, texels, tracer, rays, seed, timer).matrix
 
 
+def side_normals(shading: np.ndarray, geometric: np.ndarray) -> np.ndarray:
+    """The geometric normals (n, 3) float64 turned to their shading normals' side (n, 3):
+    the side a texel's gather rays leave from, and its origins' offset direction."""
+    geo = np.asarray(geometric, dtype=np.float64)
+    return geo * np.where(np.einsum("ij,ij->i", shading, geo) < 0, -1.0, 1.0)[:, None]
+
+
+def hit_share(texels: TexelSpace, tracer: RayTracer, rays: int, count: int,
+              rng: np.random.Generator) -> float:
+    """The share of ``rays`` cosine gather rays from each of at most ``count`` random
+    texels (from their sample points, offset as the gather offsets) that hit anything:
+    before the gather, a bound on the entries it keeps (at most one per ray that hits;
+    rays below the surface, which the gather drops, count as hits here). Draws from
+    ``rng``."""
+    at = np.repeat(np.sort(rng.choice(texels.count, min(texels.count, count),
+                                      replace=False)), max(rays, 1))
+    shade = np.asarray(texels.normal[at], dtype=np.float64)
+    o = offset_origins(texels.position[at], side_normals(shade, texels.geometric_normal[at]),
+                       tracer.scale)
+    d = directions_around(shade, np.sqrt(rng.random(len(at))), 2 * np.pi * rng.random(len(at)))
+    return float(np.mean(tracer.intersect(o, d).hit)) if len(at) else 0.0
+
+
 def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: int,
             timer: StageTimer | None, near_field: float = 0.0, direct_samples: int = 1,
             foreign: ForeignHits | None = None) -> Gather:
@@ -440,8 +463,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
     origins, jittered = jittered_origins(scene, texels, s, rng)
     dir_shift = rng.random((t, 2), dtype=np.float32)
     shade = np.asarray(texels.normal, dtype=np.float64)
-    geo = np.asarray(texels.geometric_normal, dtype=np.float64)
-    geo = geo * np.where(np.einsum("ij,ij->i", shade, geo) < 0, -1.0, 1.0)[:, None]
+    geo = side_normals(shade, texels.geometric_normal)
     tan, bit = orthonormal_frame(shade)
     # frame rows (tangent, bitangent, normal) in float32 for the Embree-bound directions
     frame = np.stack([tan, bit, shade], axis=1).astype(np.float32)  # (T, 3, 3)
