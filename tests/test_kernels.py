@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from prtcore.core.sparse import RayBlockProduct, csr_dense, permute_csr, row_chunks
+from prtcore.core.sparse import (
+    RayBlockProduct,
+    RayPart,
+    assemble_ray_blocks,
+    csr_dense,
+    permute_csr,
+    row_chunks,
+)
 from prtcore.transport import kernels
 
 
@@ -146,6 +153,46 @@ def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f, first):
         assert sl.stop - sl.start == (t if a == 0 else t - first)
     with pytest.raises(ValueError, match="sorted"):
         RayBlockProduct(rows[::-1], cols, weight, read, t)
+
+
+@pytest.mark.parametrize("chunk", [7, 1 << 18])
+def test_assembled_ray_blocks_are_the_parts_sorted_by_row_without_the_sort(chunk):
+    """assemble_ray_blocks places every part's rays as a stable argsort of the parts' rows
+    concatenated would (ties in part order, then in each part's order), bit for bit, its
+    float64 values cast to float32 as they are written, and made a chunk at a time (each
+    call asks for one slice of its part, in order); rows outside the texels are refused
+    by name."""
+    rng = np.random.default_rng(3)
+    t, f = 40, 4
+    sizes = (0, 150, 90, 61)  # an empty part, and rows repeated across parts
+    parts, asked, whole = [], [], []
+    for i, n in enumerate(sizes):
+        rows = rng.integers(0 if i % 2 else 10, t, n)
+        cols = rng.integers(0, t, n)
+        w = rng.normal(size=(n, f, 3))
+        r = rng.normal(size=(n, f))
+        whole.append((rows, cols, w, r))
+
+        def values(sl, w=w, r=r, i=i):
+            asked.append((i, sl.start, sl.stop))
+            return w[sl], r[sl]
+
+        parts.append(RayPart(rows, cols, values))
+    got = assemble_ray_blocks(parts, t, f, threads=2, first=5, chunk=chunk)
+    order = np.argsort(np.concatenate([p[0] for p in whole]), kind="stable")
+    for field, want in zip(("row", "col", "weight", "read"), zip(*whole, strict=True), strict=True):
+        want = np.concatenate(want)[order].astype(getattr(got, field).dtype)
+        assert np.array_equal(getattr(got, field), want), field
+    assert got.first == 5 and got.shape == (40 + 3 * 35, 40 + 3 * 35)
+    want_idle = np.setdiff1d(np.arange(t), np.concatenate([p[0] for p in whole]))
+    assert np.array_equal(got.idle, want_idle)
+    for i, n in enumerate(sizes):  # each part's slices in order, none larger than chunk
+        sl = [(a, b) for j, a, b in asked if j == i]
+        assert [a for a, _ in sl] == list(range(0, n, chunk))
+        assert all(b - a <= chunk for a, b in sl) and (not n or sl[-1][1] == n)
+    bad = RayPart(np.array([3, 40]), np.array([0, 0]), lambda sl: None)
+    with pytest.raises(ValueError, match=r"rows in \[0, 40\), got \[3, 40\]"):
+        assemble_ray_blocks([bad], t, f)
 
 
 def test_permute_csr_is_p_a_p_transposed_with_sorted_rows():

@@ -25,6 +25,7 @@ weights).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -33,7 +34,7 @@ from prtcore.core.fibres import FibreMesh
 from prtcore.core.progress import StageTimer
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
-from prtcore.core.sparse import RayBlockProduct
+from prtcore.core.sparse import ASSEMBLY_CHUNK, RayBlockProduct, RayPart, assemble_ray_blocks
 from prtcore.core.spec import TransportSpec
 from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
@@ -58,13 +59,15 @@ from prtcore.transport.low_rank import solve_low_rank
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
 
 #: bytes of one entry of the product (:class:`~prtcore.core.sparse.RayBlockProduct`:
-#: int32 row and column, F × 3 float32 weights, F float32 reads) and of its assembly
-#: (:func:`chiang_mesh_product`: the float64 reads, the parts as the product keeps them,
-#: the sort's order, one field concatenated before it is sorted, and the sorted fields),
-#: each a + b F; and per fibre ray and coefficient, its weights' float64 temporaries
+#: int32 row and column, F × 3 float32 weights, F float32 reads), a + b F; and per ray of
+#: the assembly's chunk (:func:`~prtcore.core.sparse.assemble_ray_blocks`,
+#: :data:`~prtcore.core.sparse.ASSEMBLY_CHUNK` rays) the float64 temporaries of its
+#: weights and reads, a + b F (tracemalloc on the 2000-strand head: 1000 bytes at F = 9,
+#: 490 at F = 4). Until 2026-12-07 the parts were concatenated and sorted: 24 + 52 F
+#: bytes an entry beside the product (469 measured at F = 9) and 48 F per fibre ray for
+#: its weights, made whole
 PRODUCT_ENTRY_BYTES = (8, 16)
-PRODUCT_BUILD_BYTES = (24, 52)
-FIBRE_WEIGHT_BYTES = 48
+ASSEMBLY_RAY_BYTES = (100, 100)
 #: bytes per ray that either gather keeps until the product is made (its rows, the texel
 #: hit and its direction, and the fibre rays' tangents) and per fibre ray to the mesh,
 #: kept for the near field (:class:`~prtcore.transport.fibre.MeshHits`)
@@ -85,17 +88,20 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     corrections are kept: the larger of two phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
-      to fibres they keep, then the assembly of the product, at most one entry per
-      gather ray of either gather that hits something (entries ≤ (T_m a_m + T_h a_h) M
-      with ``density``'s shares of rays that hit; on the 10k head 11.3 M entries, 74 %
-      of (T_m + T_h) M).
-    * **Solve.** The product, the stacked direct light (T_m + F T_h, K, 3) float32 that
-      the solve works in (the atlas texels carry one coefficient: until 2026-12-06 they
-      carried F, all but the first zero, which cost the 10k head's second order 6.6 GiB),
-      the sum of the bounces beside it ((T_m + T_h), K, 3), the first
-      bounce's near-field corrections (at most T_m + F T_h rows of (K, 3); T_m + F ×
-      ``near_share`` T_h: on the 10k head 4.4 % of its strand texels), the surface
-      gather's matrix and the fibre rays' mesh hits kept beside it, and the solve's
+      to fibres they keep, then the product, at most one entry per gather ray of either
+      gather that hits something (entries ≤ T_m a_m M_m + T_h a_h M with ``density``'s
+      shares of rays that hit; on the 10k head 11.3 M entries, 74 % of (T_m + T_h) M),
+      assembled in place with one chunk's temporaries.
+    * **Near field.** The product, the stacked direct light (T_m + F T_h, K, 3) float32
+      that the solve works in (the atlas texels carry one coefficient: until 2026-12-06
+      they carried F, all but the first zero, which cost the 10k head's second order
+      6.6 GiB), the first bounce's near-field corrections (at most T_m + F T_h rows of
+      (K, 3); T_m + F × ``near_share`` T_h: on the 10k head 4.4 % of its strand texels)
+      twice (the atlas's and the fibres' beside their sum), the surface gather's matrix
+      and the fibre rays' mesh hits, dropped before the solve (until 2026-12-07 they
+      were kept through it).
+    * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
+      ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
 
     Measured (benchmarks/stage_memory.py, 2000 curly strands on the head, 512² atlas:
@@ -109,15 +115,17 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                + t_h * rays * d.hit_share)
     product = entries * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f)
     gathers = (operator_for("surface").estimate_bytes(t_m, k, transport)
-               + operator_for("fibre").estimate_bytes(t_h, k, transport)
-               + entries * (RAY_KEPT_BYTES + PRODUCT_BUILD_BYTES[0]
-                            + PRODUCT_BUILD_BYTES[1] * f)
-               + t_h * rays * d.hit_share * FIBRE_WEIGHT_BYTES * f)
+               + operator_for("fibre").estimate_bytes(
+                   t_h, k, dataclasses.replace(transport, gather_rays=rays))
+               + entries * RAY_KEPT_BYTES + product
+               + ASSEMBLY_CHUNK * (ASSEMBLY_RAY_BYTES[0] + ASSEMBLY_RAY_BYTES[1] * f))
     near = t_m + f * d.near_share * t_h
-    solve = (product + (n + (f - 1) * t_h + n) * k * 12 + near * k * 12
-             + t_m * transport.gather_rays * 12 + t_h * rays * MESH_HIT_BYTES
+    stacked = (n + (f - 1) * t_h) * k * 12
+    near_stage = (product + stacked + 2 * near * k * 12 + t_m * transport.gather_rays * 12
+                  + t_h * rays * MESH_HIT_BYTES)
+    solve = (product + stacked + n * k * 12 + near * k * 12
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
-    return int(max(gathers, solve))
+    return int(max(gathers, near_stage, solve))
 
 
 class StrandRays(StrandHits):
@@ -164,51 +172,43 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
     texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6)."""
     f = EXITANCE_TERMS[exitance]
-    t = t_m + t_h
     coo = mesh_rows.tocsc()[:, :t_m].tocoo()  # atlas → atlas: one value each way
-    mm = (coo.row.astype(np.int64), coo.col.astype(np.int64),
-          np.repeat(coo.data.astype(np.float64)[:, None], 3, axis=1))
     s_rows, s_texel, s_dir = strand_rays
-    s_frames = None if frames is None else (frames[0][s_texel], frames[1][s_texel])
-    mh_read = np.stack(exitance_reads(s_dir, s_frames, f), axis=1)
-    mh_w = np.repeat((1.0 / np.maximum(valid_rays[s_rows], 1))[:, None], 3, axis=1)
     f_rows, f_cols, f_data = term_rays
     f_rows = np.asarray(f_rows, np.int64)
-    hh_read = np.stack(exitance_reads(f_data[:, :3].astype(np.float64), None if frames is None
-                                      else (frames[0][f_cols], frames[1][f_cols]), f), axis=1)
     m_data = hits.data if hits.data is not None else np.zeros((0, 6), np.float32)
-    parts = []  # (rows, cols, weight (n, F, 3), read (n, F)) as the product keeps them
+    scale = 2.0 / rays
 
-    def part(rows, cols, weight, read) -> None:  # cast once, as RayBlockProduct would
-        parts.append([np.asarray(rows, np.int32), np.asarray(cols, np.int32),
-                      np.asarray(weight, np.float32), np.asarray(read, np.float32)])
-
-    def first_only(w3: np.ndarray) -> np.ndarray:
-        out = np.zeros((len(w3), f, 3), np.float32)
-        out[:, 0] = w3
+    def first_only(w: np.ndarray) -> np.ndarray:  # (n,) → (n, F, 3), coefficient 0 alone
+        out = np.zeros((len(w), f, 3), np.float32)
+        out[:, 0] = w[:, None]
         return out
 
-    unit = np.zeros((1, f), np.float32)
-    unit[0, 0] = 1.0
-    part(mm[0], mm[1], first_only(mm[2]), np.repeat(unit, len(mm[0]), axis=0))
-    part(s_rows, s_texel + t_m, first_only(mh_w), mh_read)
-    del mh_read, mh_w
-    scale = 2.0 / rays
-    part(f_rows + t_m, np.asarray(f_cols, np.int64) + t_m,
-         np.moveaxis(ray_weights(fibre, f_rows, f_data, exitance, frames), 0, 1) * scale,
-         hh_read)
-    del hh_read
-    part(hits.row + t_m, hits.col,
-         np.moveaxis(ray_weights(fibre, hits.row, m_data, exitance, frames), 0, 1) * scale,
-         np.repeat(unit, len(hits.row), axis=0))
-    order = np.argsort(np.concatenate([p[0] for p in parts]), kind="stable")
-    fields = []
-    for i in range(4):  # one field at a time, each part's dropped once it is copied
-        fields.append(np.concatenate([p[i] for p in parts])[order])
-        for p in parts:
-            p[i] = None
-    del order
-    return RayBlockProduct(*fields, t, threads, first=t_m)
+    def unit(n: int) -> np.ndarray:  # (n, F): a Lambertian texel's one value
+        out = np.zeros((n, f), np.float32)
+        out[:, 0] = 1.0
+        return out
+
+    def reads(d: np.ndarray, texel: np.ndarray) -> np.ndarray:  # (n, F) toward d
+        frame = None if frames is None else (frames[0][texel], frames[1][texel])
+        return np.stack(exitance_reads(d, frame, f), axis=1)
+
+    def weights(rows: np.ndarray, data: np.ndarray) -> np.ndarray:  # (n, F, 3)
+        return np.moveaxis(ray_weights(fibre, rows, data, exitance, frames), 0, 1) * scale
+
+    parts = [
+        RayPart(coo.row, coo.col, lambda sl: (
+            first_only(coo.data[sl].astype(np.float64)), unit(len(coo.data[sl])))),
+        RayPart(s_rows, s_texel + t_m, lambda sl: (
+            first_only(1.0 / np.maximum(valid_rays[s_rows[sl]], 1)),
+            reads(s_dir[sl], s_texel[sl]))),
+        RayPart(f_rows + t_m, np.asarray(f_cols, np.int64) + t_m, lambda sl: (
+            weights(f_rows[sl], f_data[sl]),
+            reads(f_data[sl, :3].astype(np.float64), f_cols[sl]))),
+        RayPart(hits.row + t_m, hits.col, lambda sl: (
+            weights(hits.row[sl], m_data[sl]), unit(len(hits.row[sl])))),
+    ]
+    return assemble_ray_blocks(parts, t_m + t_h, f, threads, first=t_m)
 
 
 def chiang_hair_near_field(hits: MeshHits, texels: TexelSpace, fibre: ChiangFibre,
@@ -236,7 +236,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   lights_holdout: Sequence[Light], spec: TransportSpec,
                                   timer: StageTimer, fibre: ChiangFibre,
                                   hair_near: float | None = None,
-                                  exitance: str = "isotropic") -> Dataset:
+                                  exitance: str = "isotropic",
+                                  fibre_rays: int | None = None) -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
@@ -244,7 +245,9 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     (``hair.chiang.exitance``): what transport carries of every strand texel's outgoing
     radiance; with more than the average the solve runs over T_m + F T_h rows (the atlas
     texels have coefficient 0 alone), and the few texels whose truncated exitance dips
-    below zero are clamped and counted."""
+    below zero are clamped and counted. ``fibre_rays``: the fibre gather's rays per
+    strand texel (``hair.gather_rays``; None: ``spec.gather_rays``, which the surface
+    gather of the atlas always takes)."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
@@ -256,12 +259,13 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     frames = texel_frames(space) if needs_frames(exitance) else None
     t = t_m + t_h
     r1 = tracer.rays_traced
+    m_h = spec.gather_rays if fibre_rays is None else int(fibre_rays)
     with timer.stage("fibre gather"):
-        term = chiang_gather(space, tracer, fibres, f, spec.gather_rays, spec.seed, fibre,
+        term = chiang_gather(space, tracer, fibres, f, m_h, spec.seed, fibre,
                              mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
         product = chiang_mesh_product(gather.matrix, strands.rays(), gather.valid_rays,
                                       term.rays, term.mesh_hits, fibre, t_m, t_h,
-                                      spec.gather_rays, tracer.threads, exitance, frames)
+                                      m_h, tracer.threads, exitance, frames)
         del strands
     r2 = tracer.rays_traced
     fibre_stats, hits = term.stats, term.mesh_hits
@@ -280,12 +284,14 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                           timer)
         reach = spec.near_field if hair_near is None else hair_near
         if reach > 0 and hits.row.size:
-            nf = chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach,
-                                        spec.gather_rays, exitance, frames)
+            nf = chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach, m_h,
+                                        exitance, frames)
             if nf.count:
                 first = add_first_bounce(first, near_field_correction(
                     scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
+    gather_stats = gather.stats
+    del gather, hits  # the atlas's matrix and the fibre rays' mesh hits: not in the solve
     with timer.stage("direct fibres"):
         views = []  # each coefficient's strand rows of the stacked direct light
         for a in range(n_f):
@@ -305,7 +311,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
         np.maximum(indirect, np.float32(0), out=indirect)  # in place: no second copy
     stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,
-                            gather.stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
+                            gather_stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
                             solve_stats, model="chiang", exitance=exitance)
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
