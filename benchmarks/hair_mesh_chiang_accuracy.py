@@ -101,9 +101,11 @@ def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: in
 
 
 def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: str,
-          rows: np.ndarray, neighbours: int) -> tuple[np.ndarray, float]:
+          rows: np.ndarray, neighbours: int, fibre_rays: int | None = None
+          ) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
-    so a denoised row reuses its bake), denoised as a bake denoises with ``neighbours``
+    so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
+    for the transport's), denoised as a bake denoises with ``neighbours``
     k > 0 (and its atlas filtered): the indirect light at ``rows`` (n, K, 3) float64 and
     the seconds it took."""
     scene, texels, space, fibres, points, tracer = setup
@@ -112,7 +114,8 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
         t0 = time.perf_counter()
         bakes[key] = (bake_chiang_hair_mesh_dataset(
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
-            StageTimer(quiet=True), fibre, exitance=exitance), time.perf_counter() - t0)
+            StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays),
+            time.perf_counter() - t0)
     data, seconds = bakes[key]
     if neighbours:
         t0 = time.perf_counter()
@@ -131,6 +134,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--strands", type=int, default=500)
     ap.add_argument("--rays", type=int, nargs="+", default=[256],
                     help="M, fibre gather rays per texel; several share one reference")
+    ap.add_argument("--atlas-rays", type=int, default=None,
+                    help="the surface gather's rays per atlas texel (default: M, as the "
+                         "fibre gather's; a bake's hair.gather_rays sets the fibre's alone)")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -175,9 +181,10 @@ def main(argv: list[str] | None = None) -> dict:
                 continue
             row = prefix + row + ("" if k in (0, DEFAULT_NEIGHBOURS) else f"_k{k}")
             runs = [_bake(bakes, (scene, texels, space, fibres, points, tracer), fibre,
-                          TransportSpec(gather_rays=m, direct_samples=args.samples,
-                                        seed=seed, max_bounces=bounces), model, rows,
-                          k) for seed in seeds]
+                          TransportSpec(gather_rays=args.atlas_rays or m,
+                                        direct_samples=args.samples, seed=seed,
+                                        max_bounces=bounces), model, rows, k, m)
+                    for seed in seeds]
             t1 = time.perf_counter()
             key = (name, bounces, exitance)  # the exact rows share their reference
             if key not in refs:

@@ -184,7 +184,8 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     mesh, "auto" is :data:`~prtcore.transport.noise.DENOISE_FALLBACK` texels, the filter of
     the mesh's atlas rows; hair alone has no atlas: 0),
     ``hair.denoise_neighbours = "auto"`` resolved (64; for the Chiang fibre with a mesh
-    before its transport, by how dense the hair is: :func:`dense_hair`) and
+    before its transport, by how dense the hair is: :func:`dense_hair`), likewise
+    ``hair.gather_rays`` (``transport.gather_rays``) and
     ``hair.denoise_direction``
     ("t2" for the Chiang fibre, "none" for the diffuse one), ``hair.direct_samples =
     "auto"`` resolved for the diffuse fibre
@@ -233,6 +234,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         raise SpecError("hair.arc_subdivision", f"{pieces} pieces per texel are "
                         "transported for hair with a mesh only; hair alone is "
                         "transported by whole texels (leave it 'auto' or 1)")
+    rays = spec.hair.gather_rays
+    if rays == "auto" and not (spec.hair.fibre == "chiang" and with_mesh):
+        rays = spec.transport.gather_rays  # the Chiang fibre with a mesh: dense_hair
     samples = spec.hair.direct_samples
     if spec.hair.fibre == "diffuse":
         samples = direct_sample_count(spec.hair.direct, samples,
@@ -243,8 +247,15 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         fit=dataclasses.replace(spec.fit, denoise=atlas_radius(spec, with_mesh)),
         hair=dataclasses.replace(spec.hair, harmonics=harmonics,
                                  denoise_neighbours=denoise, denoise_direction=direction,
-                                 direct_samples=samples,
+                                 direct_samples=samples, gather_rays=rays,
                                  arc_subdivision=pieces))
+
+
+def fibre_gather_rays(spec: BakeSpec) -> int:
+    """M_h, the fibre gather's rays per strand texel: ``hair.gather_rays``, or
+    ``transport.gather_rays`` (the atlas's) while it is "auto"."""
+    rays = spec.hair.gather_rays
+    return spec.transport.gather_rays if rays == "auto" else int(rays)
 
 
 def arc_pieces(spec: BakeSpec, space: StrandSpace) -> BakeSpec:
@@ -388,7 +399,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     pieces = arc_pieces(spec, space).hair.arc_subdivision
     space = space.subdivided(pieces)  # the texels the transport holds: S pieces each,
     t = space.count  # ⌈M/S⌉ fibre-gather rays per piece
-    m = per_piece(spec.transport.gather_rays, pieces)
+    m = per_piece(fibre_gather_rays(spec), pieces)
     segments = space.hair.point_count - space.hair.strand_count
     everything = spec.hair.harmonics in STACKED_HARMONICS
     # the mean rows' three blocks, and six more for the texels whose harmonic rows
@@ -462,7 +473,7 @@ def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
         return spec, None
     # "auto" (dense_hair's to resolve, with a mesh) counts as not denoised
     denoised = spec.hair.denoise_neighbours not in ("auto", 0, 1)
-    tried = (["second_order"] if denoised or spec.transport.gather_rays >= SECOND_ORDER_RAYS
+    tried = (["second_order"] if denoised or fibre_gather_rays(spec) >= SECOND_ORDER_RAYS
              else []) + [AUTO_EXITANCE]
     refused = []
     for exitance in tried:
@@ -517,7 +528,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     check_hair_memory(asset, space, spec, limits.max_bake_bytes, mesh_texels=mesh_texels)
     tracer, fibres = hair_tracer(space, scene)
     density = None  # every ray an entry, every texel near rows, until hair_density says
-    if scene is not None and spec.hair.denoise_neighbours == "auto":  # the Chiang fibre's
+    if scene is not None and "auto" in (spec.hair.denoise_neighbours,  # the Chiang
+                                        spec.hair.gather_rays):  # fibre's with a mesh
         with timer.stage("hair density"):
             density = hair_density(space, tracer, scene.triangle_count,
                                    spec.transport.gather_rays, spec.transport.seed,
@@ -606,40 +618,70 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
 #: / dark hair), k = 128 7.5 % / 8.7 % with the bias within 1.3 %, k = 256 bent 2.7 % in
 #: (docs/hair.md, "Dense hair with a mesh: second order, denoised")
 DENSE_MESH_NEIGHBOURS = 128
+#: ``hair.gather_rays`` "auto" there: the fibre gather's rays per strand texel, twice the
+#: default atlas's (the dark hair's strand texels 8.7 % per texel at k = 128 with 64,
+#: 7.6 % with 128; the atlas's own rays changed its scalp by no more than its noise)
+DENSE_MESH_RAYS = 128
 
 
 def dense_hair(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                density: HairDensity, limit_bytes: int, mesh_texels: int,
                exitance_auto: bool) -> tuple[BakeSpec, list[str]]:
-    """The Chiang fibre with a mesh: ``hair.denoise_neighbours`` "auto" resolved from
-    ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
-    transport), by the share of the fibre gather's rays that meet another fibre:
-    :data:`DENSE_MESH_NEIGHBOURS` (128) where it is at least
-    :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE` (dense hair), else 0; and, where
-    ``hair.chiang.exitance`` was "auto" (``exitance_auto``) and the strand texels are
-    now denoised, the exitance chosen again by :func:`chiang_exitance` (second order
-    where its memory estimate fits, its near-field rows and entries counted at
-    ``density``'s shares). Measured on the 10k curly head (share 0.68, docs/hair.md
-    "Dense hair with a mesh: second order, denoised"): its light strand texels
-    11.7 % per texel with linear exitance denoised (k = 64), 8.5 % with the second
-    order, 7.5 % with k = 128, the bias within 1.3 %; on 500 sparse strands the filter
-    bent 2–4 points of bias in, and undenoised the second order is noisier than
-    linear. Returns the spec and the lines saying what was chosen and why; any other
-    value of the key comes back as it is."""
-    if spec.hair.denoise_neighbours != "auto":
-        return spec, []
+    """The Chiang fibre with a mesh: "auto" keys resolved from ``density``
+    (:func:`~prtcore.transport.fibre.hair_density`, traced before the transport), by the
+    share of the fibre gather's rays that meet another fibre (dense hair: at least
+    :data:`~prtcore.transport.fibre.SPARSE_FIBRE_SHARE`):
+
+    * ``hair.denoise_neighbours``: :data:`DENSE_MESH_NEIGHBOURS` (128) on dense hair,
+      else 0; and, where ``hair.chiang.exitance`` was "auto" (``exitance_auto``) and the
+      strand texels are now denoised, the exitance chosen again by
+      :func:`chiang_exitance` (second order where its memory estimate fits, its
+      near-field rows and entries counted at ``density``'s shares);
+    * then ``hair.gather_rays``: :data:`DENSE_MESH_RAYS` (128) on dense hair where the
+      bake's memory estimate with them fits ``limit_bytes``, else
+      ``transport.gather_rays``.
+
+    Measured on the 10k curly head (share 0.68, docs/hair.md "Dense hair with a mesh:
+    second order, denoised"): its light strand texels 11.7 % per texel with linear
+    exitance denoised (k = 64), 8.5 % with the second order, 7.5 % with k = 128, the
+    bias within 1.3 %; dark hair 8.7 % at k = 128, 7.6 % with 128 fibre rays. On 500
+    sparse strands the filter bent 2–4 points of bias in, and undenoised the second
+    order is noisier than linear. Returns the spec and the lines saying what was chosen
+    and why; any other value of the keys comes back as it is."""
     share = density.fibre_share
-    k = DENSE_MESH_NEIGHBOURS if share >= SPARSE_FIBRE_SHARE else 0
-    spec = dataclasses.replace(spec, hair=dataclasses.replace(
-        spec.hair, denoise_neighbours=k))
-    lines = [f"hair.denoise_neighbours auto → {k}: {share:.0%} of the fibre gather's rays "
-             f"meet another fibre ({'dense' if k else 'sparse'} hair: denoised from "
-             f"{SPARSE_FIBRE_SHARE:.0%})"]
-    if k and exitance_auto:
-        spec, why = chiang_exitance(asset, space, _with_exitance(spec, "auto"),
-                                    limit_bytes, mesh_texels, density)
-        lines.append(why or f"hair.chiang.exitance auto → {spec.hair.chiang.exitance}: "
-                            "the strand texels are denoised")
+    dense = share >= SPARSE_FIBRE_SHARE
+    how = (f"{share:.0%} of the fibre gather's rays meet another fibre "
+           f"({'dense' if dense else 'sparse'} hair from {SPARSE_FIBRE_SHARE:.0%})")
+    lines = []
+    if spec.hair.denoise_neighbours == "auto":
+        k = DENSE_MESH_NEIGHBOURS if dense else 0
+        spec = dataclasses.replace(spec, hair=dataclasses.replace(
+            spec.hair, denoise_neighbours=k))
+        lines.append(f"hair.denoise_neighbours auto → {k}: {how}")
+        if k and exitance_auto:
+            spec, why = chiang_exitance(asset, space, _with_exitance(spec, "auto"),
+                                        limit_bytes, mesh_texels, density)
+            lines.append(why or f"hair.chiang.exitance auto → "
+                                f"{spec.hair.chiang.exitance}: the strand texels are "
+                                "denoised")
+    if spec.hair.gather_rays == "auto":
+        rays = spec.transport.gather_rays
+        why = "sparse hair: transport.gather_rays"
+        if dense and DENSE_MESH_RAYS > rays:
+            more = dataclasses.replace(spec, hair=dataclasses.replace(
+                spec.hair, gather_rays=DENSE_MESH_RAYS))
+            try:
+                check_hair_memory(asset, space, more, limit_bytes, mesh_texels=mesh_texels,
+                                  density=density)
+                rays, why = DENSE_MESH_RAYS, "dense hair (the atlas keeps transport's)"
+            except LimitExceeded as e:
+                why = (f"dense hair, but with {DENSE_MESH_RAYS} rays {e.what} (limit "
+                       f"{e.limit}); transport.gather_rays")
+        elif dense:
+            why = "dense hair: transport.gather_rays, already as many"
+        spec = dataclasses.replace(spec, hair=dataclasses.replace(spec.hair,
+                                                                  gather_rays=rays))
+        lines.append(f"hair.gather_rays auto → {rays}: {why}")
     return spec, lines
 
 
@@ -664,7 +706,9 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
         fibre = chiang_fibre(spec.hair.chiang, space)
     if scene is None:
         data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                          spec.transport, timer,
+                                          dataclasses.replace(  # its one gather: the fibres'
+                                              spec.transport,
+                                              gather_rays=fibre_gather_rays(spec)), timer,
                                           harmonics=spec.hair.harmonics,
                                           keep_direct_texels=False, fibre=fibre,
                                           chiang_exitance=spec.hair.chiang.exitance,
@@ -674,14 +718,16 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
         data = bake_chiang_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres,
                                              intake.points, tracer, train, hold,
                                              spec.transport, timer, fibre,
-                                             exitance=spec.hair.chiang.exitance)
+                                             exitance=spec.hair.chiang.exitance,
+                                             fibre_rays=fibre_gather_rays(spec))
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, spec.transport, timer,
                                       harmonics=spec.hair.harmonics,
                                       direct_estimator=spec.hair.direct,
                                       direct_samples=spec.hair.direct_samples,
-                                      arc_subdivision=spec.hair.arc_subdivision)
+                                      arc_subdivision=spec.hair.arc_subdivision,
+                                      fibre_rays=fibre_gather_rays(spec))
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,

@@ -326,19 +326,25 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
     with pytest.raises(LimitExceeded, match=r"head.hair: .*139089 atlas texels"):
         check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
     # once its density is traced (the shares measured on this head, hair_density) it is
-    # dense, denoised, and the second order's estimate (14.0 GiB: entries and near-field
-    # rows at their shares, not every ray's and every texel's) fits the default limit,
-    # above the 11.29 GiB peak RSS that bake measured (docs/hair.md)
-    from prtcore.hairbake import dense_hair
+    # dense, denoised, and the second order's estimate with 128 fibre rays (14.3 GiB:
+    # entries and near-field rows at their shares, not every ray's and every texel's)
+    # fits the default limit, above the peak RSS that bake measured (docs/hair.md)
+    from prtcore.hairbake import DENSE_MESH_RAYS, dense_hair
     from prtcore.transport.fibre import HairDensity
     density = HairDensity(0.679, 0.093, 0.806, 0.786)
     dense, lines = dense_hair("head.hair", space, got, density, limit, atlas, True)
-    assert lines[-1].endswith("the strand texels are denoised")
-    assert (dense.hair.chiang.exitance, dense.hair.denoise_neighbours) == ("second_order",
-                                                                            128)
+    assert lines[1].endswith("the strand texels are denoised")
+    assert lines[2].startswith(f"hair.gather_rays auto → {DENSE_MESH_RAYS}: dense hair")
+    assert (dense.hair.chiang.exitance, dense.hair.denoise_neighbours,
+            dense.hair.gather_rays, dense.transport.gather_rays) == ("second_order", 128,
+                                                                      128, 64)
     est = check_hair_memory("head.hair", space, dense, limit, mesh_texels=atlas,
                             density=density)
     assert 11.29 * 2**30 < est < limit, est / 2**30
+    # with less memory the fibre gather keeps the atlas's rays, and says why
+    tight, lines = dense_hair("head.hair", space, got, density, int(est) - 1, atlas, True)
+    assert (tight.hair.chiang.exitance, tight.hair.gather_rays) == ("second_order", 64)
+    assert "with 128 rays" in lines[-1] and lines[-1].endswith("transport.gather_rays")
 
 
 CHIANG = {**SPEC, "hair": {**SPEC["hair"], "fibre": "chiang"}}
@@ -629,8 +635,9 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     (dense_hair): dense hair (the 10k curly head's 0.68) is denoised with k = 64 and, its
     exitance "auto", asked again for the second order (docs/hair.md: 8.5 % per texel
     against linear's 11.7 %), which it takes where its memory fits and says why not where
-    it does not; sparse hair is not denoised and keeps linear (the filter bent 2–4 points
-    of bias in on 500 strands); a given value is kept, and hair_spec leaves "auto"."""
+    it does not, and hair.gather_rays "auto" is twice the atlas's rays; sparse hair is not
+    denoised and keeps linear (the filter bent 2–4 points of bias in on 500 strands) and
+    the atlas's rays; a given value is kept, and hair_spec leaves "auto"."""
     from prtcore.hairbake import DENSE_MESH_NEIGHBOURS, chiang_exitance, dense_hair, hair_spec
     from prtcore.scenes.hair import head_hair
     from prtcore.transport.fibre import HairDensity
@@ -651,7 +658,10 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     assert "68% of the fibre gather" in lines[0] and "second_order" in lines[1]
     sparse, lines = dense_hair("h.hair", space, spec, HairDensity(0.3, 1.0), limit, atlas, True)
     assert sparse.hair.denoise_neighbours == 0 and sparse.hair.chiang.exitance == "linear"
-    assert len(lines) == 1 and "sparse" in lines[0]
+    assert len(lines) == 2 and "sparse" in lines[0]
+    assert sparse.hair.gather_rays == 64 and lines[1].startswith(
+        "hair.gather_rays auto → 64: sparse hair")
+    assert dense.hair.gather_rays == 128  # dense: twice the atlas's, within the limit
     # a given exitance is kept; the second order over the limit falls back to linear
     kept, _ = dense_hair("h.hair", space, spec, HairDensity(0.678, 1.0), limit, atlas, False)
     assert kept.hair.chiang.exitance == "linear"
@@ -662,8 +672,21 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
                               True)
     assert small.hair.chiang.exitance == "linear" and small.hair.denoise_neighbours == 128
     assert "with second_order exitance" in lines[1]
-    given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
-                      with_mesh=True)
+    given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8,
+                                           "gather_rays": 96}}), with_mesh=True)
     assert dense_hair("h.hair", space, given, dense_share, limit, atlas, True) == (given, [])
+    # each key alone: the given one kept, the other resolved
+    rays = hair_spec(parse_spec({"hair": {"fibre": "chiang", "gather_rays": 96}}),
+                     with_mesh=True)
+    got, lines = dense_hair("h.hair", space, rays, dense_share, limit, atlas, False)
+    assert (got.hair.gather_rays, got.hair.denoise_neighbours, len(lines)) == (96, 128, 1)
+    k = hair_spec(parse_spec({"hair": {"fibre": "chiang", "denoise_neighbours": 8}}),
+                  with_mesh=True)
+    got, lines = dense_hair("h.hair", space, k, dense_share, limit, atlas, False)
+    assert (got.hair.gather_rays, got.hair.denoise_neighbours, len(lines)) == (128, 8, 1)
+    # hair_spec resolves it everywhere else: the diffuse fibre, hair alone
+    assert hair_spec(parse_spec({}), with_mesh=True).hair.gather_rays == 64
+    assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}, "transport": {
+        "gather_rays": 32}})).hair.gather_rays == 32
 
 

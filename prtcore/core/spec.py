@@ -305,6 +305,11 @@ class HairSpec:
     #: gather's rays meet another fibre, traced before the transport), else 0: on sparse
     #: hair the filter bends bias in (prtcore.hairbake.dense_hair; docs/hair.md)
     denoise_neighbours: int | str = "auto"
+    #: M_h, the fibre gather's rays per strand texel (transport.gather_rays stays the
+    #: atlas's, with a mesh); "auto": transport.gather_rays, or for "chiang" with a mesh
+    #: 128 on dense hair where the bake's memory estimate allows it
+    #: (prtcore.hairbake.dense_hair; docs/hair.md)
+    gather_rays: int | str = "auto"
     #: the fibre-direction terms the denoiser's fit takes besides the plane: "none" | "t2"
     #: (the second band of the fibre's direction, five terms) | "t12" (also the first) |
     #: "auto": "t2" for "chiang" (whose texels differ with the fibre's direction through
@@ -803,6 +808,8 @@ def _parse(data: Any) -> BakeSpec:
                            "turn_bounces", "adaptive")),
         denoise_neighbours=_int_or_auto(hs.get("denoise_neighbours", "auto"),
                                         "hair.denoise_neighbours", lo=0, hi=1024),
+        gather_rays=_int_or_auto(hs.get("gather_rays", "auto"), "hair.gather_rays", lo=1,
+                                 hi=4096),
         denoise_direction=_choice(hs.get("denoise_direction", "auto"),
                                   "hair.denoise_direction", ("auto", "none", "t2", "t12")),
         direct=_choice(hs.get("direct", "facing"), "hair.direct", DIRECT_ESTIMATORS),

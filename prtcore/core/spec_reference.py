@@ -124,6 +124,11 @@ DOCS: dict[str, str] = {
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "
                                "docs/hair.md); 0 or 1: off",
+    "hair.gather_rays": "`auto` (`transport.gather_rays`; for `chiang` with a mesh 128 "
+                        "on dense hair, where the memory estimate allows it: docs/hair.md, "
+                        "\"Dense hair with a mesh: second order, denoised\"), or M_h in "
+                        "1–4096: the fibre gather's rays per strand texel; "
+                        "`transport.gather_rays` stays the atlas's",
     "hair.denoise_direction": "`auto` (`t2` for `chiang`, `none` for the diffuse fibre), "
                               "`none`, `t2` or `t12`: the terms of the fibre's direction "
                               "t that the denoiser's local fit takes besides the plane: "

@@ -228,12 +228,14 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
                            direct_samples: int | str = "auto",
                            arc_reads: str | None = "extrapolate",
                            straight_turn: float = STRAIGHT_TURN_DEG,
-                           arc_subdivision: int = 1) -> Dataset:
+                           arc_subdivision: int = 1,
+                           fibre_rays: int | None = None) -> Dataset:
     """The lighting database of a hair + mesh bake (``Dataset``: direct at the points,
     indirect at the T_m + T_h texels, mesh first; training lights first; the texels'
     direct light is not kept — the solve writes over it). ``tracer`` and ``fibres``:
     :func:`prtcore.transport.fibre.hair_tracer` of ``space`` and ``scene``. Both gathers
-    take ``spec.gather_rays`` rays per texel; the mesh's direct light is averaged over
+    take ``spec.gather_rays`` rays per texel (the fibre gather ``fibre_rays``,
+    ``hair.gather_rays``, where given); the mesh's direct light is averaged over
     ``spec.direct_samples`` points per texel; the hair's comes from ``direct_estimator``
     (``hair.direct``) with ``direct_samples`` (``hair.direct_samples``,
     :func:`prtcore.transport.fibre.direct_sample_count`).
@@ -275,7 +277,7 @@ def bake_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: StrandSpace,
     spec = spec or TransportSpec()
     pieces = int(arc_subdivision)
     out_space, space = space, space.subdivided(pieces)
-    fibre_rays = per_piece(spec.gather_rays, pieces)
+    fibre_rays = per_piece(spec.gather_rays if fibre_rays is None else fibre_rays, pieces)
     samples = direct_sample_count(direct_estimator, direct_samples, spec.direct_samples,
                                   orders if harmonics in STACKED_HARMONICS else 1)
     if direct_estimator == "facing":  # arc samples: ⌈J/S⌉ per piece (the sampled
