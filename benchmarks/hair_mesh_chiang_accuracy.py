@@ -101,20 +101,21 @@ def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: in
 
 
 def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: str,
-          rows: np.ndarray, neighbours: int, fibre_rays: int | None = None
-          ) -> tuple[np.ndarray, float]:
+          rows: np.ndarray, neighbours: int, fibre_rays: int | None = None,
+          arc_reads: str | None = None) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
     so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
-    for the transport's), denoised as a bake denoises with ``neighbours``
-    k > 0 (and its atlas filtered): the indirect light at ``rows`` (n, K, 3) float64 and
-    the seconds it took."""
+    for the transport's; ``arc_reads``: how the atlas reads a fibre), denoised as a bake
+    denoises with ``neighbours`` k > 0 (and its atlas filtered): the indirect light at
+    ``rows`` (n, K, 3) float64 and the seconds it took."""
     scene, texels, space, fibres, points, tracer = setup
     key = (transport.max_bounces, transport.seed)
     if key not in bakes:
         t0 = time.perf_counter()
         bakes[key] = (bake_chiang_hair_mesh_dataset(
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
-            StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays),
+            StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays,
+            arc_reads=arc_reads),
             time.perf_counter() - t0)
     data, seconds = bakes[key]
     if neighbours:
@@ -137,6 +138,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--atlas-rays", type=int, default=None,
                     help="the surface gather's rays per atlas texel (default: M, as the "
                          "fibre gather's; a bake's hair.gather_rays sets the fibre's alone)")
+    ap.add_argument("--arc-reads", choices=["mean", "extrapolate", "clamp"],
+                    default="mean", help="how an atlas ray reads the fibre it hits: its "
+                    "texel's exitance, or between the two texel centres about the hit")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -183,7 +187,8 @@ def main(argv: list[str] | None = None) -> dict:
             runs = [_bake(bakes, (scene, texels, space, fibres, points, tracer), fibre,
                           TransportSpec(gather_rays=args.atlas_rays or m,
                                         direct_samples=args.samples, seed=seed,
-                                        max_bounces=bounces), model, rows, k, m)
+                                        max_bounces=bounces), model, rows, k, m,
+                          None if args.arc_reads == "mean" else args.arc_reads)
                     for seed in seeds]
             t1 = time.perf_counter()
             key = (name, bounces, exitance)  # the exact rows share their reference

@@ -96,6 +96,45 @@ def test_the_operator_is_the_surface_gather_above_and_albedo_weighted_rays_below
     assert (w(on_mesh)[t_m:] > 0).mean() > 0.05
 
 
+def test_atlas_rays_can_read_a_fibre_between_its_texel_centres(scalp):
+    """StrandRays.rays(root): each atlas ray to a fibre read between the two texel centres
+    about the hit (arc_weights), as the diffuse fibre's mesh rows read. A profile linear
+    along the strand (the exitance's average, texel j's centre holding j + 1/2) is read
+    exactly at the hit's arc position, continued below the root's centre and held beyond
+    the last; a constant reads as the texel mean does (the weights sum to 1); None is the
+    texel mean, bit for bit the product it was."""
+    scene, texels, space, tracer, fibres, _ = scalp
+    f, t_m, t_h = scene.triangle_count, texels.count, space.count
+    fibre = chiang_fibre(CLEAR_HAIR, space)
+    strands = StrandRays(space, fibres, f, seed=1)
+    g = gather_operator(scene, texels, tracer, 64, 1, foreign=strands)
+    term = chiang_gather(space, tracer, fibres, f, 64, 1, fibre,
+                         mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
+
+    def product(root):
+        return chiang_mesh_product(g.matrix, strands.rays(root), g.valid_rays, term.rays,
+                                   term.mesh_hits, fibre, t_m, t_h, 64, 2, "linear")
+
+    mean, arc = product(None), product("extrapolate")
+    n = space.texels_per_strand
+    x = np.zeros((mean.shape[0], 3), np.float32)  # one light's three channels
+    x[t_m:t_m + t_h] = (np.arange(t_h) % n + 0.5)[:, None]  # coefficient 0: linear
+    rows, _, _, w = strands.rays()
+    assert np.array_equal(w, np.ones(len(rows)))
+    frac = np.concatenate([strands._parts[k][3] for k in sorted(strands._parts)])
+    want = np.zeros(t_m)
+    np.add.at(want, rows, np.minimum(frac.astype(np.float64) * n, n - 0.5)
+              / np.maximum(g.valid_rays[rows], 1))
+    on_strands = x.copy()
+    on_strands[:t_m] = 0
+    for c in range(3):
+        np.testing.assert_allclose(arc(on_strands)[:t_m, c], want, rtol=1e-5, atol=1e-7)
+    assert np.abs(mean(on_strands)[:t_m, 0] - want).max() > 0.02  # the mean does not
+    ones = on_strands.copy()
+    ones[t_m:t_m + t_h] = 1
+    np.testing.assert_allclose(arc(ones)[:t_m], mean(ones)[:t_m], rtol=1e-5, atol=1e-7)
+
+
 def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
     """The fibre gather's near mesh hits with second-order exitance: one correction whose
     hits are shaded once and weighted nine times equals the nine corrections each

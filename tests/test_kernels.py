@@ -153,6 +153,8 @@ def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f, first):
         assert sl.stop - sl.start == (t if a == 0 else t - first)
     with pytest.raises(ValueError, match="sorted"):
         RayBlockProduct(rows[::-1], cols, weight, read, t)
+    with pytest.raises(ValueError, match=r"x must be \(\d+, 3k\), got \(\d+, 2\)"):
+        product(x[:, :2])  # channels come in threes: the kernel would read past the row
 
 
 @pytest.mark.parametrize("chunk", [7, 1 << 18])

@@ -174,6 +174,10 @@ class RayBlockProduct:
     def __call__(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """x : (N, c) with c = 3·k; out : optional (N, c) float32 to fill."""
         x = np.ascontiguousarray(x, dtype=np.float32)
+        if x.ndim != 2 or x.shape[0] != self.shape[0] or x.shape[1] % 3:
+            # the kernel reads three channels at a time, unchecked
+            raise ValueError(f"RayBlockProduct: x must be ({self.shape[0]}, 3k), got "
+                             f"{x.shape}")
         if out is None:
             out = np.empty((self.shape[0], x.shape[1]), dtype=np.float32)
         numba.set_num_threads(self.threads)

@@ -142,15 +142,26 @@ class StrandRays(StrandHits):
             self._directions[batch] = np.asarray(direction, np.float32)
         return texel
 
-    def rays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def rays(self, root: str | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every ray that hit a fibre, in batch order: receiving atlas texel (n,) int64,
-        strand texel hit (n,) int64, direction (n, 3) float64."""
+        strand texel read (n,) int64, direction (n, 3) float64 and the read's weight (n,)
+        float64: 1, the texel's mean (``root`` None); or with ``root`` ("extrapolate",
+        "clamp") each ray twice, read between the two texel centres about the hit along
+        its strand (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights`, weights
+        summing to 1), as :meth:`StrandHits.interpolated` reads them."""
         keys = sorted(self._parts)
         if not keys:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-        return (np.concatenate([self._parts[k][0] for k in keys]).astype(np.int64),
-                np.concatenate([self._parts[k][1] for k in keys]).astype(np.int64),
-                np.concatenate([self._directions[k] for k in keys]).astype(np.float64))
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
+                    np.zeros(0))
+        rows = np.concatenate([self._parts[k][0] for k in keys]).astype(np.int64)
+        texel = np.concatenate([self._parts[k][1] for k in keys]).astype(np.int64)
+        d = np.concatenate([self._directions[k] for k in keys]).astype(np.float64)
+        if root is None:
+            return rows, texel, d, np.ones(len(rows))
+        frac = np.concatenate([self._parts[k][3] for k in keys]).astype(np.float64)
+        cols, w = self.space.arc_weights(texel, frac, root)
+        return np.repeat(rows, 2), cols.ravel(), np.repeat(d, 2, axis=0), w.ravel()
 
 
 def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
@@ -163,17 +174,18 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     = T_m, :meth:`~prtcore.core.sparse.RayBlockProduct.coefficient_rows`).
 
     mesh_rows: the surface gather's (T_m, T_m + T_h) CSR, whose atlas columns are kept;
-    strand_rays: its rays to fibres (:meth:`StrandRays.rays`), each weighing 1/M_valid of
-    its row (``valid_rays`` (T_m,)) and reading the fibre's exitance toward it
-    (:func:`~prtcore.transport.fibre_chiang.exitance_reads`); term_rays: the fibre gather's
-    rays to fibres (rows, cols, data (n, 6): direction, tangent at the origin); hits: its
+    strand_rays: its rays to fibres (:meth:`StrandRays.rays`), each weighing its read's
+    weight / M_valid of its row (``valid_rays`` (T_m,)) and reading the fibre's exitance
+    toward it (:func:`~prtcore.transport.fibre_chiang.exitance_reads`); term_rays: the
+    fibre gather's rays to fibres (rows, cols, data (n, 6): direction, tangent at the
+    origin); hits: its
     rays to the mesh, with the same data. Strand rows take the exitance weights × 2 / M
     per channel (the solver's albedo is 1/2 there, as in
     :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
     texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6)."""
     f = EXITANCE_TERMS[exitance]
     coo = mesh_rows.tocsc()[:, :t_m].tocoo()  # atlas → atlas: one value each way
-    s_rows, s_texel, s_dir = strand_rays
+    s_rows, s_texel, s_dir, s_w = strand_rays
     f_rows, f_cols, f_data = term_rays
     f_rows = np.asarray(f_rows, np.int64)
     m_data = hits.data if hits.data is not None else np.zeros((0, 6), np.float32)
@@ -200,7 +212,7 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
         RayPart(coo.row, coo.col, lambda sl: (
             first_only(coo.data[sl].astype(np.float64)), unit(len(coo.data[sl])))),
         RayPart(s_rows, s_texel + t_m, lambda sl: (
-            first_only(1.0 / np.maximum(valid_rays[s_rows[sl]], 1)),
+            first_only(s_w[sl] * (1.0 / np.maximum(valid_rays[s_rows[sl]], 1))),
             reads(s_dir[sl], s_texel[sl]))),
         RayPart(f_rows + t_m, np.asarray(f_cols, np.int64) + t_m, lambda sl: (
             weights(f_rows[sl], f_data[sl]),
@@ -237,7 +249,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   timer: StageTimer, fibre: ChiangFibre,
                                   hair_near: float | None = None,
                                   exitance: str = "isotropic",
-                                  fibre_rays: int | None = None) -> Dataset:
+                                  fibre_rays: int | None = None,
+                                  arc_reads: str | None = None) -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
@@ -247,7 +260,9 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     texels have coefficient 0 alone), and the few texels whose truncated exitance dips
     below zero are clamped and counted. ``fibre_rays``: the fibre gather's rays per
     strand texel (``hair.gather_rays``; None: ``spec.gather_rays``, which the surface
-    gather of the atlas always takes)."""
+    gather of the atlas always takes). ``arc_reads``: how an atlas ray reads the fibre it
+    hits (:meth:`StrandRays.rays`' ``root``): None, its texel's exitance; "extrapolate" or
+    "clamp", between the two texel centres about the hit."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
@@ -263,7 +278,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     with timer.stage("fibre gather"):
         term = chiang_gather(space, tracer, fibres, f, m_h, spec.seed, fibre,
                              mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
-        product = chiang_mesh_product(gather.matrix, strands.rays(), gather.valid_rays,
+        product = chiang_mesh_product(gather.matrix, strands.rays(arc_reads),
+                                      gather.valid_rays,
                                       term.rays, term.mesh_hits, fibre, t_m, t_h,
                                       m_h, tracer.threads, exitance, frames)
         del strands
