@@ -72,14 +72,25 @@ def _receivers(texels, space, seed: int) -> tuple[int, np.ndarray]:
                                 np.sort(t_m + rng.choice(space.count, 300, replace=False))])
 
 
-def test_the_operator_is_the_surface_gather_above_and_albedo_weighted_rays_below(scalp):
+@pytest.fixture(scope="module")
+def gathers(scalp):
+    """Both gathers on the scalp (64 rays, seed 1) with a clear fibre: (fibre, the
+    surface gather's StrandRays, the surface gather, the fibre gather)."""
     scene, texels, space, tracer, fibres, _ = scalp
-    f, t_m, t_h = scene.triangle_count, texels.count, space.count
+    f, t_m = scene.triangle_count, texels.count
     fibre = chiang_fibre(CLEAR_HAIR, space)
     strands = StrandRays(space, fibres, f, seed=1)
     g = gather_operator(scene, texels, tracer, 64, 1, foreign=strands)
     term = chiang_gather(space, tracer, fibres, f, 64, 1, fibre,
                          mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
+    return fibre, strands, g, term
+
+
+def test_the_operator_is_the_surface_gather_above_and_albedo_weighted_rays_below(scalp,
+                                                                                gathers):
+    _, texels, space, *_ = scalp
+    t_m, t_h = texels.count, space.count
+    fibre, strands, g, term = gathers
     assert term.mesh_hits.data.shape == (len(term.mesh_hits.row), 6)
     w = chiang_mesh_product(g.matrix, strands.rays(), g.valid_rays, term.rays,
                             term.mesh_hits, fibre, t_m, t_h, 64, 2)
@@ -96,20 +107,16 @@ def test_the_operator_is_the_surface_gather_above_and_albedo_weighted_rays_below
     assert (w(on_mesh)[t_m:] > 0).mean() > 0.05
 
 
-def test_atlas_rays_can_read_a_fibre_between_its_texel_centres(scalp):
+def test_atlas_rays_can_read_a_fibre_between_its_texel_centres(scalp, gathers):
     """StrandRays.rays(root): each atlas ray to a fibre read between the two texel centres
     about the hit (arc_weights), as the diffuse fibre's mesh rows read. A profile linear
     along the strand (the exitance's average, texel j's centre holding j + 1/2) is read
     exactly at the hit's arc position, continued below the root's centre and held beyond
-    the last; a constant reads as the texel mean does (the weights sum to 1); None is the
-    texel mean, bit for bit the product it was."""
-    scene, texels, space, tracer, fibres, _ = scalp
-    f, t_m, t_h = scene.triangle_count, texels.count, space.count
-    fibre = chiang_fibre(CLEAR_HAIR, space)
-    strands = StrandRays(space, fibres, f, seed=1)
-    g = gather_operator(scene, texels, tracer, 64, 1, foreign=strands)
-    term = chiang_gather(space, tracer, fibres, f, 64, 1, fibre,
-                         mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
+    the last; a constant reads as the texel mean does (the weights sum to 1); None reads
+    the texel mean (weights 1)."""
+    _, texels, space, *_ = scalp
+    t_m, t_h = texels.count, space.count
+    fibre, strands, g, term = gathers
 
     def product(root):
         return chiang_mesh_product(g.matrix, strands.rays(root), g.valid_rays, term.rays,
