@@ -281,9 +281,16 @@ def test_a_chiang_bake_with_a_head_through_the_cli(tmp_path):
     assert 0 < row["rmse_noise_corrected_mean"] <= row["rmse_mean"] < 1
     assert report["transport"]["exitance"] == "linear"
     assert report["transport"]["solve"]["negative_clamped"] >= 0
-    iso = {**spec, "hair": {**spec["hair"], "chiang": {"exitance": "isotropic"}}}
+    # sparse hair: the fibre gather keeps the atlas's rays, and the manifest says so
+    assert m["spec"]["hair"]["gather_rays"] == 32
+    assert report["transport"]["rays"]["fibre_gather"] == 200 * 6 * 32
+    # a given hair.gather_rays is the fibre gather's alone
+    iso = {**spec, "hair": {**spec["hair"], "chiang": {"exitance": "isotropic"},
+                            "gather_rays": 48}}
     out = bake(hair, parse_spec(iso), tmp_path / "isotropic", quiet=True, mesh=mesh)
     report = json.loads((out / "report.json").read_text())
+    assert report["transport"]["rays"]["fibre_gather"] == 200 * 6 * 48
+    assert report["transport"]["gather"]["gather_rays"] == 32
     assert report["transport"]["exitance"] == "isotropic"
     assert "negative_clamped" not in report["transport"]["solve"]  # nothing truncated
     planes = load_runtime(out).planes

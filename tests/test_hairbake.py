@@ -371,7 +371,11 @@ def test_a_chiang_fibre_bake_states_its_fibre_and_validates_with_its_own_path_tr
     v = validate_bundle(out, spp=64, count=1)
     row = next(r for r in v["rows"] if r["n"] == 8)
     assert 0 < row["rmse_noise_corrected_mean"] < 0.6
-    diffuse = bake(asset, parse_spec(SPEC), tmp_path / "diffuse", quiet=True)
+    # hair alone, the diffuse fibre, with hair.gather_rays given: its one gather's rays
+    diffuse = bake(asset, parse_spec({**SPEC, "hair": {**SPEC["hair"], "gather_rays": 24}}),
+                   tmp_path / "diffuse", quiet=True)
+    rays = json.loads((diffuse / "report.json").read_text())["transport"]["rays"]
+    assert rays["fibre_gather"] == 200 * 4 * 24
     a = load_runtime(out)
     b = load_runtime(diffuse)
     cov = a.coverage
