@@ -225,8 +225,9 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, c
     3.70 GiB (1.63×: mesh_bounces' stacked terms are counted on both phases; at 10k
     strands 1.61–1.74×, docs/hair.md), so its looseness is held to 1.8×. With the Chiang
     fibre the estimate is the bake's, after its density probe (hair_density: the shares
-    of rays that hit and of texels with near-field rows): 2.16 GiB, estimate 3.56 GiB
-    (1.65×), held to 2×. Before the probe it counted an entry for every gather ray
+    of rays that hit and of texels with near-field rows): 1910–1926 MiB, estimate 2635 MiB
+    (1.37×), held to 1.6× (2.16 GiB against 3.56 GiB until its product was assembled in
+    place, 2026-12-06). Before the probe it counted an entry for every gather ray
     (on this convex head half the atlas's rays escape) and near-field rows for every
     strand texel: 4.97 GiB, 2.3× the peak once the atlas texels stopped carrying F
     coefficients (2.72 → 2.16 GiB). Until 2026-12-06 the Chiang fibre's estimate was
@@ -277,7 +278,7 @@ def test_hair_memory_estimate_is_an_upper_bound_of_the_measured_peak(tmp_path, c
                             mesh_texels=intake.texels.mesh.count if with_mesh else 0,
                             density=density)
     print(f"peak {peak / 2**20:.0f} MiB, estimate {est / 2**20:.0f} MiB, {density}")
-    loose = 2.0 if case.endswith("chiang") else 1.8 if with_mesh else 1.6
+    loose = 1.8 if with_mesh and not case.endswith("chiang") else 1.6
     assert peak <= est <= loose * peak, (peak, est)
 
 
