@@ -67,6 +67,10 @@ def test_the_basis_solve_agrees_with_the_full_width_solve_light_by_light(terms):
     # bounces it runs are the smaller part of the light)
     assert per_light.max() < RANK_TOLERANCE / 3, per_light.max()
     assert stats["converged"] and resid < 1e-7
+    assert (stats["bounces"], stats["residual"]) == (len(stats["ranks"]), resid)
+    # stopped by max_bounces: unconverged, and how far from the tolerance is reported
+    *_, short = solve_low_rank(product, rho, direct.copy(), 3, 1e-7, rows=T)
+    assert not short["converged"] and short["bounces"] == 3 and short["residual"] > 1e-3
     # the basis shrank: the later bounces ran on far fewer columns than lights
     assert stats["ranks"][0] == K and min(stats["ranks"]) < K // 4, stats["ranks"]
 

@@ -121,7 +121,8 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
     Returns the indirect outgoing radiance of the leading rows (rows, K, 3) float32, the
     products, the largest last relative change and stats (``ranks``: the columns each
     bounce ran on; ``needed``: the basis each full-width bounce would have needed;
-    ``seconds``)."""
+    ``seconds``; ``bounces`` and ``residual``, the two before, so a report says how far
+    from ``tolerance`` an unconverged solve stopped)."""
     ctx = timer.stage("indirect solve") if timer is not None else nullcontext()
     n, k = direct.shape[:2]
     rows = n if rows is None else int(rows)
@@ -168,6 +169,7 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
                                        acc, bounces, max_bounces, tolerance,
                                        rank_tolerance, stats)
         stats["seconds"] = time.perf_counter() - t0
+        stats["bounces"], stats["residual"] = bounces, float(resid)  # the report's
         return acc, bounces, resid, stats
 
 
