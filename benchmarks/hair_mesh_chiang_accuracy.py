@@ -44,7 +44,7 @@ Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 64
        [--paths 4096] [--texels 2000] [--resolution 512] [--texels-per-strand 8]
        [--exitance isotropic linear quadratic second_order] [--samples 8]
        [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark] [--second-seed]
-       [--neighbours 64 128]
+       [--neighbours 64 128] [--atlas-rays 64] [--arc-reads extrapolate] [--bounces 16]
 """
 
 from __future__ import annotations
@@ -141,6 +141,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--arc-reads", choices=["mean", "extrapolate", "clamp"],
                     default="mean", help="how an atlas ray reads the fibre it hits: its "
                     "texel's exitance, or between the two texel centres about the hit")
+    ap.add_argument("--bounces", type=int, default=64,
+                    help="the fast path's products for the all-bounce rows (a bake's "
+                         "transport.max_bounces, 16 by default, is where its solve stops; "
+                         "the reference takes 64 either way)")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -187,7 +191,8 @@ def main(argv: list[str] | None = None) -> dict:
             runs = [_bake(bakes, (scene, texels, space, fibres, points, tracer), fibre,
                           TransportSpec(gather_rays=args.atlas_rays or m,
                                         direct_samples=args.samples, seed=seed,
-                                        max_bounces=bounces), model, rows, k, m,
+                                        max_bounces=args.bounces if bounces > 1 else 1),
+                          model, rows, k, m,
                           None if args.arc_reads == "mean" else args.arc_reads)
                     for seed in seeds]
             t1 = time.perf_counter()
