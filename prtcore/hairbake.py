@@ -160,6 +160,13 @@ AUTO_EXITANCE = "linear"
 #: and 7.3 % (dark) against linear's 8.3 and 9.4 % (docs/hair.md, "Denoising the Chiang
 #: fibre"; hair alone is denoised by default, hair with a mesh is not)
 SECOND_ORDER_RAYS = 256
+#: the fewest fibre-gather rays a strand texel needs for "auto" to take the second order:
+#: its nine weights a ray (16 Ā_z and 16 Ā_s among them) from fewer make a noisy operator
+#: whose series diverges (the 200-strand tangle at 16 rays grew 1.095× a bounce, at 32 it
+#: converges in 9; the 300-strand head at 16 grew 1.67×, at 32 converges in 15; linear
+#: and quadratic converge at 16 on both). Until 2026-12-06 nothing watched for it, and the
+#: tangle's test bakes at 16 rays shipped the series' first 16 terms
+SECOND_ORDER_MIN_RAYS = 32
 #: training lights of a hair + mesh bake (diffuse fibre) whose ``lights.count`` is "auto".
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
 #: 1.25× its projection bound, on the gate; with its atlas rows filtered (``fit.denoise``,
@@ -464,17 +471,20 @@ def chiang_exitance(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     denoises its strand texels (``hair.denoise_neighbours`` > 1: the default for hair
     alone, and for dense hair with a mesh, :func:`dense_hair`, which asks again once it
     knows) or traces at
-    least :data:`SECOND_ORDER_RAYS` gather rays per texel, and its memory estimate with it
-    is within ``limit_bytes``; else :data:`AUTO_EXITANCE` (linear) when that fits, else
-    isotropic (a quarter of the stacked direct light; docs/hair.md).
+    least :data:`SECOND_ORDER_RAYS` gather rays per texel, with at least
+    :data:`SECOND_ORDER_MIN_RAYS` fibre-gather rays either way (fewer make its series
+    diverge), and its memory estimate with it is within ``limit_bytes``; else
+    :data:`AUTO_EXITANCE` (linear) when that fits, else isotropic (a quarter of the
+    stacked direct light; docs/hair.md).
     Returns the spec and a line saying why a lesser exitance than the rays call for was
     taken, or None. Any other value, and the diffuse fibre, are kept."""
     if spec.hair.fibre != "chiang" or spec.hair.chiang.exitance != "auto":
         return spec, None
     # "auto" (dense_hair's to resolve, with a mesh) counts as not denoised
     denoised = spec.hair.denoise_neighbours not in ("auto", 0, 1)
-    tried = (["second_order"] if denoised or fibre_gather_rays(spec) >= SECOND_ORDER_RAYS
-             else []) + [AUTO_EXITANCE]
+    rays = fibre_gather_rays(spec)
+    tried = (["second_order"] if (denoised or rays >= SECOND_ORDER_RAYS)
+             and rays >= SECOND_ORDER_MIN_RAYS else []) + [AUTO_EXITANCE]
     refused = []
     for exitance in tried:
         candidate = _with_exitance(spec, exitance)

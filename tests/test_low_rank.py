@@ -100,3 +100,29 @@ def test_the_first_bounce_correction_and_a_single_bounce():
     one = solve_low_rank(product, rho, direct.copy(), 1, 1e-7, rows=T)[0]
     exact = solve_indirect(None, rho, direct.copy(), 1, 1.0, product=product)[0][:T]
     np.testing.assert_array_equal(one, exact)
+
+
+def test_a_series_that_grows_is_refused_not_returned():
+    """An operator that sends on more light than it receives (its rows scaled to sum to
+    more than 1: what a truncated exitance from too few rays did on a sparse head) makes
+    every bounce larger: the solve raises after DIVERGING_BOUNCES growing bounces, at full
+    width or on the basis, naming the keys that mend it, instead of returning the grown
+    light."""
+    from prtcore.core.errors import TransportDiverged
+    from prtcore.transport.low_rank import DIVERGING_BOUNCES
+
+    product, rho = _operator(1)
+    direct = _direct(1)
+    # the series' growth a bounce at each scale (power iteration): 3 → 2.2, 1.35 → 1.008
+    # (slow: the basis has taken over before it is seen), 1.3 → 0.97 (converges)
+    for scale, bounces in ((3.0, "2 to 4"), (1.35, r"\d+ to \d+")):
+        hot = RayBlockProduct(product.row, product.col, product.weight * scale,
+                              product.read, T)
+        with pytest.raises(TransportDiverged, match=rf"diverges: each bounce from "
+                           rf"{bounces} added more light .*hair\.gather_rays"):
+            solve_low_rank(hot, rho, direct.copy(), 40, 1e-7)
+    for scale in (1.0, 1.3):  # convergent: past DIVERGING_BOUNCES without a word
+        ok = RayBlockProduct(product.row, product.col, product.weight * scale,
+                             product.read, T)
+        got = solve_low_rank(ok, rho, direct.copy(), 40, 1e-7)
+        assert got[1] > DIVERGING_BOUNCES

@@ -67,3 +67,8 @@ class LightFileError(PrtError):
 
 class BundleError(PrtError):
     """A bundle directory is missing files or inconsistent with its manifest."""
+
+
+class TransportDiverged(PrtError):
+    """The indirect solve's series grows instead of converging: its operator, made from
+    too few or too noisy rays, sends more light on than it receives."""

@@ -22,6 +22,7 @@ from contextlib import nullcontext
 
 import numpy as np
 
+from prtcore.core.errors import TransportDiverged
 from prtcore.core.materials import clamp_albedo
 from prtcore.core.progress import StageTimer
 from prtcore.core.sparse import RayBlockProduct
@@ -42,6 +43,12 @@ SHRINK_SHARE = 0.8
 #: s-th row with s = rows // (GRAM_ROWS_PER_LIGHT · K) (at least 1): the Gram matrix of
 #: all rows costs as much as a product at K = 512
 GRAM_ROWS_PER_LIGHT = 64
+#: the series is taken to diverge when this many bounces in a row each grew (the
+#: Frobenius norm of what a bounce adds, over the rows returned): a convergent series
+#: shrinks by about its spectral radius a bounce (0.7–0.9 for light hair). The 300-strand
+#: head's second order at 16 fibre rays grew 1.67× a bounce; its result after 16 bounces
+#: was garbage (benchmarks/hair_mesh_chiang_bounces.py)
+DIVERGING_BOUNCES = 3
 
 
 def _gram(x: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -97,6 +104,30 @@ def _add_lifted(acc: np.ndarray, z: np.ndarray, lift: np.ndarray
     return np.sqrt(change), np.sqrt(total)
 
 
+class _Growth:
+    """Watches the norms of successive bounces and raises :class:`TransportDiverged`
+    when :data:`DIVERGING_BOUNCES` in a row grow."""
+
+    def __init__(self):
+        self.last, self.run, self.first = None, 0, 0
+
+    def __call__(self, change: np.ndarray, bounce: int) -> None:
+        norm = float(np.sqrt((np.asarray(change, np.float64) ** 2).sum()))
+        if self.last is not None and norm > self.last > 0:
+            self.run += 1
+            self.first = self.first if self.run > 1 else bounce
+        else:
+            self.run = 0
+        ratio = norm / self.last if self.last else 0.0
+        self.last = norm
+        if self.run >= DIVERGING_BOUNCES:
+            raise TransportDiverged(
+                f"the indirect solve diverges: each bounce from {self.first} to {bounce} "
+                f"added more light than the one before ({ratio:.3f}× at the last), so its "
+                "operator sends on more light than it receives; more gather rays "
+                "(hair.gather_rays) or a lower hair.chiang.exitance make it converge")
+
+
 def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndarray,
                    max_bounces: int, tolerance: float, rows: int | None = None,
                    timer: StageTimer | None = None, threads: int = 2,
@@ -122,7 +153,9 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
     products, the largest last relative change and stats (``ranks``: the columns each
     bounce ran on; ``needed``: the basis each full-width bounce would have needed;
     ``seconds``; ``bounces`` and ``residual``, the two before, so a report says how far
-    from ``tolerance`` an unconverged solve stopped)."""
+    from ``tolerance`` an unconverged solve stopped). Raises :class:`TransportDiverged`
+    when :data:`DIVERGING_BOUNCES` bounces in a row each grow (a noisy truncated
+    exitance can make the operator's spectral radius exceed 1)."""
     ctx = timer.stage("indirect solve") if timer is not None else nullcontext()
     n, k = direct.shape[:2]
     rows = n if rows is None else int(rows)
@@ -139,6 +172,7 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
         scale = None
         stride = max(1, n // max(1, GRAM_ROWS_PER_LIGHT * k))
         bounces, resid, lift = 0, 1.0, None
+        growth = _Growth()
         while bounces < max_bounces:  # full width, in place
             solve_indirect(None, albedo, direct, 1, 1.0, threads=threads, product=product,
                            first_bounce=first_bounce if bounces == 0 else None, out=direct)
@@ -152,6 +186,7 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
             else:
                 acc += direct[:rows]
                 change, total = col_norms(direct[:rows]), col_norms(acc)
+            growth(change, bounces)
             resid = relative_change(change, total)
             if resid < tolerance:
                 stats["converged"] = True
@@ -167,14 +202,14 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
         if lift is not None and not stats["converged"]:
             bounces, resid = _on_basis(product, albedo, direct, v / scale[:, None], lift,
                                        acc, bounces, max_bounces, tolerance,
-                                       rank_tolerance, stats)
+                                       rank_tolerance, stats, growth)
         stats["seconds"] = time.perf_counter() - t0
         stats["bounces"], stats["residual"] = bounces, float(resid)  # the report's
         return acc, bounces, resid, stats
 
 
 def _on_basis(product, albedo, direct, mix, lift, acc, bounces, max_bounces, tolerance,
-              rank_tolerance, stats) -> tuple[int, float]:
+              rank_tolerance, stats, growth: _Growth) -> tuple[int, float]:
     """The bounces after the full-width ones, on the basis ``mix`` (K, r) (lights → basis)
     with ``lift`` (r, K), adding each into acc (rows, K, 3). The basis' light lives in
     two halves of direct's buffer (N r 3 floats each, r ≤ K / 2), the product writing
@@ -196,6 +231,7 @@ def _on_basis(product, albedo, direct, mix, lift, acc, bounces, max_bounces, tol
         bounces += 1
         stats["ranks"].append(r)
         change, total = _add_lifted(acc, z, lift)
+        growth(change, bounces)
         resid = relative_change(change, total)
         if resid < tolerance:
             stats["converged"] = True
