@@ -167,6 +167,11 @@ SECOND_ORDER_RAYS = 256
 #: and quadratic converge at 16 on both). Until 2026-12-06 nothing watched for it, and the
 #: tangle's test bakes at 16 rays shipped the series' first 16 terms
 SECOND_ORDER_MIN_RAYS = 32
+#: ``hair.max_bounces`` "auto" for the Chiang fibre: its low-rank solve on light hair
+#: needed 20 bounces to converge on the 10k head (16 left the atlas 0.31 % and the strand
+#: texels 0.43 % short, benchmarks/hair_mesh_chiang_bounces.py), and its late bounces run
+#: on about ten columns of the basis
+CHIANG_MAX_BOUNCES = 64
 #: training lights of a hair + mesh bake (diffuse fibre) whose ``lights.count`` is "auto".
 #: The 10k curly head with its head mesh at 128 lights (the hair-alone default) passed at
 #: 1.25× its projection bound, on the gate; with its atlas rows filtered (``fit.denoise``,
@@ -244,6 +249,10 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     rays = spec.hair.gather_rays
     if rays == "auto" and not (spec.hair.fibre == "chiang" and with_mesh):
         rays = spec.transport.gather_rays  # the Chiang fibre with a mesh: dense_hair
+    bounces = spec.hair.max_bounces
+    if bounces == "auto":
+        bounces = CHIANG_MAX_BOUNCES if spec.hair.fibre == "chiang" \
+            else spec.transport.max_bounces
     samples = spec.hair.direct_samples
     if spec.hair.fibre == "diffuse":
         samples = direct_sample_count(spec.hair.direct, samples,
@@ -255,6 +264,7 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
         hair=dataclasses.replace(spec.hair, harmonics=harmonics,
                                  denoise_neighbours=denoise, denoise_direction=direction,
                                  direct_samples=samples, gather_rays=rays,
+                                 max_bounces=bounces,
                                  arc_subdivision=pieces))
 
 
@@ -714,11 +724,12 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
     if spec.hair.fibre == "chiang":
         check_lights((*train, *hold))  # before any ray is traced
         fibre = chiang_fibre(spec.hair.chiang, space)
+    # the hair's own rays (hair alone: its one gather) and bounces
+    transport = dataclasses.replace(spec.transport, max_bounces=spec.hair.max_bounces)
     if scene is None:
+        transport = dataclasses.replace(transport, gather_rays=fibre_gather_rays(spec))
         data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
-                                          dataclasses.replace(  # its one gather: the fibres'
-                                              spec.transport,
-                                              gather_rays=fibre_gather_rays(spec)), timer,
+                                          transport, timer,
                                           harmonics=spec.hair.harmonics,
                                           keep_direct_texels=False, fibre=fibre,
                                           chiang_exitance=spec.hair.chiang.exitance,
@@ -727,12 +738,12 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
     elif fibre is not None:
         data = bake_chiang_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres,
                                              intake.points, tracer, train, hold,
-                                             spec.transport, timer, fibre,
+                                             transport, timer, fibre,
                                              exitance=spec.hair.chiang.exitance,
                                              fibre_rays=fibre_gather_rays(spec))
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
-                                      tracer, train, hold, spec.transport, timer,
+                                      tracer, train, hold, transport, timer,
                                       harmonics=spec.hair.harmonics,
                                       direct_estimator=spec.hair.direct,
                                       direct_samples=spec.hair.direct_samples,

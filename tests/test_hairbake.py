@@ -413,7 +413,8 @@ def test_a_chiang_bake_carries_second_order_exitance_by_default_and_reports_what
     out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
     report = json.loads((out / "report.json").read_text())
     assert report["transport"]["exitance"] == "second_order"
-    assert report["transport"]["solve"]["residual"] < 1e-3  # converged
+    solve = report["transport"]["solve"]
+    assert solve["converged"] and solve["residual"] < 1e-3 and solve["bounces"] <= 64
     few = {**CHIANG, "measurement_points": {"count": 32}}  # 16 rays
     few_out = bake(asset, parse_spec(few), tmp_path / "few", quiet=True)
     assert json.loads((few_out / "report.json").read_text())["transport"]["exitance"] \
@@ -704,6 +705,13 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
                   with_mesh=True)
     got, lines = dense_hair("h.hair", space, k, dense_share, limit, atlas, False)
     assert (got.hair.gather_rays, got.hair.denoise_neighbours, len(lines)) == (128, 8, 1)
+    # hair.max_bounces: the Chiang fibre's solve runs to 64 (it converges slowly on light
+    # hair, its late bounces cheap); the diffuse fibre's keeps transport's; a given value
+    from prtcore.hairbake import CHIANG_MAX_BOUNCES
+    assert spec.hair.max_bounces == CHIANG_MAX_BOUNCES == 64
+    assert hair_spec(parse_spec({"transport": {"max_bounces": 9}})).hair.max_bounces == 9
+    assert hair_spec(parse_spec({"hair": {"fibre": "chiang", "max_bounces": 12}}),
+                     with_mesh=True).hair.max_bounces == 12
     # hair_spec resolves it everywhere else: the diffuse fibre, hair alone
     assert hair_spec(parse_spec({}), with_mesh=True).hair.gather_rays == 64
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}, "transport": {

@@ -310,6 +310,11 @@ class HairSpec:
     #: 128 on dense hair where the bake's memory estimate allows it
     #: (prtcore.hairbake.dense_hair; docs/hair.md)
     gather_rays: int | str = "auto"
+    #: the hair solve's bounces at most (transport.max_bounces stays the other bakes');
+    #: "auto": 64 for "chiang" (its series on a basis of the lights converges slowly on
+    #: light hair, and its late bounces are cheap: 16 left the 10k head 0.3–0.4 % short),
+    #: transport.max_bounces for the diffuse fibre (docs/hair.md)
+    max_bounces: int | str = "auto"
     #: the fibre-direction terms the denoiser's fit takes besides the plane: "none" | "t2"
     #: (the second band of the fibre's direction, five terms) | "t12" (also the first) |
     #: "auto": "t2" for "chiang" (whose texels differ with the fibre's direction through
@@ -810,6 +815,8 @@ def _parse(data: Any) -> BakeSpec:
                                         "hair.denoise_neighbours", lo=0, hi=1024),
         gather_rays=_int_or_auto(hs.get("gather_rays", "auto"), "hair.gather_rays", lo=1,
                                  hi=4096),
+        max_bounces=_int_or_auto(hs.get("max_bounces", "auto"), "hair.max_bounces", lo=0,
+                                 hi=1000),
         denoise_direction=_choice(hs.get("denoise_direction", "auto"),
                                   "hair.denoise_direction", ("auto", "none", "t2", "t12")),
         direct=_choice(hs.get("direct", "facing"), "hair.direct", DIRECT_ESTIMATORS),

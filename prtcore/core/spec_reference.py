@@ -129,6 +129,11 @@ DOCS: dict[str, str] = {
                         "\"Dense hair with a mesh: second order, denoised\"), or M_h in "
                         "1–4096: the fibre gather's rays per strand texel; "
                         "`transport.gather_rays` stays the atlas's",
+    "hair.max_bounces": "`auto` (64 for `chiang`: its solve on a basis of the lights "
+                        "converges slowly on light hair and its late bounces are cheap; "
+                        "`transport.max_bounces` for the diffuse fibre), or 0–1000: the "
+                        "hair solve's bounces at most (docs/hair.md, \"Where the solve "
+                        "stops\")",
     "hair.denoise_direction": "`auto` (`t2` for `chiang`, `none` for the diffuse fibre), "
                               "`none`, `t2` or `t12`: the terms of the fibre's direction "
                               "t that the denoiser's local fit takes besides the plane: "
