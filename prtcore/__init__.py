@@ -26,6 +26,7 @@ _PUBLIC = {
     "LimitExceeded": "prtcore.core.errors",
     "LightFileError": "prtcore.core.errors",
     "BundleError": "prtcore.core.errors",
+    "TransportDiverged": "prtcore.core.errors",
     "IntakeLimits": "prtcore.core.limits",
     "StageTimer": "prtcore.core.progress",
     # spec

@@ -108,8 +108,10 @@ def test_a_series_that_grows_is_refused_not_returned():
     every bounce larger: the solve raises after DIVERGING_BOUNCES growing bounces, at full
     width or on the basis, naming the keys that mend it, instead of returning the grown
     light."""
-    from prtcore.core.errors import TransportDiverged
+    from prtcore import PrtError, TransportDiverged  # public: a pipeline script catches it
     from prtcore.transport.low_rank import DIVERGING_BOUNCES
+
+    assert issubclass(TransportDiverged, PrtError)  # the CLI's exit 2, one line
 
     product, rho = _operator(1)
     direct = _direct(1)
