@@ -13,7 +13,8 @@ colour) and dark hair (eumelanin 1.3):
 
 * ``exact``: all bounces against the exact reference — the transport with the model's
   error;
-* ``exact_1``: the first bounce alone against the exact reference;
+* ``exact_1``: the first bounce alone against the exact reference; ``exact_2``: the
+  first two;
 * ``model_1``: the first bounce against the reference that makes the same isotropic
   assumption at every fibre hit (``exitance="isotropic"``) — the transport's own error;
 * with ``--exitance linear quadratic second_order``: the same rows for those exitances
@@ -158,7 +159,7 @@ def main(argv: list[str] | None = None) -> dict:
                          "when not isotropic)")
     ap.add_argument("--hairs", nargs="+", default=list(HAIRS), choices=list(HAIRS))
     ap.add_argument("--rows", nargs="+", default=["exact", "exact_1", "model_1"],
-                    choices=["exact", "exact_1", "model_1", "exact_denoised"])
+                    choices=["exact", "exact_1", "exact_2", "model_1", "exact_denoised"])
     ap.add_argument("--neighbours", type=int, nargs="+", default=[DEFAULT_NEIGHBOURS],
                     help="the denoiser's k for exact_denoised (others than the default "
                          "are rows exact_denoised_k{k}, on the same bakes)")
@@ -183,6 +184,7 @@ def main(argv: list[str] | None = None) -> dict:
         bakes: dict = {}  # (bounces, seed) -> (dataset, seconds)
         for row, bounces, exitance, k in (
                 ("exact", 64, "exact", 0), ("exact_1", 1, "exact", 0),
+                ("exact_2", 2, "exact", 0),
                 ("model_1", 1, model, 0),
                 *(("exact_denoised", 64, "exact", k) for k in args.neighbours)):
             if row not in args.rows:
@@ -191,7 +193,8 @@ def main(argv: list[str] | None = None) -> dict:
             runs = [_bake(bakes, (scene, texels, space, fibres, points, tracer), fibre,
                           TransportSpec(gather_rays=args.atlas_rays or m,
                                         direct_samples=args.samples, seed=seed,
-                                        max_bounces=args.bounces if bounces > 1 else 1),
+                                        max_bounces=args.bounces if bounces > 2
+                                        else bounces),
                           model, rows, k, m,
                           None if args.arc_reads == "mean" else args.arc_reads)
                     for seed in seeds]
