@@ -197,7 +197,9 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     the mesh's atlas rows; hair alone has no atlas: 0),
     ``hair.denoise_neighbours = "auto"`` resolved (64; for the Chiang fibre with a mesh
     before its transport, by how dense the hair is: :func:`dense_hair`), likewise
-    ``hair.gather_rays`` (``transport.gather_rays``) and
+    ``hair.gather_rays`` (``transport.gather_rays``), ``hair.max_bounces``
+    (:data:`CHIANG_MAX_BOUNCES` for the Chiang fibre, ``transport.max_bounces`` for the
+    diffuse one) and
     ``hair.denoise_direction``
     ("t2" for the Chiang fibre, "none" for the diffuse one), ``hair.direct_samples =
     "auto"`` resolved for the diffuse fibre
@@ -725,9 +727,10 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
         check_lights((*train, *hold))  # before any ray is traced
         fibre = chiang_fibre(spec.hair.chiang, space)
     # the hair's own rays (hair alone: its one gather) and bounces
+    rays = fibre_gather_rays(spec)
     transport = dataclasses.replace(spec.transport, max_bounces=spec.hair.max_bounces)
     if scene is None:
-        transport = dataclasses.replace(transport, gather_rays=fibre_gather_rays(spec))
+        transport = dataclasses.replace(transport, gather_rays=rays)
         data: Dataset = bake_hair_dataset(space, intake.points, tracer, train, hold,
                                           transport, timer,
                                           harmonics=spec.hair.harmonics,
@@ -740,7 +743,7 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                              intake.points, tracer, train, hold,
                                              transport, timer, fibre,
                                              exitance=spec.hair.chiang.exitance,
-                                             fibre_rays=fibre_gather_rays(spec))
+                                             fibre_rays=rays)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, transport, timer,
@@ -748,7 +751,7 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                       direct_estimator=spec.hair.direct,
                                       direct_samples=spec.hair.direct_samples,
                                       arc_subdivision=spec.hair.arc_subdivision,
-                                      fibre_rays=fibre_gather_rays(spec))
+                                      fibre_rays=rays)
     data = denoise_dataset(data, space, spec.hair.denoise_neighbours,
                            albedo=None if fibre is None else texel_albedo(fibre),
                            first_row=intake.texels.mesh.count if scene is not None else 0,

@@ -63,7 +63,7 @@ from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
 #: the assembly's chunk (:func:`~prtcore.core.sparse.assemble_ray_blocks`,
 #: :data:`~prtcore.core.sparse.ASSEMBLY_CHUNK` rays) the float64 temporaries of its
 #: weights and reads, a + b F (tracemalloc on the 2000-strand head: 1000 bytes at F = 9,
-#: 490 at F = 4). Until 2026-12-07 the parts were concatenated and sorted: 24 + 52 F
+#: 490 at F = 4). Until 2026-12-06 the parts were concatenated and sorted: 24 + 52 F
 #: bytes an entry beside the product (469 measured at F = 9) and 48 F per fibre ray for
 #: its weights, made whole
 PRODUCT_ENTRY_BYTES = (8, 16)
@@ -85,7 +85,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
     transport; None: every ray a hit and every strand texel with near-field rows) the
     shares of rays that make product entries and of strand texels whose near-field
-    corrections are kept: the larger of two phases.
+    corrections are kept: the largest of three phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the product, at most one entry per gather ray of either
@@ -98,7 +98,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       6.6 GiB), the first bounce's near-field corrections (at most T_m + F T_h rows of
       (K, 3); T_m + F × ``near_share`` T_h: on the 10k head 4.4 % of its strand texels)
       twice (the atlas's and the fibres' beside their sum), the surface gather's matrix
-      and the fibre rays' mesh hits, dropped before the solve (until 2026-12-07 they
+      and the fibre rays' mesh hits, dropped before the solve (until 2026-12-06 they
       were kept through it).
     * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
       ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
@@ -178,9 +178,8 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     weight / M_valid of its row (``valid_rays`` (T_m,)) and reading the fibre's exitance
     toward it (:func:`~prtcore.transport.fibre_chiang.exitance_reads`); term_rays: the
     fibre gather's rays to fibres (rows, cols, data (n, 6): direction, tangent at the
-    origin); hits: its
-    rays to the mesh, with the same data. Strand rows take the exitance weights × 2 / M
-    per channel (the solver's albedo is 1/2 there, as in
+    origin); hits: its rays to the mesh, with the same data. Strand rows take the
+    exitance weights × 2 / M per channel (the solver's albedo is 1/2 there, as in
     :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
     texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6)."""
     f = EXITANCE_TERMS[exitance]

@@ -113,11 +113,9 @@ class _Growth:
 
     def __call__(self, change: np.ndarray, bounce: int) -> None:
         norm = float(np.sqrt((np.asarray(change, np.float64) ** 2).sum()))
-        if self.last is not None and norm > self.last > 0:
-            self.run += 1
-            self.first = self.first if self.run > 1 else bounce
-        else:
-            self.run = 0
+        self.run = self.run + 1 if self.last is not None and norm > self.last > 0 else 0
+        if self.run == 1:
+            self.first = bounce
         ratio = norm / self.last if self.last else 0.0
         self.last = norm
         if self.run >= DIVERGING_BOUNCES:
