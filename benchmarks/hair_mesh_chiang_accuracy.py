@@ -20,6 +20,9 @@ colour) and dark hair (eumelanin 1.3):
 * with ``--exitance linear quadratic second_order``: the same rows for those exitances
   (``linear:exact`` …), whose ``model_1`` reference weights each fibre hit by the
   projection's kernel;
+* ``scalp_reads`` (no bake): the reference that shades only the atlas texels' own
+  fibre hits with the model's truncated exitance (each later vertex exact) against the
+  exact reference: what the mesh's truncated reads of the fibres cost alone.
 * ``exact_denoised``: all bounces as a bake ships them: the strand texels denoised
   (prtcore.transport.strand_denoise: k = 64, or each of ``--neighbours`` (rows
   ``exact_denoised_k{k}``; a bake of dense hair with a mesh takes 128), the plane and the
@@ -157,9 +160,14 @@ def main(argv: list[str] | None = None) -> dict:
                     choices=["isotropic", "linear", "quadratic", "second_order"],
                     help="hair.chiang.exitance variants (each row prefixed by its name "
                          "when not isotropic)")
+    ap.add_argument("--read-models", nargs="+", default=[],
+                    choices=["longitudinal_4", "longitudinal_6"],
+                    help="scalp_reads: also these projections (second order plus "
+                         "U_3 … U_n of sin θ, which no transport carries)")
     ap.add_argument("--hairs", nargs="+", default=list(HAIRS), choices=list(HAIRS))
     ap.add_argument("--rows", nargs="+", default=["exact", "exact_1", "model_1"],
-                    choices=["exact", "exact_1", "exact_2", "model_1", "exact_denoised"])
+                    choices=["exact", "exact_1", "exact_2", "model_1", "exact_denoised",
+                             "scalp_reads"])
     ap.add_argument("--neighbours", type=int, nargs="+", default=[DEFAULT_NEIGHBOURS],
                     help="the denoiser's k for exact_denoised (others than the default "
                          "are rows exact_denoised_k{k}, on the same bakes)")
@@ -220,6 +228,29 @@ def main(argv: list[str] | None = None) -> dict:
                     line += f"  systematic {s['rrmse']:.3f}  noise {noise:.3f}"
                 print(line, flush=True)
             out["results"][f"{name}/{row}"] = res
+        for read in ((model, *args.read_models) if "scalp_reads" in args.rows
+                     and model != "isotropic" else ()):
+                # no bake: the reference that truncates the atlas texels' own reads of the
+                # fibres to the model's orders (every later vertex exact) against the exact
+                # one, both references' noise removed: what the mesh's reads cost alone
+                t1 = time.perf_counter()
+                key = (name, 64, "exact")
+                if key not in refs:
+                    refs[key] = chiang_hair_mesh_reference(
+                        scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
+                        fibre.params, fibre.sigma_points)
+                a, b = refs[key]
+                ma, mb = chiang_hair_mesh_reference(
+                    scene, texels, space, tracer, fibres, LIGHTS, rows[:n_m], args.paths, 202,
+                    fibre.params, fibre.sigma_points, exitance=read, where="scalp")
+                e = noise_corrected_error((ma, mb), a[:n_m], b[:n_m])
+                label = prefix + "scalp_reads" + ("" if read == model else ":" + read)
+                noise = np.sqrt(np.mean((ma - mb) ** 2) / 4 / np.mean(ma ** 2))
+                print(f"{name:5s} {label:24s} mesh: rRMSE {e['rrmse']:.3f}  bias "
+                      f"{e['bias']:+.3f} ± {e['bias_se']:.3f}  (model noise {noise:.3f})",
+                      flush=True)
+                out["results"][f"{name}/{prefix}scalp_reads:{read}"] = {
+                    "mesh": e, "reference_s": time.perf_counter() - t1}
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2, default=float))

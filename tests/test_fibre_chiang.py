@@ -14,8 +14,13 @@ from prtcore.core.hair import make_hair
 from prtcore.core.scene import Light
 from prtcore.core.spec import ChiangSpec
 from prtcore.receivers.strands import build_strand_space
-from prtcore.reference.chiang import chiang_reference
-from prtcore.reference.fibres import noise_corrected_error
+from prtcore.reference.chiang import (
+    chebyshev_u,
+    chiang_reference,
+    projection_kernel,
+    random_radial,
+)
+from prtcore.reference.fibres import cosine_about, noise_corrected_error
 from prtcore.scenes.hair import tangle, tangle_lights
 from prtcore.transport.fibre import hair_tracer
 from prtcore.transport.fibre_chiang import (
@@ -223,3 +228,27 @@ def test_the_compiled_direct_weights_are_the_exitance_weights(exitance):
                             np.repeat(sigma, j, axis=0), exitance, frame)
     want = (want.reshape(len(want), n, j, 3) * rad[None]).mean(axis=2)
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("orders, inside, outside", [
+    (3, lambda s, c: s * s - 0.25, lambda s, c: s ** 3),
+    (5, lambda s, c: s ** 4, lambda s, c: s ** 5),
+    (7, lambda s, c: chebyshev_u(6, s), lambda s, c: c * s ** 3),
+])
+def test_the_projection_kernel_reproduces_its_own_terms_and_no_others(orders, inside,
+                                                                      outside):
+    """E[k(w, target) f(w)] over w of density cos θ / π² is f(target) for f in the
+    projection's span (second order; with ``longitudinal_4``/``_6``, sin⁴ θ and U_6), and
+    not for a term beyond it (sin³ θ at second order, sin⁵ θ, an azimuthal cos φ sin³ θ)."""
+    rng = np.random.default_rng(3)
+    n = 400_000
+    t = np.tile([0.0, 0.0, 1.0], (n, 1))
+    w = cosine_about(random_radial(t, rng), rng)
+    target = np.array([[0.48, 0.64, 0.6]])  # sin θ 0.6: no root of a U_n tested
+    k = projection_kernel(t, w, np.repeat(target, n, axis=0), orders)
+    s, c = w[:, 2], w[:, 0] / np.maximum(np.hypot(w[:, 0], w[:, 1]), 1e-12)
+    ts, tc = target[:, 2], np.array([0.6])
+    for f, within in ((inside, True), (outside, False)):
+        est, se = np.mean(k * f(s, c)), np.std(k * f(s, c)) / math.sqrt(n)
+        gap = abs(est - f(ts, tc)[0])
+        assert (gap < 5 * se + 1e-3) == within, (orders, within, est, f(ts, tc), se)

@@ -47,7 +47,7 @@ from prtcore.reference.fibres import cosine_about, roulette, two_halves
 #: the fibre's outgoing radiance at a hit, by name (:func:`chiang_reference`): the
 #: azimuthal orders its projection keeps (None: the BCSDF's own, toward the path)
 EXITANCE_ORDERS = {"exact": None, "isotropic": 0, "linear": 1, "quadratic": 2,
-                   "second_order": 3}
+                   "second_order": 3, "longitudinal_4": 5, "longitudinal_6": 7}
 
 
 def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
@@ -56,7 +56,9 @@ def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
     cos θ / π² over the sphere) onto {1} (orders 0), {1, sin θ, cos θ cos φ, cos θ sin φ}
     (1) and also cos² θ (cos 2φ, sin 2φ) (2), in the frames of ``tangent`` (n, 3): for
     w drawn with that density, ``E[k(w, target) f(w)]`` is the projection of f evaluated at
-    ``target``. Duals: 1, 4 sin θ, 8/3 cos θ (cos φ, sin φ), 16/5 cos² θ (cos 2φ, sin 2φ)."""
+    ``target``. Orders 5 and 7 (``longitudinal_4``, ``longitudinal_6``, diagnostics the
+    transport does not carry) add U_3 … U_{orders−1} of sin θ (:func:`chebyshev_u`).
+    Duals: 1, 4 sin θ, 8/3 cos θ (cos φ, sin φ), 16/5 cos² θ (cos 2φ, sin 2φ)."""
     k = np.ones(len(w))
     if orders >= 1:
         s1 = np.einsum("ij,ij->i", w, tangent)
@@ -67,7 +69,21 @@ def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
             k += 16 / 5 * (2 * perp ** 2 - (1 - s1 ** 2) * (1 - s2 ** 2))
         if orders >= 3:  # the rest of second order: (sin² θ − 1/4) and sin θ · ω⊥
             k += 16 * (s1 ** 2 - 0.25) * (s2 ** 2 - 0.25) + 16 * s1 * s2 * perp
+        for n in range(3, orders):  # longitudinal_*: U_3 … U_{orders−1} of sin θ alone
+            k += chebyshev_u(n, s1) * chebyshev_u(n, s2)
     return k
+
+
+def chebyshev_u(n: int, x: np.ndarray) -> np.ndarray:
+    """(m,) U_n(x), the Chebyshev polynomial of the second kind: with x = sin θ these are
+    orthonormal under the weight cos θ / π² over the sphere (U_0 = 1, U_1 = 2 sin θ,
+    U_2 = 4 (sin² θ − 1/4): the longitudinal terms of the exitance's orders)."""
+    a, b = np.ones_like(x), 2 * x
+    if n == 0:
+        return a
+    for _ in range(n - 1):
+        a, b = b, 2 * x * b - a
+    return b
 
 
 def random_radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -102,9 +102,12 @@ def fibre_vertices(hair, mesh: FibreMesh, off: np.ndarray, rho_pt: np.ndarray,
 
 
 def roulette(beta: np.ndarray, alive: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Russian roulette: path ``alive`` survives with probability q = min(1, max_c β_c)
-    and is divided by q (``beta`` (n, 3) updated in place); returns the survivors."""
-    q = np.minimum(1.0, beta[alive].max(axis=1))
+    """Russian roulette: path ``alive`` survives with probability q = min(1, max_c |β_c|)
+    and is divided by q (``beta`` (n, 3) updated in place); returns the survivors. The
+    magnitude: a projection kernel's weight (:func:`prtcore.reference.chiang.
+    projection_kernel`) can make β negative, and a path killed for that would drop its
+    light from the mean (+26 % on the 10k head's scalp until 2026-12-06)."""
+    q = np.minimum(1.0, np.abs(beta[alive]).max(axis=1))
     keep = rng.random(len(alive)) < q
     beta[alive[keep]] /= q[keep, None]
     return alive[keep]

@@ -148,7 +148,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                                lights: Sequence[Light], rows: np.ndarray, paths: int,
                                seed: int, params: ChiangParams, sigma_points: np.ndarray,
                                max_depth: int = 64, rr_depth: int = 3,
-                               exitance: str = "exact") -> tuple[np.ndarray, np.ndarray]:
+                               exitance: str = "exact", where: str = "every"
+                               ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`hair_mesh_reference` with Chiang fibres: every fibre vertex is that of
     :func:`prtcore.reference.chiang.chiang_reference` (next-event estimation with the
     BCSDF toward where the path came from, :func:`~prtcore.core.bcsdf.sample_scattering`
@@ -158,7 +159,9 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     ``chiang_reference``; ``exitance`` "isotropic", "linear" or "quadratic" shades every
     fibre hit toward a fresh view direction weighted by that model's projection kernel
     instead (:func:`prtcore.reference.chiang.projection_kernel`: the fast path's model,
-    for one-bounce checks).
+    for one-bounce checks). ``where`` "every" applies that model at every fibre hit;
+    "scalp" only where an atlas texel's own ray meets a fibre (every later vertex exact):
+    the error of the mesh's truncated reads of the fibres alone, at any depth.
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
     rows = np.asarray(rows, dtype=np.int64)
     hair = space.hair
@@ -221,11 +224,13 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                 fib[v] = True
                 tangent[v], pos[v], radius[v], sigma[v] = fibre_at_hits(
                     hair, fibres, off, sig_pt, tri[fi] - f, bary[fi])
-                if exitance == "exact":
-                    wo[v] = -d[fi]
-                else:  # the fast path's model: a fresh view, weighted by its kernel
-                    wo[v] = cosine_about(random_radial(tangent[v], rng), rng)
-                    beta[v] *= projection_kernel(tangent[v], wo[v], -d[fi],
+                wo[v] = -d[fi]
+                if exitance != "exact":  # the fast path's model: a fresh view, weighted
+                    pick = np.full(len(v), where == "every") | (  # by its kernel
+                        (depth == 1) & (row[v] < t_m))
+                    m = v[pick]
+                    wo[m] = cosine_about(random_radial(tangent[m], rng), rng)
+                    beta[m] *= projection_kernel(tangent[m], wo[m], -d[fi][pick],
                                                  EXITANCE_ORDERS[exitance])[:, None]
                 geo[v] = 0.0
                 np.add.at(acc, owner[v], fibre_nee(
