@@ -157,8 +157,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--texels-per-strand", type=int, default=8)
     ap.add_argument("--samples", type=int, default=8, help="direct samples J")
     ap.add_argument("--exitance", nargs="+", default=["isotropic"],
-                    choices=["isotropic", "linear", "quadratic", "second_order",
-                             "longitudinal_4"],
+                    choices=["isotropic", "linear", "quadratic", "second_order"],
                     help="hair.chiang.exitance variants (each row prefixed by its name "
                          "when not isotropic)")
     ap.add_argument("--read-models", nargs="+", default=[],

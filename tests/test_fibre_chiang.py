@@ -107,8 +107,7 @@ def test_fast_path_is_its_model_path_traced(tangle_fast, bounces):
     assert abs(e["bias"]) < 0.06 and e["rrmse"] < 0.15, e
 
 
-@pytest.mark.parametrize("exitance", ["linear", "quadratic", "second_order",
-                                      "longitudinal_4"])
+@pytest.mark.parametrize("exitance", ["linear", "quadratic", "second_order"])
 def test_projected_exitance_is_its_model_path_traced_at_one_bounce(tangle_fast, exitance):
     """The linear, quadratic and second-order exitances' first bounce against the path tracer that
     projects each hit's outgoing radiance the same way (its reproducing kernel,

@@ -249,13 +249,13 @@ def test_the_scalp_reads_model_truncates_the_atlas_texels_own_reads_alone(scalp)
     assert e["rrmse"] > 0.15, e  # measured 0.48 (bias −12 %)
 
 
-@pytest.mark.parametrize("exitance", ["linear", "quadratic", "longitudinal_4"])
+@pytest.mark.parametrize("exitance", ["linear", "quadratic"])
 def test_projected_exitance_s_first_bounce_is_its_model_path_traced(scalp, exitance):
-    """Linear, quadratic and longitudinal_4 exitance with a mesh: the first bounce
-    against the hair + mesh path tracer that projects every fibre hit's outgoing radiance
-    the same way (a fresh view weighted by the projection's kernel): the atlas rows read a
-    fibre's exitance toward their rays, the strand rows weight their rays to the scalp by
-    every coefficient's weight. Measured in docs/hair.md."""
+    """Linear and quadratic exitance with a mesh: the first bounce against the hair + mesh
+    path tracer that projects every fibre hit's outgoing radiance the same way (a fresh
+    view weighted by the projection's kernel): the atlas rows now read a fibre's exitance
+    toward their rays, the strand rows weight their rays to the scalp by every
+    coefficient's weight. Measured in docs/hair.md."""
     scene, texels, space, tracer, fibres, points = scalp
     fibre = chiang_fibre(LIGHT_HAIR, space)
     data = bake_chiang_hair_mesh_dataset(

@@ -88,18 +88,6 @@ def sigma_a_from_color(color: np.ndarray, beta_n: float) -> np.ndarray:
     return (np.log(c) / d) ** 2
 
 
-def chebyshev_u(n: int, x: np.ndarray) -> np.ndarray:
-    """(m,) U_n(x), the Chebyshev polynomial of the second kind: with x = sin θ these are
-    orthonormal under the weight cos θ / π² over the sphere (U_0 = 1, U_1 = 2 sin θ,
-    U_2 = 4 (sin² θ − 1/4): the longitudinal terms of the exitance's orders)."""
-    a, b = np.ones_like(x), 2 * x
-    if n == 0:
-        return a
-    for _ in range(n - 1):
-        a, b = b, 2 * x * b - a
-    return b
-
-
 def _fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
     """Unpolarised Fresnel reflectance of a dielectric (outside → inside, IOR eta)."""
     cos_i = np.clip(cos_i, -1.0, 1.0)
@@ -226,16 +214,14 @@ class FibreAlbedo:
     """The directional albedo of a fibre and its first moments over the outgoing
     direction, averaged over the offset h, tabulated per absorption σ of one channel
     (channels are independent): ``sin_theta`` (S,) and ``root_sigma`` (Q,) float64 nodes,
-    ``values`` (8, S, Q) float64, moment m of
+    ``values`` (6, S, Q) float64, moment m of
 
     * 0: ``Ā(θi) = (1/cos θi) ∫ S(ωo, ωi) cos θo dωo``;
     * 1: ``Ā_t(θi) = (1/cos θi) ∫ S(ωo, ωi) sin θo cos θo dωo``;
     * 2: ``Ā_⊥(θi) = (1/cos θi) ∫ S(ωo, ωi) cos² θo cos(φo − φi) dωo``;
     * 3: ``Ā_2(θi) = (1/cos θi) ∫ S(ωo, ωi) cos³ θo cos 2(φo − φi) dωo``;
     * 4: ``Ā_z(θi) = (1/cos θi) ∫ S(ωo, ωi) (sin² θo − 1/4) cos θo dωo``;
-    * 5: ``Ā_s(θi) = (1/cos θi) ∫ S(ωo, ωi) sin θo cos² θo cos(φo − φi) dωo``;
-    * 6, 7: ``(1/cos θi) ∫ S(ωo, ωi) U_n(sin θo) cos θo dωo``, n = 3, 4
-      (:func:`chebyshev_u`): the longitudinal terms of ``longitudinal_4`` exitance.
+    * 5: ``Ā_s(θi) = (1/cos θi) ∫ S(ωo, ωi) sin θo cos² θo cos(φo − φi) dωo``.
 
     Call it with sin θi (n,), σ (n, 3) and the moment for (n, 3) by bilinear
     interpolation (sin θi clamped to the nodes' range, σ to [0, SIGMA_MAX])."""
@@ -304,7 +290,7 @@ def fibre_albedo(params: ChiangParams) -> FibreAlbedo:
     cos_i = np.sqrt(1 - sin_i ** 2)
     v = params.variances
     rot = [*_tilted(sin_o, cos_o, params.alpha), (sin_o, cos_o)]
-    table = np.zeros((8, len(sin_i), len(sigma)))
+    table = np.zeros((6, len(sin_i), len(sigma)))
     for p in range(P_MAX + 1):
         sin_op, cos_op = rot[p]
         m = _mp(cos_i[:, None], np.abs(cos_op)[None, :], sin_i[:, None], sin_op[None, :],
@@ -315,9 +301,6 @@ def fibre_albedo(params: ChiangParams) -> FibreAlbedo:
         table[3] += (m * (w_o * cos_o ** 4)[None, :]) @ a_cos2[p]
         table[4] += (m * (w_o * (sin_o ** 2 - 0.25) * cos_o ** 2)[None, :]) @ a_mean[p]
         table[5] += (m * (w_o * sin_o * cos_o ** 3)[None, :]) @ a_cos[p]
-        for n in (3, 4):
-            table[3 + n] += (m * (w_o * chebyshev_u(n, sin_o) * cos_o ** 2)[None, :]) \
-                @ a_mean[p]
     return FibreAlbedo(sin_theta=sin_i, root_sigma=root, values=table / cos_i[None, :, None])
 
 

@@ -273,9 +273,7 @@ class ChiangSpec:
     #: what transport carries of each texel's outgoing radiance: "linear" (its average
     #: plus a linear function of direction, through every bounce: 11 % per texel on the
     #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
-    #: solve), "second_order" (the whole second order: nine terms), "longitudinal_4"
-    #: (second_order plus the third and fourth longitudinal terms, U_3 and U_4 of sin θ:
-    #: eleven; what a mesh reads of dark hair's narrow lobes), "isotropic" (the
+    #: solve), "second_order" (the whole second order: nine terms), "isotropic" (the
     #: average alone, the paper's: 38 %, the least memory) or "auto": second_order with
     #: ≥ 256 gather rays or denoised strand texels (hair alone; dense hair with a
     #: mesh), else linear, where the bake's memory estimate allows it, else
@@ -597,8 +595,7 @@ def _chiang(v: Any) -> ChiangSpec:
                        hi=10.0),
         eta=_num(c.get("eta", d.eta), "hair.chiang.eta", lo=1.0, hi=3.0),
         exitance=_choice(c.get("exitance", d.exitance), "hair.chiang.exitance",
-                         ("auto", "isotropic", "linear", "quadratic", "second_order",
-                          "longitudinal_4")))
+                         ("auto", "isotropic", "linear", "quadratic", "second_order")))
 
 
 def _section(cls: type, v: Any, key: str) -> dict:

@@ -100,9 +100,7 @@ DOCS: dict[str, str] = {
                        "every bounce: 11 % per texel on the tangle, docs/hair.md) · "
                        "`quadratic` (plus cos² θ (cos 2φ, sin 2φ): 10 %, 1.5× the solve) "
                        "· `second_order` (plus sin² θ − 1/4 and sin θ cos θ (cos φ, "
-                       "sin φ): nine terms) · `longitudinal_4` (plus U_3 and U_4 of "
-                       "sin θ: eleven terms, for what a mesh reads of dark hair's narrow "
-                       "lobes, docs/hair.md) "
+                       "sin φ): nine terms) "
                        "· `isotropic` (the average alone, the paper's: 38 %, the "
                        "cheapest); with a `--mesh` too",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `adaptive` for hair "

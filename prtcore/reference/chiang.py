@@ -34,7 +34,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from prtcore.core.bcsdf import ChiangParams, chebyshev_u, sample_scattering, scattering
+from prtcore.core.bcsdf import ChiangParams, sample_scattering, scattering
 from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
 from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.raytrace import RayTracer
@@ -72,6 +72,18 @@ def projection_kernel(tangent: np.ndarray, w: np.ndarray, target: np.ndarray,
         for n in range(3, orders):  # longitudinal_*: U_3 … U_{orders−1} of sin θ alone
             k += chebyshev_u(n, s1) * chebyshev_u(n, s2)
     return k
+
+
+def chebyshev_u(n: int, x: np.ndarray) -> np.ndarray:
+    """(m,) U_n(x), the Chebyshev polynomial of the second kind: with x = sin θ these are
+    orthonormal under the weight cos θ / π² over the sphere (U_0 = 1, U_1 = 2 sin θ,
+    U_2 = 4 (sin² θ − 1/4): the longitudinal terms of the exitance's orders)."""
+    a, b = np.ones_like(x), 2 * x
+    if n == 0:
+        return a
+    for _ in range(n - 1):
+        a, b = b, 2 * x * b - a
+    return b
 
 
 def random_radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -68,7 +68,6 @@ import numpy as np
 from prtcore.core.bcsdf import (
     ChiangParams,
     FibreAlbedo,
-    chebyshev_u,
     fibre_albedo,
     sigma_a_from_color,
     sigma_a_from_melanin,
@@ -155,12 +154,11 @@ def check_lights(lights: Sequence[Light]) -> None:
 #: tangent (24) and row/column (8) as gathered, the matrix-free operator's copy of those
 #: (8) with F × 3 weights and F reads (16 F), the weights' float64 temporaries (48 F)
 CHIANG_BYTES_PER_RAY = {"isotropic": 100, "linear": 300, "quadratic": 420,
-                        "second_order": 600, "longitudinal_4": 730}
+                        "second_order": 600}
 #: the fibre's outgoing radiance carried through transport (``hair.chiang.exitance``)
-EXITANCE = ("isotropic", "linear", "quadratic", "second_order", "longitudinal_4")
+EXITANCE = ("isotropic", "linear", "quadratic", "second_order")
 #: coefficients per texel of each
-EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6, "second_order": 9,
-                  "longitudinal_4": 11}
+EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6, "second_order": 9}
 
 
 def needs_frames(exitance: str) -> bool:
@@ -192,8 +190,7 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
     vector ``g = 4 Ā_t t + (8/3) Ā_⊥ ŵ_⊥`` (linear); F = 6, those then
     ``(16/5) Ā_2 (cos 2φ, sin 2φ)`` of w in the receiving texels' ``frame`` (u, v)
     (quadratic); F = 9, those then ``16 Ā_z`` and ``16 Ā_s (ŵ_⊥·u, ŵ_⊥·v)``
-    (second_order); F = 11, those then the table's moments 6 and 7, U_3 and U_4 of sin θo
-    (longitudinal_4: U_n orthonormal, so their duals are themselves)."""
+    (second_order)."""
     sin = np.einsum("ij,ij->i", tangent, w)
     mean = albedo(sin, sigma)
     if exitance == "isotropic":
@@ -208,12 +205,10 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
         norm = np.maximum(c2 * c2 + s2 * s2, 1e-24) ** 0.5  # cos² θ of w
         a2 = 16 / 5 * albedo(sin, sigma, 3)
         out += [(a2 * (c2 / norm)[:, None])[None], (a2 * (s2 / norm)[:, None])[None]]
-    if EXITANCE_TERMS[exitance] >= 9:
+    if EXITANCE_TERMS[exitance] == 9:
         a_s = 16 * albedo(sin, sigma, 5)
         out += [(16 * albedo(sin, sigma, 4))[None]] + [
             (a_s * np.einsum("ij,ij->i", perp, f)[:, None])[None] for f in frame]
-    if EXITANCE_TERMS[exitance] == 11:
-        out += [albedo(sin, sigma, 6)[None], albedo(sin, sigma, 7)[None]]
     return np.concatenate(out)
 
 
@@ -221,19 +216,17 @@ def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
     """What a ray toward d (n, 3) reads of each coefficient of the fibre it hits (frames
     (u, v) (n, 3) of the texels hit, for the second-order terms): 1, −d, then
     cos² θ (cos 2φ, sin 2φ) of −d, then sin² θ − 1/4 and sin θ cos θ (cos φ, sin φ) of −d
-    (t = u × v; all even in d), then U_3 and U_4 of sin θ of −d (F = 11)."""
+    (t = u × v; all even in d)."""
     out = [np.ones(len(d))]
     if terms >= 4:
         out += [-d[:, 0], -d[:, 1], -d[:, 2]]
     if terms >= 6:
         out += list(_second_order(d, *frame))  # even in d
-    if terms >= 9:
+    if terms == 9:
         u, v = frame
         s = np.einsum("ij,ij->i", d, np.cross(u, v))
         out += [s * s - 0.25, s * np.einsum("ij,ij->i", d, u),
                 s * np.einsum("ij,ij->i", d, v)]
-    if terms == 11:
-        out += [chebyshev_u(3, -s), chebyshev_u(4, -s)]
     return out
 
 
@@ -241,11 +234,11 @@ def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
 def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_nodes, fu, fv,
                      out):  # pragma: no cover - compiled
     """Each texel's exitance coefficients from its J samples of one light: ``(1/J) Σ_j
-    w_f(ωl) rad_j`` with :func:`exitance_weights`' weights w_f (F = out.shape[0]: 1, 4, 6,
-    9 or 11), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
+    w_f(ωl) rad_j`` with :func:`exitance_weights`' weights w_f (F = out.shape[0]: 1, 4, 6 or
+    9), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
 
     tangent, to_light (n, J, 3) float64 at the samples; sigma (n, 3) float64 per texel;
-    rad (n, J, 3) float32 the samples' radiance; values (8, S, Q) float64, sin_nodes (S,),
+    rad (n, J, 3) float32 the samples' radiance; values (6, S, Q) float64, sin_nodes (S,),
     root_nodes (Q,) the table; fu, fv (n, 3) the texels' frames (F ≥ 6); out
     (F, n, 3) float32, written."""
     n, nj = rad.shape[0], rad.shape[1]
@@ -254,8 +247,7 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
     s0, ds = sin_nodes[0], sin_nodes[1] - sin_nodes[0]
     r0, dr = root_nodes[0], root_nodes[1] - root_nodes[0]
     rmax2 = root_nodes[nq - 1] ** 2
-    moments = 1 if terms == 1 else (3 if terms == 4 else (4 if terms == 6 else (
-        6 if terms == 9 else 8)))
+    moments = 1 if terms == 1 else (3 if terms == 4 else (4 if terms == 6 else 6))
     for i in numba.prange(n):
         jq = np.empty(3, np.int64)
         fq = np.empty(3)
@@ -264,7 +256,7 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
             jj = min(int(y), nq - 2)
             jq[c], fq[c] = jj, y - jj
         acc = np.zeros((terms, 3))
-        m = np.empty(8)
+        m = np.empty(6)
         for j in range(nj):
             t0, t1, t2 = tangent[i, j, 0], tangent[i, j, 1], tangent[i, j, 2]
             w0, w1, w2 = to_light[i, j, 0], to_light[i, j, 1], to_light[i, j, 2]
@@ -304,13 +296,10 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
                     a2 = 16 / 5 * m[3] * r
                     acc[4, c] += a2 * c2
                     acc[5, c] += a2 * s2
-                if terms >= 9:
+                if terms == 9:
                     acc[6, c] += 16 * m[4] * r
                     acc[7, c] += 16 * m[5] * r * eu
                     acc[8, c] += 16 * m[5] * r * ev
-                if terms == 11:
-                    acc[9, c] += m[6] * r
-                    acc[10, c] += m[7] * r
         for f in range(terms):
             for c in range(3):
                 out[f, i, c] = acc[f, c] / nj
