@@ -32,7 +32,9 @@ colour) and dark hair (eumelanin 1.3):
 * with ``--second-seed`` each row is baked twice (seeds 0 and 1), and printed with its
   systematic error (the fast path's noise removed too: what more rays cannot take) and
   that noise.
-  ``--rows`` picks the rows.
+  ``--rows`` picks the rows. It also prints each light's systematic error and bias: the
+  head's sun and point light err differently (docs/hair.md). ``--save DIR`` keeps every
+  row's per-texel values.
 
 Strand texels are drawn 2000 at a time by default. Their errors are heavy-tailed: the
 300 drawn until 2026-12-06 read the strand texels' bias 2 to 5 points lower than 2000 do,
@@ -49,6 +51,7 @@ Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 64
        [--exitance isotropic linear quadratic second_order] [--samples 8]
        [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark] [--second-seed]
        [--neighbours 64 128] [--atlas-rays 64] [--arc-reads extrapolate] [--bounces 16]
+       [--read-models longitudinal_4 longitudinal_6] [--save DIR]
 """
 
 from __future__ import annotations
@@ -174,6 +177,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--second-seed", action="store_true",
                     help="also bake with seed 1: each row's systematic error (the fast "
                          "path's noise removed with the two bakes) and its noise")
+    ap.add_argument("--save", default=None,
+                    help="a folder: each row's per-texel values (.npz), for analysis")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_accuracy.json"))
     args = ap.parse_args(argv)
@@ -226,7 +231,19 @@ def main(argv: list[str] | None = None) -> dict:
                     noise = np.sqrt(max(0.0, e["rrmse"] ** 2 - s["rrmse"] ** 2))
                     res[part + "_noise"] = float(noise)
                     line += f"  systematic {s['rrmse']:.3f}  noise {noise:.3f}"
+                    # per light: the head's sun and its point light err differently
+                    per = [noise_corrected_error((fast[sl, li], runs[1][0][sl, li]),
+                                                 a[sl, li], b[sl, li])
+                           for li in range(a.shape[1])]
+                    res[part + "_systematic_per_light"] = per
+                    line += "  per light " + ", ".join(
+                        f"{p['rrmse']:.3f} / {p['bias']:+.3f}" for p in per)
                 print(line, flush=True)
+                if args.save:  # every texel's two bakes and the reference's halves
+                    np.savez_compressed(Path(args.save) / f"{name}_{row}_{part}.npz",
+                                        rows=rows[sl], fast=fast[sl], a=a[sl], b=b[sl],
+                                        **({"fast1": runs[1][0][sl]} if len(runs) > 1
+                                           else {}))
             out["results"][f"{name}/{row}"] = res
         for read in ((model, *args.read_models) if "scalp_reads" in args.rows
                      and model != "isotropic" else ()):
