@@ -249,6 +249,22 @@ def test_the_scalp_reads_model_truncates_the_atlas_texels_own_reads_alone(scalp)
     assert e["rrmse"] > 0.15, e  # measured 0.48 (bias −12 %)
 
 
+def test_the_reference_can_leave_out_the_light_the_hair_sends_to_the_head(scalp):
+    """``fibre_to_mesh=False`` ends the paths that go from a fibre to the mesh: an atlas
+    texel's first bounce (its rays' own hits) is the exact reference's draw for draw, and
+    the strand texels lose the light of the scalp under them."""
+    scene, texels, space, tracer, fibres, _ = scalp
+    fibre = chiang_fibre(LIGHT_HAIR, space)
+    n_m, rows = _receivers(texels, space, 14)
+    args = (scene, texels, space, tracer, fibres, LIGHTS)
+    run = [chiang_hair_mesh_reference(*args, part, 512, 8, fibre.params, fibre.sigma_points,
+                                      max_depth=1, fibre_to_mesh=cut)
+           for part in (rows[:n_m], rows[n_m:]) for cut in (True, False)]
+    assert all(np.array_equal(x, y) for x, y in zip(run[0], run[1], strict=True))
+    whole, cut = np.mean(run[2]), np.mean(run[3])
+    assert cut < 0.8 * whole, (cut, whole)  # measured 0.49 of it
+
+
 @pytest.mark.parametrize("exitance", ["linear", "quadratic"])
 def test_projected_exitance_s_first_bounce_is_its_model_path_traced(scalp, exitance):
     """Linear and quadratic exitance with a mesh: the first bounce against the hair + mesh

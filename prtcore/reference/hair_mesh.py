@@ -148,7 +148,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                                lights: Sequence[Light], rows: np.ndarray, paths: int,
                                seed: int, params: ChiangParams, sigma_points: np.ndarray,
                                max_depth: int = 64, rr_depth: int = 3,
-                               exitance: str = "exact", where: str = "every"
+                               exitance: str = "exact", where: str = "every",
+                               fibre_to_mesh: bool = True
                                ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`hair_mesh_reference` with Chiang fibres: every fibre vertex is that of
     :func:`prtcore.reference.chiang.chiang_reference` (next-event estimation with the
@@ -162,6 +163,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     for one-bounce checks). ``where`` "every" applies that model at every fibre hit;
     "scalp" only where an atlas texel's own ray meets a fibre (every later vertex exact):
     the error of the mesh's truncated reads of the fibres alone, at any depth.
+    ``fibre_to_mesh`` False ends every path that goes from a fibre to the mesh: the light
+    the hair sends back to the head left out, for a fast path baked without it.
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
     rows = np.asarray(rows, dtype=np.int64)
     hair = space.hair
@@ -218,6 +221,10 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
             tri, bary = hits.triangle[keep], hits.barycentric[keep]
             if not len(alive):
                 break
+            if not fibre_to_mesh:  # a fibre's light to the mesh left out
+                keep = to_fibre | ~fib[alive]
+                alive, d, to_fibre = alive[keep], d[keep], to_fibre[keep]
+                tri, bary = tri[keep], bary[keep]
             fi, si = np.flatnonzero(to_fibre), np.flatnonzero(~to_fibre)
             if len(fi):
                 v = alive[fi]
