@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams, sample_scattering
-from prtcore.core.fibres import FibreMesh, outside_offset
+from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.raytrace import RayTracer
@@ -162,7 +162,10 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     instead (:func:`prtcore.reference.chiang.projection_kernel`: the fast path's model,
     for one-bounce checks). ``where`` "every" applies that model at every fibre hit;
     "scalp" only where an atlas texel's own ray meets a fibre (every later vertex exact):
-    the error of the mesh's truncated reads of the fibres alone, at any depth.
+    the error of the mesh's truncated reads of the fibres alone, at any depth;
+    "scalp_arc" (with "exact" exitance) moves each such hit to a point uniform over its
+    strand texel's arc, shaded toward the ray: the error of reading a texel's mean where
+    the scalp sees one point of it.
     ``fibre_to_mesh`` False ends every path that goes from a fibre to the mesh: the light
     the hair sends back to the head left out, for a fast path baked without it.
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
@@ -232,6 +235,16 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                 tangent[v], pos[v], radius[v], sigma[v] = fibre_at_hits(
                     hair, fibres, off, sig_pt, tri[fi] - f, bary[fi])
                 wo[v] = -d[fi]
+                if where == "scalp_arc" and depth == 1:  # the texel's mean, not the hit
+                    m = v[row[v] < t_m]
+                    mf = fi[row[v] < t_m]
+                    seg, along = segment_hits(fibres, tri[mf] - f, bary[mf])
+                    p0 = hair.segment_start[seg]
+                    arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1]
+                                                         - hair.arc_length[p0])
+                    tex = space.texel_of(hair.strand_of_segment[seg], arc)
+                    pos[m], tangent[m], radius[m], sigma[m], _ = fibre_starts(
+                        space, off, sig_pt, tex, rng)
                 if exitance != "exact":  # the fast path's model: a fresh view, weighted
                     pick = np.full(len(v), where == "every") | (  # by its kernel
                         (depth == 1) & (row[v] < t_m))
