@@ -249,19 +249,30 @@ def test_the_scalp_reads_model_truncates_the_atlas_texels_own_reads_alone(scalp)
     assert e["rrmse"] > 0.15, e  # measured 0.48 (bias −12 %)
 
 
+def _variant_pairs(scalp, rows_seed: int, paths: int, seed: int, depth: int, order: str,
+                   key: str, values: tuple) -> list:
+    """The light hair's reference on the scalp's receivers (``_receivers(rows_seed)``),
+    one part then the other (``order`` "atlas first" or "strands first"), each with
+    ``key`` = each of ``values``: four (a, b) pairs, the same seed throughout."""
+    scene, texels, space, tracer, fibres, _ = scalp
+    fibre = chiang_fibre(LIGHT_HAIR, space)
+    n_m, rows = _receivers(texels, space, rows_seed)
+    parts = (rows[:n_m], rows[n_m:])
+    return [chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, part,
+                                       paths, seed, fibre.params, fibre.sigma_points,
+                                       max_depth=depth, **{key: value})
+            for part in (parts if order == "atlas first" else parts[::-1])
+            for value in values]
+
+
 def test_the_scalp_arc_model_moves_only_the_atlas_texels_own_fibre_hits(scalp):
     """``where="scalp_arc"`` shades an atlas texel's own fibre hits at a point uniform over
     the hit texel's arc (the texel's mean, as the fast path reads it): the strand texels'
     paths stay the exact reference's draw for draw, the atlas texels' values move but
     keep their scale (measured on the 10k head: the point light's 12.8 % systematic,
     docs/hair.md)."""
-    scene, texels, space, tracer, fibres, _ = scalp
-    fibre = chiang_fibre(LIGHT_HAIR, space)
-    n_m, rows = _receivers(texels, space, 15)
-    args = (scene, texels, space, tracer, fibres, LIGHTS)
-    run = [chiang_hair_mesh_reference(*args, part, 256, 9, fibre.params, fibre.sigma_points,
-                                      max_depth=2, where=where)
-           for part in (rows[n_m:], rows[:n_m]) for where in ("every", "scalp_arc")]
+    run = _variant_pairs(scalp, 15, 256, 9, 2, "strands first", "where",
+                         ("every", "scalp_arc"))
     assert all(np.array_equal(x, y) for x, y in zip(run[0], run[1], strict=True))
     exact, moved = np.mean(run[2]), np.mean(run[3])
     assert not np.array_equal(run[2][0], run[3][0]) and 0.5 < moved / exact < 2, (
@@ -272,13 +283,8 @@ def test_the_reference_can_leave_out_the_light_the_hair_sends_to_the_head(scalp)
     """``fibre_to_mesh=False`` ends the paths that go from a fibre to the mesh: an atlas
     texel's first bounce (its rays' own hits) is the exact reference's draw for draw, and
     the strand texels lose the light of the scalp under them."""
-    scene, texels, space, tracer, fibres, _ = scalp
-    fibre = chiang_fibre(LIGHT_HAIR, space)
-    n_m, rows = _receivers(texels, space, 14)
-    args = (scene, texels, space, tracer, fibres, LIGHTS)
-    run = [chiang_hair_mesh_reference(*args, part, 512, 8, fibre.params, fibre.sigma_points,
-                                      max_depth=1, fibre_to_mesh=cut)
-           for part in (rows[:n_m], rows[n_m:]) for cut in (True, False)]
+    run = _variant_pairs(scalp, 14, 512, 8, 1, "atlas first", "fibre_to_mesh",
+                         (True, False))
     assert all(np.array_equal(x, y) for x, y in zip(run[0], run[1], strict=True))
     whole, cut = np.mean(run[2]), np.mean(run[3])
     assert cut < 0.8 * whole, (cut, whole)  # measured 0.49 of it
