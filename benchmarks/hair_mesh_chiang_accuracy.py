@@ -23,6 +23,9 @@ colour) and dark hair (eumelanin 1.3):
 * ``scalp_reads`` (no bake): the reference that shades only the atlas texels' own
   fibre hits with the model's truncated exitance (each later vertex exact) against the
   exact reference: what the mesh's truncated reads of the fibres cost alone.
+* ``scalp_arc`` (no bake): the reference that shades each of the atlas texels' own
+  fibre hits at a point uniform over the hit strand texel's arc (the texel's mean, as
+  the fast path reads it) against the exact one.
 * ``exact_denoised``: all bounces as a bake ships them: the strand texels denoised
   (prtcore.transport.strand_denoise: k = 64, or each of ``--neighbours`` (rows
   ``exact_denoised_k{k}``; a bake of dense hair with a mesh takes 128), the plane and the
@@ -51,7 +54,7 @@ Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 64
        [--exitance isotropic linear quadratic second_order] [--samples 8]
        [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark] [--second-seed]
        [--neighbours 64 128] [--atlas-rays 64] [--arc-reads extrapolate] [--bounces 16]
-       [--read-models longitudinal_4 longitudinal_6] [--save DIR]
+       [--read-models longitudinal_4 longitudinal_6] [--save DIR] [--hair-near 3]
 """
 
 from __future__ import annotations
@@ -109,10 +112,12 @@ def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: in
 
 def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: str,
           rows: np.ndarray, neighbours: int, fibre_rays: int | None = None,
-          arc_reads: str | None = None) -> tuple[np.ndarray, float]:
+          arc_reads: str | None = None, hair_near: float | None = None
+          ) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
     so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
-    for the transport's; ``arc_reads``: how the atlas reads a fibre), denoised as a bake
+    for the transport's; ``arc_reads``: how the atlas reads a fibre; ``hair_near``: the
+    fibre gather's near-field reach, None for the transport's), denoised as a bake
     denoises with ``neighbours`` k > 0 (and its atlas filtered): the indirect light at
     ``rows`` (n, K, 3) float64 and the seconds it took."""
     scene, texels, space, fibres, points, tracer = setup
@@ -122,7 +127,7 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
         bakes[key] = (bake_chiang_hair_mesh_dataset(
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
             StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays,
-            arc_reads=arc_reads),
+            arc_reads=arc_reads, hair_near=hair_near),
             time.perf_counter() - t0)
     data, seconds = bakes[key]
     if neighbours:
@@ -152,6 +157,9 @@ def main(argv: list[str] | None = None) -> dict:
                     help="the fast path's products for the all-bounce rows (a bake's "
                          "transport.max_bounces, 16 by default, is where its solve stops; "
                          "the reference takes 64 either way)")
+    ap.add_argument("--hair-near", type=float, default=None,
+                    help="the fibre gather's near-field reach in footprints (default: "
+                         "transport.near_field, 1)")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -170,7 +178,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--hairs", nargs="+", default=list(HAIRS), choices=list(HAIRS))
     ap.add_argument("--rows", nargs="+", default=["exact", "exact_1", "model_1"],
                     choices=["exact", "exact_1", "exact_2", "model_1", "exact_denoised",
-                             "scalp_reads"])
+                             "scalp_reads", "scalp_arc"])
     ap.add_argument("--neighbours", type=int, nargs="+", default=[DEFAULT_NEIGHBOURS],
                     help="the denoiser's k for exact_denoised (others than the default "
                          "are rows exact_denoised_k{k}, on the same bakes)")
@@ -209,7 +217,8 @@ def main(argv: list[str] | None = None) -> dict:
                                         max_bounces=args.bounces if bounces > 2
                                         else bounces),
                           model, rows, k, m,
-                          None if args.arc_reads == "mean" else args.arc_reads)
+                          None if args.arc_reads == "mean" else args.arc_reads,
+                          args.hair_near)
                     for seed in seeds]
             t1 = time.perf_counter()
             key = (name, bounces, exitance)  # the exact rows share their reference
@@ -245,29 +254,37 @@ def main(argv: list[str] | None = None) -> dict:
                                         **({"fast1": runs[1][0][sl]} if len(runs) > 1
                                            else {}))
             out["results"][f"{name}/{row}"] = res
-        for read in ((model, *args.read_models) if "scalp_reads" in args.rows
-                     and model != "isotropic" else ()):
-                # no bake: the reference that truncates the atlas texels' own reads of the
-                # fibres to the model's orders (every later vertex exact) against the exact
-                # one, both references' noise removed: what the mesh's reads cost alone
-                t1 = time.perf_counter()
-                key = (name, 64, "exact")
-                if key not in refs:
-                    refs[key] = chiang_hair_mesh_reference(
-                        scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
-                        fibre.params, fibre.sigma_points)
-                a, b = refs[key]
-                ma, mb = chiang_hair_mesh_reference(
-                    scene, texels, space, tracer, fibres, LIGHTS, rows[:n_m], args.paths, 202,
-                    fibre.params, fibre.sigma_points, exitance=read, where="scalp")
-                e = noise_corrected_error((ma, mb), a[:n_m], b[:n_m])
-                label = prefix + "scalp_reads" + ("" if read == model else ":" + read)
-                noise = np.sqrt(np.mean((ma - mb) ** 2) / 4 / np.mean(ma ** 2))
-                print(f"{name:5s} {label:24s} mesh: rRMSE {e['rrmse']:.3f}  bias "
-                      f"{e['bias']:+.3f} ± {e['bias_se']:.3f}  (model noise {noise:.3f})",
-                      flush=True)
-                out["results"][f"{name}/{prefix}scalp_reads:{read}"] = {
-                    "mesh": e, "reference_s": time.perf_counter() - t1}
+        # rows with no bake: a reference with one of the fast path's shortcuts at the atlas
+        # texels' own fibre hits (every later vertex exact) against the exact one, both
+        # references' noise removed: what that shortcut costs the scalp alone
+        variants = [(f"scalp_reads{'' if read == model else ':' + read}",
+                     {"exitance": read, "where": "scalp"}, 202)
+                    for read in ((model, *args.read_models) if "scalp_reads" in args.rows
+                                 and model != "isotropic" else ())]
+        if "scalp_arc" in args.rows:  # the texel's mean read where the scalp sees a point
+            variants.append(("scalp_arc", {"where": "scalp_arc"}, 303))
+        for label, kwargs, seed in variants:
+            t1 = time.perf_counter()
+            key = (name, 64, "exact")
+            if key not in refs:
+                refs[key] = chiang_hair_mesh_reference(
+                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
+                    fibre.params, fibre.sigma_points)
+            a, b = refs[key]
+            ma, mb = chiang_hair_mesh_reference(
+                scene, texels, space, tracer, fibres, LIGHTS, rows[:n_m], args.paths, seed,
+                fibre.params, fibre.sigma_points, **kwargs)
+            e = noise_corrected_error((ma, mb), a[:n_m], b[:n_m])
+            per = [noise_corrected_error((ma[:, li], mb[:, li]), a[:n_m, li], b[:n_m, li])
+                   for li in range(a.shape[1])]
+            noise = np.sqrt(np.mean((ma - mb) ** 2) / 4 / np.mean(ma ** 2))
+            label = prefix + label
+            print(f"{name:5s} {label:24s} mesh: rRMSE {e['rrmse']:.3f}  bias "
+                  f"{e['bias']:+.3f} ± {e['bias_se']:.3f}  (model noise {noise:.3f})  "
+                  "per light " + ", ".join(f"{p['rrmse']:.3f} / {p['bias']:+.3f}"
+                                           for p in per), flush=True)
+            out["results"][f"{name}/{label}"] = {
+                "mesh": e, "mesh_per_light": per, "reference_s": time.perf_counter() - t1}
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=2, default=float))
