@@ -277,6 +277,15 @@ def test_the_scalp_arc_model_moves_only_the_atlas_texels_own_fibre_hits(scalp):
     exact, moved = np.mean(run[2]), np.mean(run[3])
     assert not np.array_equal(run[2][0], run[3][0]) and 0.5 < moved / exact < 2, (
         moved, exact)
+    # within ``scalp_reach`` the hits stay where they are: a reach beyond every hit is
+    # the exact reference again, draw for draw
+    scene, texels, space, tracer, fibres, _ = scalp
+    fibre = chiang_fibre(LIGHT_HAIR, space)
+    n_m, rows = _receivers(texels, space, 15)
+    near = chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS,
+                                      rows[:n_m], 256, 9, fibre.params, fibre.sigma_points,
+                                      max_depth=2, where="scalp_arc", scalp_reach=1e3)
+    assert all(np.array_equal(x, y) for x, y in zip(run[2], near, strict=True))
 
 
 def test_the_reference_can_leave_out_the_light_the_hair_sends_to_the_head(scalp):

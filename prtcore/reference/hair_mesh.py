@@ -149,7 +149,7 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                                seed: int, params: ChiangParams, sigma_points: np.ndarray,
                                max_depth: int = 64, rr_depth: int = 3,
                                exitance: str = "exact", where: str = "every",
-                               fibre_to_mesh: bool = True
+                               fibre_to_mesh: bool = True, scalp_reach: float = 0.0
                                ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`hair_mesh_reference` with Chiang fibres: every fibre vertex is that of
     :func:`prtcore.reference.chiang.chiang_reference` (next-event estimation with the
@@ -165,7 +165,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     the error of the mesh's truncated reads of the fibres alone, at any depth;
     "scalp_arc" (with "exact" exitance) moves each such hit to a point uniform over its
     strand texel's arc, shaded toward the ray: the error of reading a texel's mean where
-    the scalp sees one point of it.
+    the scalp sees one point of it; hits nearer than ``scalp_reach`` (metres) stay
+    exact there (what a near field of that reach for the scalp's reads would leave).
     ``fibre_to_mesh`` False ends every path that goes from a fibre to the mesh: the light
     the hair sends back to the head left out, for a fast path baked without it.
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
@@ -221,13 +222,13 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
             to_fibre = hits.triangle >= f
             keep = to_fibre | (hits.hit & ~to_fibre & hits.front)
             alive, d, to_fibre = alive[keep], d[keep], to_fibre[keep]
-            tri, bary = hits.triangle[keep], hits.barycentric[keep]
+            tri, bary, dist = hits.triangle[keep], hits.barycentric[keep], hits.t[keep]
             if not len(alive):
                 break
             if not fibre_to_mesh:  # a fibre's light to the mesh left out
                 keep = to_fibre | ~fib[alive]
                 alive, d, to_fibre = alive[keep], d[keep], to_fibre[keep]
-                tri, bary = tri[keep], bary[keep]
+                tri, bary, dist = tri[keep], bary[keep], dist[keep]
             fi, si = np.flatnonzero(to_fibre), np.flatnonzero(~to_fibre)
             if len(fi):
                 v = alive[fi]
@@ -236,8 +237,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                     hair, fibres, off, sig_pt, tri[fi] - f, bary[fi])
                 wo[v] = -d[fi]
                 if where == "scalp_arc" and depth == 1:  # the texel's mean, not the hit
-                    m = v[row[v] < t_m]
-                    mf = fi[row[v] < t_m]
+                    far = (row[v] < t_m) & (dist[fi] >= scalp_reach)
+                    m, mf = v[far], fi[far]
                     seg, along = segment_hits(fibres, tri[mf] - f, bary[mf])
                     p0 = hair.segment_start[seg]
                     arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1]
