@@ -142,6 +142,16 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
     return data.indirect[rows].astype(np.float64), seconds
 
 
+def _per_light(pair: tuple, a: np.ndarray, b: np.ndarray) -> tuple[list[dict], str]:
+    """Each light's noise-corrected error of two independent estimates ``pair`` (each
+    (n, K, 3)) against the reference halves (a, b), and a line of them: the head's sun
+    and point light err differently (docs/hair.md)."""
+    per = [noise_corrected_error((pair[0][:, li], pair[1][:, li]), a[:, li], b[:, li])
+           for li in range(a.shape[1])]
+    return per, "per light " + ", ".join(f"{p['rrmse']:.3f} / {p['bias']:+.3f}"
+                                         for p in per)
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--strands", type=int, default=500)
@@ -203,6 +213,16 @@ def main(argv: list[str] | None = None) -> dict:
         prefix = ("" if model == "isotropic" else f"{model}:") + (
             f"M{m}:" if len(args.rays) > 1 else "")
         bakes: dict = {}  # (bounces, seed) -> (dataset, seconds)
+
+        def reference(bounces: int, exitance: str, name=name, fibre=fibre) -> tuple:
+            """The path tracer's halves at ``rows``, made once per hair, depth and
+            exitance: the rows that compare with it share it."""
+            key = (name, bounces, exitance)
+            if key not in refs:
+                refs[key] = chiang_hair_mesh_reference(
+                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
+                    fibre.params, fibre.sigma_points, max_depth=bounces, exitance=exitance)
+            return refs[key]
         for row, bounces, exitance, k in (
                 ("exact", 64, "exact", 0), ("exact_1", 1, "exact", 0),
                 ("exact_2", 2, "exact", 0),
@@ -221,12 +241,7 @@ def main(argv: list[str] | None = None) -> dict:
                           args.hair_near)
                     for seed in seeds]
             t1 = time.perf_counter()
-            key = (name, bounces, exitance)  # the exact rows share their reference
-            if key not in refs:
-                refs[key] = chiang_hair_mesh_reference(
-                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
-                    fibre.params, fibre.sigma_points, max_depth=bounces, exitance=exitance)
-            a, b = refs[key]
+            a, b = reference(bounces, exitance)
             fast = runs[0][0]
             res = {"fast_s": runs[0][1], "reference_s": time.perf_counter() - t1}
             for part, sl in (("mesh", slice(0, n_m)), ("hair", slice(n_m, None))):
@@ -240,13 +255,9 @@ def main(argv: list[str] | None = None) -> dict:
                     noise = np.sqrt(max(0.0, e["rrmse"] ** 2 - s["rrmse"] ** 2))
                     res[part + "_noise"] = float(noise)
                     line += f"  systematic {s['rrmse']:.3f}  noise {noise:.3f}"
-                    # per light: the head's sun and its point light err differently
-                    per = [noise_corrected_error((fast[sl, li], runs[1][0][sl, li]),
-                                                 a[sl, li], b[sl, li])
-                           for li in range(a.shape[1])]
+                    per, text = _per_light((fast[sl], runs[1][0][sl]), a[sl], b[sl])
                     res[part + "_systematic_per_light"] = per
-                    line += "  per light " + ", ".join(
-                        f"{p['rrmse']:.3f} / {p['bias']:+.3f}" for p in per)
+                    line += "  " + text
                 print(line, flush=True)
                 if args.save:  # every texel's two bakes and the reference's halves
                     np.savez_compressed(Path(args.save) / f"{name}_{row}_{part}.npz",
@@ -265,24 +276,17 @@ def main(argv: list[str] | None = None) -> dict:
             variants.append(("scalp_arc", {"where": "scalp_arc"}, 303))
         for label, kwargs, seed in variants:
             t1 = time.perf_counter()
-            key = (name, 64, "exact")
-            if key not in refs:
-                refs[key] = chiang_hair_mesh_reference(
-                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
-                    fibre.params, fibre.sigma_points)
-            a, b = refs[key]
+            a, b = reference(64, "exact")
             ma, mb = chiang_hair_mesh_reference(
                 scene, texels, space, tracer, fibres, LIGHTS, rows[:n_m], args.paths, seed,
                 fibre.params, fibre.sigma_points, **kwargs)
             e = noise_corrected_error((ma, mb), a[:n_m], b[:n_m])
-            per = [noise_corrected_error((ma[:, li], mb[:, li]), a[:n_m, li], b[:n_m, li])
-                   for li in range(a.shape[1])]
+            per, text = _per_light((ma, mb), a[:n_m], b[:n_m])
             noise = np.sqrt(np.mean((ma - mb) ** 2) / 4 / np.mean(ma ** 2))
             label = prefix + label
             print(f"{name:5s} {label:24s} mesh: rRMSE {e['rrmse']:.3f}  bias "
                   f"{e['bias']:+.3f} ± {e['bias_se']:.3f}  (model noise {noise:.3f})  "
-                  "per light " + ", ".join(f"{p['rrmse']:.3f} / {p['bias']:+.3f}"
-                                           for p in per), flush=True)
+                  + text, flush=True)
             out["results"][f"{name}/{label}"] = {
                 "mesh": e, "mesh_per_light": per, "reference_s": time.perf_counter() - t1}
     path = Path(args.out)

@@ -286,6 +286,10 @@ def test_the_scalp_arc_model_moves_only_the_atlas_texels_own_fibre_hits(scalp):
                                       rows[:n_m], 256, 9, fibre.params, fibre.sigma_points,
                                       max_depth=2, where="scalp_arc", scalp_reach=1e3)
     assert all(np.array_equal(x, y) for x, y in zip(run[2], near, strict=True))
+    with pytest.raises(ValueError, match=r"where must be .* not 'scalp-arc'"):
+        chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS, rows[:n_m],
+                                   256, 9, fibre.params, fibre.sigma_points,
+                                   where="scalp-arc")
 
 
 def test_the_reference_can_leave_out_the_light_the_hair_sends_to_the_head(scalp):

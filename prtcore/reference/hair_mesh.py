@@ -29,12 +29,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams, sample_scattering
-from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
+from prtcore.core.fibres import FibreMesh, outside_offset
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light, Scene
-from prtcore.receivers.strands import StrandSpace
+from prtcore.receivers.strands import StrandSpace, texel_of_hit
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
 from prtcore.reference.chiang import (
     EXITANCE_ORDERS,
@@ -170,6 +170,9 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     ``fibre_to_mesh`` False ends every path that goes from a fibre to the mesh: the light
     the hair sends back to the head left out, for a fast path baked without it.
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
+    if where not in ("every", "scalp", "scalp_arc"):
+        raise ValueError(f"chiang_hair_mesh_reference: where must be 'every', 'scalp' or "
+                         f"'scalp_arc', not {where!r}")
     rows = np.asarray(rows, dtype=np.int64)
     hair = space.hair
     f, t_m = scene.triangle_count, texels.count
@@ -239,13 +242,9 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                 if where == "scalp_arc" and depth == 1:  # the texel's mean, not the hit
                     far = (row[v] < t_m) & (dist[fi] >= scalp_reach)
                     m, mf = v[far], fi[far]
-                    seg, along = segment_hits(fibres, tri[mf] - f, bary[mf])
-                    p0 = hair.segment_start[seg]
-                    arc = hair.arc_length[p0] + along * (hair.arc_length[p0 + 1]
-                                                         - hair.arc_length[p0])
-                    tex = space.texel_of(hair.strand_of_segment[seg], arc)
                     pos[m], tangent[m], radius[m], sigma[m], _ = fibre_starts(
-                        space, off, sig_pt, tex, rng)
+                        space, off, sig_pt, texel_of_hit(space, fibres, tri[mf] - f,
+                                                         bary[mf]), rng)
                 if exitance != "exact":  # the fast path's model: a fresh view, weighted
                     pick = np.full(len(v), where == "every") | (  # by its kernel
                         (depth == 1) & (row[v] < t_m))
