@@ -112,12 +112,13 @@ def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: in
 
 def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: str,
           rows: np.ndarray, neighbours: int, fibre_rays: int | None = None,
-          arc_reads: str | None = None, hair_near: float | None = None
-          ) -> tuple[np.ndarray, float]:
+          arc_reads: str | None = None, hair_near: float | None = None,
+          near_fibres: float = ChiangSpec().near_fibres) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
     so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
     for the transport's; ``arc_reads``: how the atlas reads a fibre; ``hair_near``: the
-    fibre gather's near-field reach, None for the transport's), denoised as a bake
+    fibre gather's near-field reach, None for the transport's; ``near_fibres``: the
+    atlas's near field on the fibres, ``hair.chiang.near_fibres``), denoised as a bake
     denoises with ``neighbours`` k > 0 (and its atlas filtered): the indirect light at
     ``rows`` (n, K, 3) float64 and the seconds it took."""
     scene, texels, space, fibres, points, tracer = setup
@@ -127,7 +128,7 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
         bakes[key] = (bake_chiang_hair_mesh_dataset(
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
             StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays,
-            arc_reads=arc_reads, hair_near=hair_near),
+            arc_reads=arc_reads, hair_near=hair_near, near_fibres=near_fibres),
             time.perf_counter() - t0)
     data, seconds = bakes[key]
     if neighbours:
@@ -170,6 +171,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--hair-near", type=float, default=None,
                     help="the fibre gather's near-field reach in footprints (default: "
                          "transport.near_field, 1)")
+    ap.add_argument("--near-fibres", type=float, default=ChiangSpec().near_fibres,
+                    help="the atlas's near field on the fibres in footprints "
+                         "(hair.chiang.near_fibres; 0: off)")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -238,7 +242,7 @@ def main(argv: list[str] | None = None) -> dict:
                                         else bounces),
                           model, rows, k, m,
                           None if args.arc_reads == "mean" else args.arc_reads,
-                          args.hair_near)
+                          args.hair_near, args.near_fibres)
                     for seed in seeds]
             t1 = time.perf_counter()
             a, b = reference(bounces, exitance)

@@ -239,3 +239,29 @@ def cylinder_normal(tangent: np.ndarray, direction: np.ndarray, impact: np.ndarr
     side = np.cross(tangent, d)
     h = np.clip(impact, -1.0, 1.0)[:, None]
     return -np.sqrt(1.0 - h * h) * d + h * side
+
+
+def facing(tangent: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n, 3) unit radial directions of fibres (tangents (n, 3)) toward ``direction``
+    (n, 3): its component across the fibre, normalised (any radial one where it is
+    along the fibre)."""
+    w = direction - np.einsum("ij,ij->i", direction, tangent)[:, None] * tangent
+    n = np.linalg.norm(w, axis=1, keepdims=True)
+    fallback = np.cross(tangent, np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0, 0]],
+                                          [[0, 1.0, 0]]))
+    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+    return np.where(n > 1e-9, w / np.maximum(n, 1e-300), fallback)
+
+
+def fibre_at_hits(hair: Hair, mesh: FibreMesh, off: np.ndarray, sigma_points: np.ndarray,
+                  triangle: np.ndarray, barycentric: np.ndarray) -> tuple:
+    """The fibre vertices of hits on the tubes (their own triangle indices (n,) and
+    barycentrics (n, 3)): the segment's unit tangent, the axis point, the outside radius
+    and σ_a, interpolated along the segment. Returns (tangent, centre, radius, sigma)."""
+    seg, t = segment_hits(mesh, triangle, barycentric)
+    p0 = hair.segment_start[seg]
+    a0, b0 = hair.points[p0], hair.points[p0 + 1]
+    ax = b0 - a0
+    return (ax / np.linalg.norm(ax, axis=1, keepdims=True), a0 + t[:, None] * ax,
+            (1 - t) * off[p0] + t * off[p0 + 1],
+            (1 - t)[:, None] * sigma_points[p0] + t[:, None] * sigma_points[p0 + 1])

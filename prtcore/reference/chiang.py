@@ -35,7 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams, sample_scattering, scattering
-from prtcore.core.fibres import FibreMesh, outside_offset, segment_hits
+from prtcore.core.fibres import FibreMesh, facing, fibre_at_hits, outside_offset
 from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.raytrace import RayTracer
 from prtcore.core.scene import Light
@@ -93,18 +93,6 @@ def random_radial(tangent: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
 
 
-def facing(tangent: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """(n, 3) unit radial directions of fibres (tangents (n, 3)) toward ``direction``
-    (n, 3): its component across the fibre, normalised (any radial one where it is
-    along the fibre)."""
-    w = direction - np.einsum("ij,ij->i", direction, tangent)[:, None] * tangent
-    n = np.linalg.norm(w, axis=1, keepdims=True)
-    fallback = np.cross(tangent, np.where(np.abs(tangent[:, :1]) < 0.9, [[1.0, 0, 0]],
-                                          [[0, 1.0, 0]]))
-    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
-    return np.where(n > 1e-9, w / np.maximum(n, 1e-300), fallback)
-
-
 def _lit_side(tangent: np.ndarray, toward: np.ndarray, rng: np.random.Generator
               ) -> np.ndarray:
     """Radial unit directions on the half of the fibre facing ``toward``, at azimuth ψ from
@@ -159,20 +147,6 @@ def fibre_starts(space: StrandSpace, off: np.ndarray, sigma_points: np.ndarray,
     radius = interp_points(hair, off[:, None], strand, arc)[:, 0]
     sigma = interp_points(hair, sigma_points, strand, arc)
     return centre, tangent, radius, sigma, cosine_about(random_radial(tangent, rng), rng)
-
-
-def fibre_at_hits(hair, mesh: FibreMesh, off: np.ndarray, sigma_points: np.ndarray,
-                  triangle: np.ndarray, barycentric: np.ndarray) -> tuple:
-    """The fibre vertices of hits on the tubes (their own triangle indices (n,) and
-    barycentrics (n, 3)): the segment's unit tangent, the axis point, the outside radius
-    and σ_a, interpolated along the segment. Returns (tangent, centre, radius, sigma)."""
-    seg, t = segment_hits(mesh, triangle, barycentric)
-    p0 = hair.segment_start[seg]
-    a0, b0 = hair.points[p0], hair.points[p0 + 1]
-    ax = b0 - a0
-    return (ax / np.linalg.norm(ax, axis=1, keepdims=True), a0 + t[:, None] * ax,
-            (1 - t) * off[p0] + t * off[p0 + 1],
-            (1 - t)[:, None] * sigma_points[p0] + t[:, None] * sigma_points[p0 + 1])
 
 
 def chiang_reference(space: StrandSpace, tracer: RayTracer, mesh: FibreMesh,

@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from prtcore.core.bcsdf import ChiangParams, sample_scattering
-from prtcore.core.fibres import FibreMesh, outside_offset
+from prtcore.core.fibres import FibreMesh, facing, fibre_at_hits, outside_offset
 from prtcore.core.geometry import shading_normals
 from prtcore.core.materials import albedo_at, clamp_albedo
 from prtcore.core.raytrace import RayTracer
@@ -38,8 +38,6 @@ from prtcore.receivers.strands import StrandSpace, texel_of_hit
 from prtcore.receivers.texels import TexelSpace, sample_texel_regions, texel_regions
 from prtcore.reference.chiang import (
     EXITANCE_ORDERS,
-    facing,
-    fibre_at_hits,
     fibre_nee,
     fibre_starts,
     projection_kernel,

@@ -145,11 +145,13 @@ class ForeignHits(Protocol):
     columns: int
 
     def __call__(self, batch: int, rows: np.ndarray, triangle: np.ndarray,
-                 barycentric: np.ndarray, direction: np.ndarray) -> np.ndarray:
+                 barycentric: np.ndarray, direction: np.ndarray, distance: np.ndarray
+                 ) -> np.ndarray:
         """Front hits of batch ``batch`` (the batch's first row): receiving texel rows
         (n,) int64, tracer triangles (n,) ≥ ``first``, barycentrics (n, 3), ray
-        directions (n, 3) float32 → (n,) int64 columns in [0, ``columns``), counted after
-        the scene's texels. Called from two threads at once (one per batch)."""
+        directions (n, 3) float32 and the hits' distances (n,) → (n,) int64 columns in
+        [0, ``columns``), counted after the scene's texels. Called from two threads at
+        once (one per batch)."""
         ...
 
 
@@ -437,19 +439,27 @@ def side_normals(shading: np.ndarray, geometric: np.ndarray) -> np.ndarray:
 
 
 def hit_share(texels: TexelSpace, tracer: RayTracer, rays: int, count: int,
-              rng: np.random.Generator) -> float:
+              rng: np.random.Generator, first: int | None = None,
+              reach: np.ndarray | None = None) -> tuple[float, float]:
     """The share of ``rays`` cosine gather rays from each of at most ``count`` random
     texels (from their sample points, offset as the gather offsets) that hit anything:
     before the gather, a bound on the entries it keeps (at most one per ray that hits;
-    rays below the surface, which the gather drops, count as hits here). Draws from
-    ``rng``."""
+    rays below the surface, which the gather drops, count as hits here); and the share
+    that hit a triangle ≥ ``first`` (another receiver's: the fibre tubes) closer than
+    ``reach`` (T,) world units of its texel (0 without them). Draws from ``rng``."""
     at = np.repeat(np.sort(rng.choice(texels.count, min(texels.count, count),
                                       replace=False)), max(rays, 1))
+    if not len(at):
+        return 0.0, 0.0
     shade = np.asarray(texels.normal[at], dtype=np.float64)
     o = offset_origins(texels.position[at], side_normals(shade, texels.geometric_normal[at]),
                        tracer.scale)
     d = directions_around(shade, np.sqrt(rng.random(len(at))), 2 * np.pi * rng.random(len(at)))
-    return float(np.mean(tracer.intersect(o, d).hit)) if len(at) else 0.0
+    hits = tracer.intersect(o, d)
+    near = 0.0
+    if first is not None and reach is not None:
+        near = float(np.mean((hits.triangle >= first) & (hits.t < reach[at])))
+    return float(np.mean(hits.hit)), near
 
 
 def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: int,
@@ -540,7 +550,7 @@ def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: i
                                     hits.t, index=pos[own])
             fu, fp = use[~own], pos[~own]
             cols[fu] = t + foreign(b0, b0 + fu // m, hits.triangle[fp],
-                                   hits.barycentric[fp], d[fu])
+                                   hits.barycentric[fp], d[fu], hits.t[fp])
             # foreign hits are not near-field hits (the correction shades scene faces)
             use, pos = use[own], pos[own]
         r, c, cnt = _row_counts(cols.reshape(nt, m), b0, n_cols)

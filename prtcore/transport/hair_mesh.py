@@ -82,7 +82,8 @@ class StrandHits:
         self._lock = threading.Lock()
 
     def __call__(self, batch: int, rows: np.ndarray, triangle: np.ndarray,
-                 barycentric: np.ndarray, direction: np.ndarray) -> np.ndarray:
+                 barycentric: np.ndarray, direction: np.ndarray,
+                 distance: np.ndarray | None = None) -> np.ndarray:
         rng = np.random.default_rng([self.seed, 5, batch])
         fh = fibre_hits(self.space, self.fibres, triangle - self.first, barycentric,
                         direction.astype(np.float64), rng, self.frame_u)

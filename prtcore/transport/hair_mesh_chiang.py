@@ -53,6 +53,15 @@ from prtcore.transport.fibre_chiang import (
     ray_weights,
     texel_frames,
 )
+from prtcore.transport.fibre_near import (
+    NEAR_FIBRE_RAYS,
+    NEAR_RAY_BYTES,
+    NearFibreHits,
+    NearFibreRays,
+    near_fibre_direct,
+    near_fibre_rays,
+    near_fibre_shaded,
+)
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
 from prtcore.transport.low_rank import solve_low_rank
@@ -76,7 +85,8 @@ MESH_HIT_BYTES = 56
 
 
 def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
-                      transport: TransportSpec, density: HairDensity | None = None) -> int:
+                      transport: TransportSpec, density: HairDensity | None = None,
+                      near_fibres: float = 0.0) -> int:
     """The transport's own peak memory (bytes, beyond the process and the texels' and
     fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
     ``t_m`` atlas and ``t_h`` strand texels (the transport's arc pieces), ``k`` lights
@@ -100,6 +110,10 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       twice (the atlas's and the fibres' beside their sum), the surface gather's matrix
       and the fibre rays' mesh hits, dropped before the solve (until 2026-12-06 they
       were kept through it).
+    * **Near fibres** (``near_fibres`` > 0, :mod:`prtcore.transport.fibre_near`): the
+      atlas rays that meet a fibre within reach (``density``'s share, at most every atlas
+      ray) each add NEAR_FIBRE_RAYS entries, kept until the product is made, and the
+      first bounce one more correction of at most T_m rows beside the sum it joins.
     * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
       ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
@@ -111,17 +125,20 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     f = EXITANCE_TERMS[exitance]
     n = t_m + t_h
     d = density or HairDensity(1.0)  # at most one entry per gather ray; the atlas keeps
+    near_rays = (t_m * transport.gather_rays * d.atlas_near_share * NEAR_FIBRE_RAYS
+                 if near_fibres > 0 else 0)
     entries = (t_m * transport.gather_rays * d.atlas_hit_share  # the spec's M
-               + t_h * rays * d.hit_share)
+               + t_h * rays * d.hit_share + near_rays)
     product = entries * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f)
     gathers = (operator_for("surface").estimate_bytes(t_m, k, transport)
                + operator_for("fibre").estimate_bytes(
                    t_h, k, dataclasses.replace(transport, gather_rays=rays))
-               + entries * RAY_KEPT_BYTES + product
+               + entries * RAY_KEPT_BYTES + near_rays * NEAR_RAY_BYTES + product
                + ASSEMBLY_CHUNK * (ASSEMBLY_RAY_BYTES[0] + ASSEMBLY_RAY_BYTES[1] * f))
     near = t_m + f * d.near_share * t_h
     stacked = (n + (f - 1) * t_h) * k * 12
-    near_stage = (product + stacked + 2 * near * k * 12 + t_m * transport.gather_rays * 12
+    corrections = (2 * near + (t_m if near_fibres > 0 else 0)) * k * 12
+    near_stage = (product + stacked + corrections + t_m * transport.gather_rays * 12
                   + t_h * rays * MESH_HIT_BYTES)
     solve = (product + stacked + n * k * 12 + near * k * 12
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
@@ -130,44 +147,86 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
 
 class StrandRays(StrandHits):
     """:class:`~prtcore.transport.hair_mesh.StrandHits` that also keeps every ray's
-    direction: the mesh rows read a hit fibre's exitance toward the ray."""
+    direction: the mesh rows read a hit fibre's exitance toward the ray. With ``reach``
+    (T_m,) float64 (world units per atlas texel, :func:`~prtcore.transport.gather.
+    near_field_reach`), a hit closer than its texel's reach is a near hit
+    (:mod:`prtcore.transport.fibre_near`): kept apart (:meth:`near`) and left out of
+    :meth:`rays`."""
 
-    def __init__(self, space: StrandSpace, fibres: FibreMesh, first: int, seed: int):
+    def __init__(self, space: StrandSpace, fibres: FibreMesh, first: int, seed: int,
+                 reach: np.ndarray | None = None):
         super().__init__(space, fibres, first, seed)
+        self.reach = reach
         self._directions: dict[int, np.ndarray] = {}
+        # batch → (near (n,) bool, their tube triangles, barycentrics)
+        self._near: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def __call__(self, batch, rows, triangle, barycentric, direction):
+    def __call__(self, batch, rows, triangle, barycentric, direction, distance=None):
         texel = super().__call__(batch, rows, triangle, barycentric, direction)
+        near = None
+        if self.reach is not None:
+            close = np.asarray(distance) < self.reach[rows]
+            near = (close, (triangle[close] - self.first).astype(np.int64),
+                    np.asarray(barycentric[close], np.float32))
         with self._lock:
             self._directions[batch] = np.asarray(direction, np.float32)
+            if near is not None:
+                self._near[batch] = near
         return texel
+
+    def _joined(self, i: int, keys: list, far: bool) -> np.ndarray:
+        """Part ``i`` of the batches ``keys`` joined (0 rows, 1 texels, 3 arc fractions;
+        4 directions), the near hits left out with ``far``."""
+        parts = [self._directions[k] if i == 4 else self._parts[k][i] for k in keys]
+        if far and self._near:
+            parts = [p[~self._near[k][0]] for p, k in zip(parts, keys, strict=True)]
+        return np.concatenate(parts)
 
     def rays(self, root: str | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Every ray that hit a fibre, in batch order: receiving atlas texel (n,) int64,
-        strand texel read (n,) int64, direction (n, 3) float64 and the read's weight (n,)
-        float64: 1, the texel's mean (``root`` None); or with ``root`` ("extrapolate",
-        "clamp") each ray twice, read between the two texel centres about the hit along
-        its strand (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights`, weights
-        summing to 1), as :meth:`StrandHits.interpolated` reads them."""
+        """Every ray that hit a fibre and is not a near hit, in batch order: receiving
+        atlas texel (n,) int64, strand texel read (n,) int64, direction (n, 3) float64
+        and the read's weight (n,) float64: 1, the texel's mean (``root`` None); or with
+        ``root`` ("extrapolate", "clamp") each ray twice, read between the two texel
+        centres about the hit along its strand
+        (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights`, weights summing to
+        1), as :meth:`StrandHits.interpolated` reads them."""
         keys = sorted(self._parts)
         if not keys:
             return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
                     np.zeros(0))
-        rows = np.concatenate([self._parts[k][0] for k in keys]).astype(np.int64)
-        texel = np.concatenate([self._parts[k][1] for k in keys]).astype(np.int64)
-        d = np.concatenate([self._directions[k] for k in keys]).astype(np.float64)
+        rows = self._joined(0, keys, True).astype(np.int64)
+        texel = self._joined(1, keys, True).astype(np.int64)
+        d = self._joined(4, keys, True).astype(np.float64)
         if root is None:
             return rows, texel, d, np.ones(len(rows))
-        frac = np.concatenate([self._parts[k][3] for k in keys]).astype(np.float64)
+        frac = self._joined(3, keys, True).astype(np.float64)
         cols, w = self.space.arc_weights(texel, frac, root)
         return np.repeat(rows, 2), cols.ravel(), np.repeat(d, 2, axis=0), w.ravel()
+
+    def near(self) -> NearFibreHits:
+        """The near hits, in batch order (:class:`~prtcore.transport.fibre_near.
+        NearFibreHits`; none without ``reach``)."""
+        keys = sorted(self._near)
+        if not keys:
+            return NearFibreHits(np.zeros(0, np.int64), np.zeros(0, np.int64),
+                                 np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
+                                 np.zeros((0, 3), np.float32))
+
+        def mine(i: int) -> np.ndarray:
+            return np.concatenate([self._joined(i, [k], False)[self._near[k][0]]
+                                   for k in keys])
+        return NearFibreHits(row=mine(0).astype(np.int64), texel=mine(1).astype(np.int64),
+                             triangle=np.concatenate([self._near[k][1] for k in keys]),
+                             barycentric=np.concatenate([self._near[k][2] for k in keys]),
+                             direction=mine(4))
 
 
 def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
                         term_rays: tuple, hits: MeshHits, fibre: ChiangFibre, t_m: int,
                         t_h: int, rays: int, threads: int, exitance: str = "isotropic",
-                        frames: tuple | None = None) -> RayBlockProduct:
+                        frames: tuple | None = None, near: NearFibreRays | None = None
+                        ) -> RayBlockProduct:
     """The operator W (see the module docstring) over the receivers' coefficients: the
     T_m + T_h receivers' first, then the strand texels' F − 1 others (an atlas texel
     has coefficient 0 only; :class:`~prtcore.core.sparse.RayBlockProduct` with ``first``
@@ -181,7 +240,11 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     origin); hits: its rays to the mesh, with the same data. Strand rows take the
     exitance weights × 2 / M per channel (the solver's albedo is 1/2 there, as in
     :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
-    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6)."""
+    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6).
+    ``near``: the rays from the atlas's near fibre hits
+    (:func:`~prtcore.transport.fibre_near.near_fibre_rays`; those hits are not in
+    ``strand_rays``): mesh rows, each weighing its weight per channel and reading an
+    atlas texel's value or a strand texel's exitance toward it."""
     f = EXITANCE_TERMS[exitance]
     coo = mesh_rows.tocsc()[:, :t_m].tocoo()  # atlas → atlas: one value each way
     s_rows, s_texel, s_dir, s_w = strand_rays
@@ -190,9 +253,9 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     m_data = hits.data if hits.data is not None else np.zeros((0, 6), np.float32)
     scale = 2.0 / rays
 
-    def first_only(w: np.ndarray) -> np.ndarray:  # (n,) → (n, F, 3), coefficient 0 alone
-        out = np.zeros((len(w), f, 3), np.float32)
-        out[:, 0] = w[:, None]
+    def first_only(w: np.ndarray) -> np.ndarray:  # (n,) or (n, 3) → (n, F, 3),
+        out = np.zeros((len(w), f, 3), np.float32)  # coefficient 0 alone
+        out[:, 0] = w[:, None] if w.ndim == 1 else w
         return out
 
     def unit(n: int) -> np.ndarray:  # (n, F): a Lambertian texel's one value
@@ -219,6 +282,16 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
         RayPart(hits.row + t_m, hits.col, lambda sl: (
             weights(hits.row[sl], m_data[sl]), unit(len(hits.row[sl])))),
     ]
+    if near is not None:  # the near fibre hits' rays: to the mesh, then to fibres
+        on_mesh, on_fibre = np.flatnonzero(~near.fibre), np.flatnonzero(near.fibre)
+        parts += [
+            RayPart(near.row[on_mesh], near.col[on_mesh], lambda sl: (
+                first_only(near.weight[on_mesh[sl]]), unit(len(on_mesh[sl])))),
+            RayPart(near.row[on_fibre], near.col[on_fibre], lambda sl: (
+                first_only(near.weight[on_fibre[sl]]),
+                reads(near.direction[on_fibre[sl]].astype(np.float64),
+                      near.col[on_fibre[sl]] - t_m))),
+        ]
     return assemble_ray_blocks(parts, t_m + t_h, f, threads, first=t_m)
 
 
@@ -249,7 +322,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   hair_near: float | None = None,
                                   exitance: str = "isotropic",
                                   fibre_rays: int | None = None,
-                                  arc_reads: str | None = None) -> Dataset:
+                                  arc_reads: str | None = None, near_fibres: float = 0.0,
+                                  near_fibre_count: int = NEAR_FIBRE_RAYS) -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
@@ -261,26 +335,38 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     strand texel (``hair.gather_rays``; None: ``spec.gather_rays``, which the surface
     gather of the atlas always takes). ``arc_reads``: how an atlas ray reads the fibre it
     hits (:meth:`StrandRays.rays`' ``root``): None, its texel's exitance; "extrapolate" or
-    "clamp", between the two texel centres about the hit."""
+    "clamp", between the two texel centres about the hit. ``near_fibres``
+    (``hair.chiang.near_fibres``): an atlas ray that meets a fibre closer than this many
+    footprints of its texel is shaded at the point it meets
+    (:mod:`prtcore.transport.fibre_near`, ``near_fibre_count`` rays from each such hit);
+    0: every hit reads its strand texel."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
-    strands = StrandRays(space, fibres, f, spec.seed)
+    reach = near_field_reach(texels, near_fibres) if near_fibres > 0 else None
+    strands = StrandRays(space, fibres, f, spec.seed, reach)
     gather = gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
                              near_field=spec.near_field, direct_samples=spec.direct_samples,
                              foreign=strands)
     n_f = EXITANCE_TERMS[exitance]
     frames = texel_frames(space) if needs_frames(exitance) else None
     t = t_m + t_h
-    r1 = tracer.rays_traced
     m_h = spec.gather_rays if fibre_rays is None else int(fibre_rays)
+    mapper = HitMapper(scene, texels, tracer)
+    near = strands.near()
+    near_rays = None
+    if near.count:  # the atlas's rays: counted with its gather's
+        with timer.stage("near fibres"):
+            near_rays = near_fibre_rays(near, gather.valid_rays, space, fibres, fibre, tracer,
+                                        f, mapper, t_m, spec.seed + 3, near_fibre_count)
+    r1 = tracer.rays_traced
     with timer.stage("fibre gather"):
         term = chiang_gather(space, tracer, fibres, f, m_h, spec.seed, fibre,
-                             mesh_texels=HitMapper(scene, texels, tracer), mesh_columns=t_m)
+                             mesh_texels=mapper, mesh_columns=t_m)
         product = chiang_mesh_product(gather.matrix, strands.rays(arc_reads),
                                       gather.valid_rays,
                                       term.rays, term.mesh_hits, fibre, t_m, t_h,
-                                      m_h, tracer.threads, exitance, frames)
+                                      m_h, tracer.threads, exitance, frames, near_rays)
         del strands
     r2 = tracer.rays_traced
     fibre_stats, hits = term.stats, term.mesh_hits
@@ -306,6 +392,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                     scene, tracer, nf, lights, direct[:t_m], timer))
     r5 = tracer.rays_traced
     gather_stats = gather.stats
+    valid_rays = gather.valid_rays
     del gather, hits  # the atlas's matrix and the fibre rays' mesh hits: not in the solve
     with timer.stage("direct fibres"):
         views = []  # each coefficient's strand rows of the stacked direct light
@@ -315,6 +402,12 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
                       fibre, exitance, out=views)
         del views
+        if near.count:  # the near hits' direct light: at the point met, or as read
+            first = add_first_bounce(first, near_fibre_shaded(
+                near, valid_rays, space, fibres, fibre, tracer, lights, exitance,
+                near_fibre_direct(near, valid_rays, direct, product.coefficient_rows, t_m,
+                                  t_h, n_f, frames)))
+        del near
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
     albedo[:t_m] = texels.albedo
@@ -328,5 +421,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     stats = hair_mesh_stats(lights_train, lights_holdout, t_m, t_h, points.count,
                             gather_stats, fibre_stats, (r0, r1, r2, r3, r4, r5, r6),
                             solve_stats, model="chiang", exitance=exitance)
+    if near_rays is not None:
+        stats["near_fibres"] = near_rays.stats
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)

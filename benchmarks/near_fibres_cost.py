@@ -1,0 +1,121 @@
+"""What the atlas's near field on the fibres costs (``hair.chiang.near_fibres``,
+prtcore/transport/fibre_near.py) on the head with curly hair, the bake's 512² atlas and
+its 64 atlas gather rays.
+
+Traces the atlas gather with the near hits kept apart at ``--near-fibres`` footprints,
+then times the near hits' rays (:func:`near_fibre_rays`) and their direct light shaded
+at the point met (:func:`near_fibre_shaded`) for the head's two punctual lights, and
+scales the latter to ``--lights`` lights (a bake's training + held-out: 512 + 16 by
+default): it is one pass per light, so it grows with them. The texel reads it starts
+from (:func:`near_fibre_direct`) are timed on the same lights. Seconds are this
+machine's, in one run: compare them with each other, not across machines.
+
+Printed and written to benchmarks/results/near_fibres_cost.json.
+
+Usage: python benchmarks/near_fibres_cost.py [--strands 10000] [--near-fibres 5]
+       [--lights 528]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.hair_mesh_accuracy import LIGHTS, head_scene  # noqa: E402
+from prtcore.core.spec import ChiangSpec  # noqa: E402
+from prtcore.receivers.strands import build_strand_space  # noqa: E402
+from prtcore.scenes.hair import head_hair  # noqa: E402
+from prtcore.transport.fibre import hair_tracer  # noqa: E402
+from prtcore.transport.fibre_chiang import (  # noqa: E402
+    EXITANCE_TERMS,
+    chiang_fibre,
+    texel_frames,
+)
+from prtcore.transport.fibre_near import (  # noqa: E402
+    near_fibre_direct,
+    near_fibre_rays,
+    near_fibre_shaded,
+)
+from prtcore.transport.gather import HitMapper, gather_operator, near_field_reach  # noqa: E402
+from prtcore.transport.hair_mesh_chiang import StrandRays  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--strands", type=int, default=10000)
+    ap.add_argument("--texels-per-strand", type=int, default=10)
+    ap.add_argument("--resolution", type=int, default=512)
+    ap.add_argument("--atlas-rays", type=int, default=64)
+    ap.add_argument("--near-fibres", type=float, default=5.0)
+    ap.add_argument("--exitance", default="second_order")
+    ap.add_argument("--lights", type=int, default=528)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/near_fibres_cost.json"))
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        scene, texels = head_scene(Path(tmp), args.resolution)
+    space = build_strand_space(head_hair(args.strands, "curly", seed=0),
+                               args.texels_per_strand)
+    tracer, fibres = hair_tracer(space, scene)
+    f, t_m, t_h = scene.triangle_count, texels.count, space.count
+    fibre = chiang_fibre(ChiangSpec(eumelanin=1.3), space)
+    strands = StrandRays(space, fibres, f, 0, near_field_reach(texels, args.near_fibres))
+    t0 = time.perf_counter()
+    g = gather_operator(scene, texels, tracer, args.atlas_rays, 0, foreign=strands)
+    gather_s = time.perf_counter() - t0
+    near = strands.near()
+    fibre_hits = len(strands.rays()[0]) + near.count
+    t0 = time.perf_counter()
+    rays = near_fibre_rays(near, g.valid_rays, space, fibres, fibre, tracer, f,
+                           HitMapper(scene, texels, tracer), t_m, 3)
+    rays_s = time.perf_counter() - t0
+    n_f = EXITANCE_TERMS[args.exitance]
+    t = t_m + t_h
+    k = len(LIGHTS)
+    direct = np.random.default_rng(0).random((t + (n_f - 1) * t_h, k, 3)).astype(
+        np.float32)
+
+    def rows_of(a: int) -> slice:  # RayBlockProduct.coefficient_rows
+        return slice(0, t) if a == 0 else slice(t + (a - 1) * t_h, t + a * t_h)
+    t0 = time.perf_counter()
+    reads = near_fibre_direct(near, g.valid_rays, direct, rows_of, t_m, t_h, n_f,
+                              texel_frames(space) if n_f >= 6 else None)
+    read_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    near_fibre_shaded(near, g.valid_rays, space, fibres, fibre, tracer, LIGHTS,
+                      args.exitance, reads)
+    shaded_s = time.perf_counter() - t0
+    per_light = shaded_s / k
+    res = {"strands": args.strands, "atlas_texels": t_m, "strand_texels": t_h,
+           "atlas_rays": args.atlas_rays, "near_fibres": args.near_fibres,
+           "fibre_hits": fibre_hits, "near_hits": near.count,
+           "near_share_of_atlas_rays": near.count / (t_m * args.atlas_rays),
+           "near_share_of_fibre_hits": near.count / max(fibre_hits, 1),
+           "gather_s": gather_s, "near_rays_s": rays_s, "near_rays": rays.stats,
+           "texel_reads_s_per_light": read_s / k, "shaded_s_per_light": per_light,
+           "shaded_s_at_lights": per_light * args.lights, "lights": args.lights}
+    print(f"{args.strands} strands, {t_m} atlas texels × {args.atlas_rays} rays: "
+          f"{near.count} near hits at {args.near_fibres:g} footprints "
+          f"({res['near_share_of_atlas_rays']:.3f} of the atlas's rays, "
+          f"{res['near_share_of_fibre_hits']:.3f} of its fibre hits)")
+    print(f"atlas gather {gather_s:.1f} s; near rays {rays_s:.1f} s ({rays.stats}); "
+          f"texel reads {read_s / k:.2f} s a light; shaded at the point "
+          f"{per_light:.2f} s a light → {per_light * args.lights / 60:.1f} min at "
+          f"{args.lights} lights")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(res, indent=2))
+    print(f"wrote {args.out}")
+    return res
+
+
+if __name__ == "__main__":
+    main()
