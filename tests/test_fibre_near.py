@@ -102,6 +102,10 @@ def test_the_near_direct_light_is_the_read_it_replaces(scalp):
     assert np.array_equal(rows, np.unique(near.row))
     np.testing.assert_allclose(values, want[rows], rtol=2e-5, atol=1e-6)
     assert not np.any(np.delete(want, rows, axis=0))  # no other atlas row read anything
+    # some lights' columns alone (a bake reads the environment lights' only)
+    _, some = near_fibre_direct(near, g.valid_rays, direct, reads.coefficient_rows, t_m,
+                                t_h, 9, frames, [2])
+    assert np.array_equal(some[:, 2], values[:, 2]) and not some[:, :2].any()
 
 
 def test_a_clear_fibre_s_near_rays_carry_all_it_scatters(scalp):

@@ -160,7 +160,8 @@ def near_fibre_rays(near: NearFibreHits, valid_rays: np.ndarray, space: StrandSp
 
 def near_fibre_direct(near: NearFibreHits, valid_rays: np.ndarray, direct: np.ndarray,
                       coefficient_rows: Callable[[int], slice], t_m: int, t_h: int,
-                      terms: int, frames: tuple | None = None
+                      terms: int, frames: tuple | None = None,
+                      lights: Sequence[int] | None = None
                       ) -> tuple[np.ndarray, np.ndarray] | None:
     """The third bullet of the module docstring: each near hit's strand texel's direct
     exitance toward its gather ray, over the texel's valid rays, summed per receiving
@@ -171,24 +172,25 @@ def near_fibre_direct(near: NearFibreHits, valid_rays: np.ndarray, direct: np.nd
     direct (N, K, 3) float32: the stacked direct light of the product's layout
     (``coefficient_rows(a)``: coefficient a's rows, the strand texels' after the first
     T_m for a = 0, :meth:`~prtcore.core.sparse.RayBlockProduct.coefficient_rows`);
-    ``terms`` F coefficients; ``frames``: the strand texels' (F ≥ 6)."""
+    ``terms`` F coefficients; ``frames``: the strand texels' (F ≥ 6); ``lights``: the
+    light columns read (None: every one; the others are left 0)."""
     if not near.count:
         return None
     rows, slot = np.unique(near.row, return_inverse=True)
     frame = None if frames is None else (frames[0][near.texel], frames[1][near.texel])
     reads = exitance_reads(near.direction.astype(np.float64), frame, terms)
     scale = 1.0 / np.maximum(valid_rays[near.row], 1)
-    k = direct.shape[1]
-    out = np.zeros((len(rows), k, 3), np.float32)
+    out = np.zeros((len(rows), direct.shape[1], 3), np.float32)
+    cols = np.arange(direct.shape[1]) if lights is None else np.asarray(lights, np.int64)
     for a in range(terms):
         span = coefficient_rows(a)
         base = span.start + (t_m if a == 0 else 0)
         d = sp.csr_matrix(((reads[a] * scale).astype(np.float32), (slot, near.texel)),
                           shape=(len(rows), t_h))
-        for k0 in range(0, k, NEAR_DIRECT_LIGHTS):
-            k1 = min(k, k0 + NEAR_DIRECT_LIGHTS)
-            x = np.ascontiguousarray(direct[base:base + t_h, k0:k1]).reshape(t_h, -1)
-            out[:, k0:k1] += (d @ x).reshape(len(rows), k1 - k0, 3)
+        for b in range(0, len(cols), NEAR_DIRECT_LIGHTS):
+            block = cols[b:b + NEAR_DIRECT_LIGHTS]
+            x = direct[base:base + t_h][:, block].reshape(t_h, -1)
+            out[:, block] += (d @ x).reshape(len(rows), len(block), 3)
     return rows, out
 
 

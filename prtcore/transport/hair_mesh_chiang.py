@@ -406,7 +406,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
             first = add_first_bounce(first, near_fibre_shaded(
                 near, valid_rays, space, fibres, fibre, tracer, lights, exitance,
                 near_fibre_direct(near, valid_rays, direct, product.coefficient_rows, t_m,
-                                  t_h, n_f, frames)))
+                                  t_h, n_f, frames, [k for k, light in enumerate(lights)
+                                                     if light.type == "environment"])))
         del near
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
