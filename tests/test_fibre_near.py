@@ -122,7 +122,7 @@ def test_a_clear_fibre_s_near_rays_carry_all_it_scatters(scalp):
     s = nr.stats
     assert s["rays"] == 2 * near.count == s["mesh"] + s["fibres"] + s["nothing"]
     assert s["mesh"] > 0 and s["fibres"] > 0 and len(nr.row) == s["mesh"] + s["fibres"]
-    assert np.array_equal(nr.fibre, nr.col >= texels.count)
+    assert (nr.col >= texels.count).sum() == s["fibres"]  # the rays that met a fibre
     again = near_fibre_rays(near, g.valid_rays, space, fibres,
                             chiang_fibre(CLEAR_HAIR, space), tracer, scene.triangle_count,
                             HitMapper(scene, texels, tracer), texels.count, 5, rays=2)

@@ -3,12 +3,11 @@
 
 An atlas gather ray that meets a fibre reads that strand texel's exitance toward the ray
 (:func:`prtcore.transport.hair_mesh_chiang.chiang_mesh_product`): the fibre's light
-averaged over the texel's arc. Close to the mesh that average is the wrong value. A fibre
-a millimetre above the scalp takes much of its light from the scalp right under it, and
-the texel's centimetres of arc average that away. On the 10k curly head with dark hair
-this was most of the scalp's error: 11 % systematic per texel, the point light's 12.6 %
-(docs/hair.md, "What the dark scalp's error is not, and where it is"). In the reference,
-moving only the hits within 5 mm back to their own point brought it to 6.1 %.
+averaged over the texel's arc and truncated to the exitance's terms. The scalp sees the
+fibres' nearest millimetres, not their texels' centimetres of arc. In the reference,
+reading the texels' means for the scalp's own fibre hits made the dark 10k head's
+point-light error, and keeping the hits within 5 mm at their own point took half of it
+away (docs/hair.md, "What the dark scalp's error is not, and where it is").
 
 So a gather ray that meets a fibre closer than ``near_fibres`` footprints of its texel
 (:func:`~prtcore.transport.gather.near_field_reach`) is shaded at the point it meets:
@@ -34,9 +33,10 @@ Measured on the 10k curly head with dark hair (docs/hair.md, "The scalp's reads 
 fibres near it"): 5 footprints take 0.13 of the atlas's rays; the dark scalp's error per
 texel went from 15.0 % to 12.3 % (systematic 11.1 → 9.8 %, noise 10.1 → 7.5 %), its
 bias from +1.5 to +2.1 %; with light hair from 9.4 to 7.4 % (bias −1.6 → −0.5 %). The
-direct light at the point is most of that; the rays
-alone moved it to 14.9 %. Its cost is the direct light at the point, 2.7 s a light there
-(benchmarks/near_fibres_cost.py): why it is off by default.
+direct light at the point is most of that (the scalp's read of the fibres' direct
+light is where its error is); the rays alone moved it to 14.9 %. Its cost is the
+direct light at the point, 2.7 s a light there (benchmarks/near_fibres_cost.py): why it
+is off by default.
 """
 
 from __future__ import annotations
@@ -72,6 +72,13 @@ NEAR_DIRECT_LIGHTS = 64
 NEAR_RAY_BYTES = 48
 
 
+def shaded_at_point(light: Light) -> bool:
+    """Whether a near hit's direct light from ``light`` is shaded at the point met
+    (:func:`near_fibre_shaded`: one direction, one shadow ray) rather than read from its
+    texel (:func:`near_fibre_direct`): every light but an environment."""
+    return light.type != "environment"
+
+
 @dataclass(frozen=True)
 class NearFibreHits:
     """The atlas gather's rays that first meet a fibre within reach, in gather order:
@@ -94,15 +101,14 @@ class NearFibreHits:
 class NearFibreRays:
     """:func:`near_fibre_rays`' rays that meet something: ``row`` (n,) int64 the atlas
     texel that receives, ``col`` (n,) int64 the texel read (an atlas texel in [0, T_m),
-    or T_m + a strand texel), ``weight`` (n, 3) float32 per channel, ``direction``
-    (n, 3) float32 the ray's (a strand texel is read toward it), ``fibre`` (n,) bool
-    whether it met a fibre. ``stats``: hits, rays, and what the rays met."""
+    or T_m + a strand texel: the rays that met a fibre), ``weight`` (n, 3) float32 per
+    channel, ``direction`` (n, 3) float32 the ray's (a strand texel is read toward it).
+    ``stats``: hits, rays, and what the rays met."""
 
     row: np.ndarray
     col: np.ndarray
     weight: np.ndarray
     direction: np.ndarray
-    fibre: np.ndarray
     stats: dict
 
 
@@ -145,17 +151,15 @@ def near_fibre_rays(near: NearFibreHits, valid_rays: np.ndarray, space: StrandSp
         keep = np.sort(np.concatenate([on_mesh, on_fibre]))
         met += (len(on_mesh), len(on_fibre), len(idx) - len(keep))
         parts.append((row[keep], col[keep], w[keep].astype(np.float32),
-                      wi[keep].astype(np.float32), hits.triangle[keep] >= mesh_faces))
+                      wi[keep].astype(np.float32)))
     if parts:
-        row, col, weight, direction, is_fibre = (np.concatenate(p) for p in zip(*parts,
-                                                                                strict=True))
+        row, col, weight, direction = (np.concatenate(p) for p in zip(*parts, strict=True))
     else:
         row, col = np.zeros(0, np.int64), np.zeros(0, np.int64)
         weight, direction = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
-        is_fibre = np.zeros(0, bool)
     stats = {"hits": near.count, "rays": near.count * rays, "mesh": int(met[0]),
              "fibres": int(met[1]), "nothing": int(met[2])}
-    return NearFibreRays(row, col, weight, direction, is_fibre, stats)
+    return NearFibreRays(row, col, weight, direction, stats)
 
 
 def near_fibre_direct(near: NearFibreHits, valid_rays: np.ndarray, direct: np.ndarray,
@@ -211,7 +215,7 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
     (:func:`~prtcore.transport.fibre_chiang.exitance_reads`), over the texel's valid
     rays. One shadow ray per hit and punctual light."""
     rows, out = reads
-    punctual = [k for k, light in enumerate(lights) if light.type != "environment"]
+    punctual = [k for k, light in enumerate(lights) if shaded_at_point(light)]
     if not near.count or not punctual:
         return rows, out
     slot = np.searchsorted(rows, near.row)

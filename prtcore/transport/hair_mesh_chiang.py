@@ -61,6 +61,7 @@ from prtcore.transport.fibre_near import (
     near_fibre_direct,
     near_fibre_rays,
     near_fibre_shaded,
+    shaded_at_point,
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
@@ -174,13 +175,20 @@ class StrandRays(StrandHits):
                 self._near[batch] = near
         return texel
 
-    def _joined(self, i: int, keys: list, far: bool) -> np.ndarray:
-        """Part ``i`` of the batches ``keys`` joined (0 rows, 1 texels, 3 arc fractions;
-        4 directions), the near hits left out with ``far``."""
-        parts = [self._directions[k] if i == 4 else self._parts[k][i] for k in keys]
-        if far and self._near:
-            parts = [p[~self._near[k][0]] for p, k in zip(parts, keys, strict=True)]
-        return np.concatenate(parts)
+    def _batch(self, k: int, name: str) -> np.ndarray:
+        """Batch ``k``'s "row", "texel", "frac" (arc fraction) or "direction" of its hits."""
+        if name == "direction":
+            return self._directions[k]
+        return self._parts[k][{"row": 0, "texel": 1, "frac": 3}[name]]
+
+    def _joined(self, name: str, near: bool) -> np.ndarray:
+        """:meth:`_batch` ``name`` of every batch in order, of its near hits (``near``) or
+        of the others."""
+        if near:
+            return np.concatenate([self._batch(k, name)[self._near[k][0]]
+                                   for k in sorted(self._near)])
+        return np.concatenate([self._batch(k, name)[~self._near[k][0]] if k in self._near
+                               else self._batch(k, name) for k in sorted(self._parts)])
 
     def rays(self, root: str | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -191,35 +199,31 @@ class StrandRays(StrandHits):
         centres about the hit along its strand
         (:meth:`~prtcore.receivers.strands.StrandSpace.arc_weights`, weights summing to
         1), as :meth:`StrandHits.interpolated` reads them."""
-        keys = sorted(self._parts)
-        if not keys:
+        if not self._parts:
             return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
                     np.zeros(0))
-        rows = self._joined(0, keys, True).astype(np.int64)
-        texel = self._joined(1, keys, True).astype(np.int64)
-        d = self._joined(4, keys, True).astype(np.float64)
+        rows = self._joined("row", False).astype(np.int64)
+        texel = self._joined("texel", False).astype(np.int64)
+        d = self._joined("direction", False).astype(np.float64)
         if root is None:
             return rows, texel, d, np.ones(len(rows))
-        frac = self._joined(3, keys, True).astype(np.float64)
+        frac = self._joined("frac", False).astype(np.float64)
         cols, w = self.space.arc_weights(texel, frac, root)
         return np.repeat(rows, 2), cols.ravel(), np.repeat(d, 2, axis=0), w.ravel()
 
     def near(self) -> NearFibreHits:
         """The near hits, in batch order (:class:`~prtcore.transport.fibre_near.
         NearFibreHits`; none without ``reach``)."""
-        keys = sorted(self._near)
-        if not keys:
+        if not self._near:
             return NearFibreHits(np.zeros(0, np.int64), np.zeros(0, np.int64),
                                  np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
                                  np.zeros((0, 3), np.float32))
-
-        def mine(i: int) -> np.ndarray:
-            return np.concatenate([self._joined(i, [k], False)[self._near[k][0]]
-                                   for k in keys])
-        return NearFibreHits(row=mine(0).astype(np.int64), texel=mine(1).astype(np.int64),
+        keys = sorted(self._near)
+        return NearFibreHits(row=self._joined("row", True).astype(np.int64),
+                             texel=self._joined("texel", True).astype(np.int64),
                              triangle=np.concatenate([self._near[k][1] for k in keys]),
                              barycentric=np.concatenate([self._near[k][2] for k in keys]),
-                             direction=mine(4))
+                             direction=self._joined("direction", True))
 
 
 def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
@@ -283,7 +287,7 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
             weights(hits.row[sl], m_data[sl]), unit(len(hits.row[sl])))),
     ]
     if near is not None:  # the near fibre hits' rays: to the mesh, then to fibres
-        on_mesh, on_fibre = np.flatnonzero(~near.fibre), np.flatnonzero(near.fibre)
+        on_mesh, on_fibre = np.flatnonzero(near.col < t_m), np.flatnonzero(near.col >= t_m)
         parts += [
             RayPart(near.row[on_mesh], near.col[on_mesh], lambda sl: (
                 first_only(near.weight[on_mesh[sl]]), unit(len(on_mesh[sl])))),
@@ -402,13 +406,14 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
                       fibre, exitance, out=views)
         del views
-        if near.count:  # the near hits' direct light: at the point met, or as read
+    if near.count:  # the near hits' direct light: at the point met, or as read
+        with timer.stage("near fibres (direct)"):  # its rays count as the direct fibres'
             first = add_first_bounce(first, near_fibre_shaded(
                 near, valid_rays, space, fibres, fibre, tracer, lights, exitance,
                 near_fibre_direct(near, valid_rays, direct, product.coefficient_rows, t_m,
                                   t_h, n_f, frames, [k for k, light in enumerate(lights)
-                                                     if light.type == "environment"])))
-        del near
+                                                     if not shaded_at_point(light)])))
+    del near
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
     albedo[:t_m] = texels.albedo
