@@ -4,16 +4,19 @@ its 64 atlas gather rays.
 
 Traces the atlas gather with the near hits kept apart at ``--near-fibres`` footprints,
 then times the near hits' rays (:func:`near_fibre_rays`) and their direct light shaded
-at the point met (:func:`near_fibre_shaded`) for the head's two punctual lights, and
-scales the latter to ``--lights`` lights (a bake's training + held-out: 512 + 16 by
-default): it is one pass per light, so it grows with them. The texel reads it starts
-from (:func:`near_fibre_direct`) are timed on the same lights. Seconds are this
-machine's, in one run: compare them with each other, not across machines.
+at the point met (:func:`near_fibre_shaded`) for ``--timed-lights`` lights (the head's
+two punctual lights, cycled), once for each ``--pieces``: the arc pieces a strand texel
+whose hits share a shadow ray a light (the default, and so many that every hit has its
+own ray, as it had before), and scales them to ``--lights`` lights (a bake's training
++ held-out: 512 + 16 by default): it is one pass per light, so it grows with them. The
+texel reads it starts from (:func:`near_fibre_direct`) are timed on the head's two
+lights. Seconds are this machine's, in one run: compare them with each other, not
+across machines.
 
 Printed and written to benchmarks/results/near_fibres_cost.json.
 
 Usage: python benchmarks/near_fibres_cost.py [--strands 10000] [--near-fibres 5]
-       [--lights 528]
+       [--lights 528] [--timed-lights 16] [--pieces 32 1048576]
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from prtcore.transport.fibre_chiang import (  # noqa: E402
     texel_frames,
 )
 from prtcore.transport.fibre_near import (  # noqa: E402
+    NEAR_SHADOW_PIECES,
     near_fibre_direct,
     near_fibre_rays,
     near_fibre_shaded,
@@ -59,6 +63,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--near-fibres", type=float, default=5.0)
     ap.add_argument("--exitance", default="second_order")
     ap.add_argument("--lights", type=int, default=528)
+    ap.add_argument("--timed-lights", type=int, default=16,
+                    help="lights timed (the head's two, cycled): the pieces' set-up is "
+                         "once for all of them")
+    ap.add_argument("--pieces", type=int, nargs="+", default=[NEAR_SHADOW_PIECES, 1 << 20],
+                    help="arc pieces a texel sharing a shadow ray (many: one a hit)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/near_fibres_cost.json"))
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
@@ -90,11 +99,22 @@ def main(argv: list[str] | None = None) -> dict:
     reads = near_fibre_direct(near, g.valid_rays, direct, rows_of, t_m, t_h, n_f,
                               texel_frames(space) if n_f >= 6 else None)
     read_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    near_fibre_shaded(near, g.valid_rays, space, fibres, fibre, tracer, LIGHTS,
-                      args.exitance, reads)
-    shaded_s = time.perf_counter() - t0
-    per_light = shaded_s / k
+    lights = [LIGHTS[i % len(LIGHTS)] for i in range(args.timed_lights)]
+    reads = near_fibre_direct(near, g.valid_rays, np.tile(direct, (1, len(lights) // k + 1,
+                                                                     1))[:, :len(lights)],
+                              rows_of, t_m, t_h, n_f,
+                              texel_frames(space) if n_f >= 6 else None)
+    shaded = {}
+    for pieces in args.pieces:  # one shadow ray a piece and light; many: one a hit
+        t0 = time.perf_counter()
+        stats: dict = {}
+        near_fibre_shaded(near, g.valid_rays, space, fibres, fibre, tracer, lights,
+                          args.exitance, (reads[0], reads[1].copy()), 4, pieces, stats)
+        s = time.perf_counter() - t0
+        shaded[str(pieces)] = {"s_per_light": s / len(lights),
+                               "s_at_lights": s / len(lights) * args.lights,
+                               "shadow_pieces": stats["shadow_pieces"]}
+    per_light = shaded[str(args.pieces[0])]["s_per_light"]
     res = {"strands": args.strands, "atlas_texels": t_m, "strand_texels": t_h,
            "atlas_rays": args.atlas_rays, "near_fibres": args.near_fibres,
            "fibre_hits": fibre_hits, "near_hits": near.count,
@@ -102,15 +122,18 @@ def main(argv: list[str] | None = None) -> dict:
            "near_share_of_fibre_hits": near.count / max(fibre_hits, 1),
            "gather_s": gather_s, "near_rays_s": rays_s, "near_rays": rays.stats,
            "texel_reads_s_per_light": read_s / k, "shaded_s_per_light": per_light,
-           "shaded_s_at_lights": per_light * args.lights, "lights": args.lights}
+           "shaded_s_at_lights": per_light * args.lights, "lights": args.lights,
+           "timed_lights": len(lights), "shaded_by_pieces": shaded}
     print(f"{args.strands} strands, {t_m} atlas texels × {args.atlas_rays} rays: "
           f"{near.count} near hits at {args.near_fibres:g} footprints "
           f"({res['near_share_of_atlas_rays']:.3f} of the atlas's rays, "
           f"{res['near_share_of_fibre_hits']:.3f} of its fibre hits)")
     print(f"atlas gather {gather_s:.1f} s; near rays {rays_s:.1f} s ({rays.stats}); "
-          f"texel reads {read_s / k:.2f} s a light; shaded at the point "
-          f"{per_light:.2f} s a light → {per_light * args.lights / 60:.1f} min at "
-          f"{args.lights} lights")
+          f"texel reads {read_s / k:.2f} s a light")
+    for pieces, v in shaded.items():
+        print(f"shaded at the point, {pieces} pieces a texel ({v['shadow_pieces']} shadow "
+              f"rays a light): {v['s_per_light']:.2f} s a light → "
+              f"{v['s_at_lights'] / 60:.1f} min at {args.lights} lights")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(res, indent=2))
     print(f"wrote {args.out}")

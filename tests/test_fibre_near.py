@@ -8,17 +8,35 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from prtcore.core.fibres import fibre_at_hits, outside_offset
+from prtcore.core.fibres import facing, fibre_at_hits, outside_offset
+from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.progress import StageTimer
 from prtcore.core.spec import ChiangSpec, TransportSpec, parse_spec
+from prtcore.emitters.base import emitter_for
+from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
 from prtcore.intake.hair import hair_scene
 from prtcore.intake.points import place_measurement_points
 from prtcore.pipeline import run_intake
-from prtcore.receivers.strands import build_strand_space
+from prtcore.receivers.strands import arc_of_hit, build_strand_space
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.fibre import SHARE_MARGIN, MeshHits, hair_density, hair_tracer
-from prtcore.transport.fibre_chiang import chiang_direct, chiang_fibre, texel_frames
-from prtcore.transport.fibre_near import near_fibre_direct, near_fibre_rays, near_fibre_shaded
+from prtcore.transport.fibre_chiang import (
+    EXITANCE_TERMS,
+    chiang_direct,
+    chiang_fibre,
+    exitance_reads,
+    exitance_weights,
+    shaded_reads,
+    texel_frames,
+)
+from prtcore.transport.fibre_near import (
+    NEAR_SHADOW_PIECES,
+    near_fibre_direct,
+    near_fibre_rays,
+    near_fibre_shaded,
+    piece_visibility,
+    shadow_pieces,
+)
 from prtcore.transport.gather import HitMapper, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh_chiang import (
     StrandRays,
@@ -167,7 +185,7 @@ def test_the_direct_light_at_the_point_met_is_the_texels_model_there(scalp):
     rows, read = near_fibre_direct(near, g.valid_rays, direct, rows_of, t_m, t_h, 9,
                                    texel_frames(space))
     same, shaded = near_fibre_shaded(near, g.valid_rays, space, fibres, fibre, tracer,
-                                     lights, "second_order", (rows, read.copy()))
+                                     lights, "second_order", (rows, read.copy()), 4)
     assert np.array_equal(same, rows)
     for k in range(len(lights)):
         a, b = read[:, k].sum(axis=1), shaded[:, k].sum(axis=1)
@@ -197,3 +215,94 @@ def test_a_bake_with_the_near_field_on_the_fibres(scalp):
     a, b = on.indirect[:t_m].astype(np.float64), off.indirect[:t_m].astype(np.float64)
     assert np.isfinite(a).all() and not np.array_equal(a, b)
     assert 0.7 < a.sum() / b.sum() < 1.3, a.sum() / b.sum()
+
+
+def test_the_hits_of_a_shadow_piece_lie_within_its_arc_and_share_a_drawn_hit_s_ray(scalp):
+    """shadow_pieces cuts each strand texel into equal arcs: every hit of a piece lies on
+    one texel and within one piece's arc of the others, the drawn hit is one of them,
+    and the same seed draws the same hits. piece_visibility is that hit's shadow ray,
+    so with a piece a hit the shading is the ray-a-hit shading, and with the default
+    pieces it keeps its sum and goes with it texel by texel."""
+    _, _, space, tracer, fibres, _, split, g = scalp
+    near = split.near()
+    cut = shadow_pieces(near, space, fibres, seed=4)
+    assert 0 < cut.count < near.count
+    assert np.array_equal(cut.of_hit[cut.hit], np.arange(cut.count))
+    assert np.array_equal(shadow_pieces(near, space, fibres, seed=4).hit, cut.hit)
+    assert not np.array_equal(shadow_pieces(near, space, fibres, seed=5).hit, cut.hit)
+    strand, arc = arc_of_hit(space.hair, fibres, near.triangle, near.barycentric)
+    span = space.hair.strand_length[strand] / (space.texels_per_strand * NEAR_SHADOW_PIECES)
+    order = np.argsort(cut.of_hit, kind="stable")
+    bounds = np.searchsorted(cut.of_hit[order], np.arange(cut.count + 1))
+    for u in range(0, cut.count, max(1, cut.count // 200)):
+        mine = order[bounds[u]:bounds[u + 1]]
+        assert len(set(near.texel[mine])) == 1 and len(set(strand[mine])) == 1
+        assert np.ptp(arc[mine]) <= span[mine[0]] * (1 + 1e-9)
+    # a piece a hit: each hit its own drawn hit
+    fine = shadow_pieces(near, space, fibres, seed=4, pieces=1 << 20)
+    assert fine.count == near.count and np.array_equal(fine.hit[fine.of_hit],
+                                                       np.arange(near.count))
+    fibre = chiang_fibre(ChiangSpec(), space)
+    lights = head_lights()
+    seen = np.unpackbits(piece_visibility(cut, near, space, fibres, fibre, tracer, lights),
+                         axis=1, count=len(lights))
+    assert seen.shape == (cut.count, len(lights)) and 0 < seen.mean() < 1
+    # the drawn hits' own shadow rays, light by light
+    tangent, centre, radius, _ = fibre_at_hits(
+        space.hair, fibres, outside_offset(space.hair, fibres.sides), fibre.sigma_points,
+        near.triangle[cut.hit], near.barycentric[cut.hit].astype(np.float64))
+    for k, light in enumerate(lights):
+        _, to_light, _ = unshadowed_irradiance(light, centre, tangent)
+        e = irradiance(light, centre + radius[:, None] * facing(tangent, to_light),
+                       to_light, tracer)
+        assert np.array_equal(seen[:, k], e.sum(axis=1) > 0), k
+    rows = np.unique(near.row)
+    zero = np.zeros((len(rows), len(lights), 3), np.float32)
+    args = (near, g.valid_rays, space, fibres, fibre, tracer, lights, "linear")
+    _, shared = near_fibre_shaded(*args, (rows, zero.copy()), 4)
+    _, own = near_fibre_shaded(*args, (rows, zero.copy()), 4, pieces=1 << 20)
+    _, texel = near_fibre_shaded(*args, (rows, zero.copy()), 4, pieces=1)
+    for k in range(len(lights)):
+        a, b = own[:, k].sum(axis=1), shared[:, k].sum(axis=1)
+        assert 0.9 < b.sum() / a.sum() < 1.1 and np.corrcoef(a, b)[0, 1] > 0.8, (
+            k, b.sum() / a.sum(), np.corrcoef(a, b)[0, 1])
+        assert not np.array_equal(a, texel[:, k].sum(axis=1))  # a ray a texel: shared
+
+
+@pytest.mark.parametrize("exitance", ["isotropic", "linear", "quadratic", "second_order"])
+def test_the_compiled_shading_is_the_texels_direct_model_read_toward_the_ray(exitance):
+    """shaded_reads (the near hits' direct light, compiled) sums, per receiver, each
+    point's exitance_weights of the light times E⊥ on its side facing the light and
+    cos θl, read toward its ray with exitance_reads: the numpy rule's value to rounding,
+    for every exitance, a point light and a directional one."""
+    rng = np.random.default_rng(3)
+    n, r = 500, 7
+    fibre = chiang_fibre(ChiangSpec(eumelanin=0.8), build_strand_space(head_hair(20, "curly"),
+                                                                        4))
+    tangent, d = (v / np.linalg.norm(v, axis=1, keepdims=True)
+                  for v in rng.normal(size=(2, n, 3)))
+    centre = rng.uniform(-0.1, 0.1, (n, 3))
+    radius = rng.uniform(1e-5, 1e-4, n)
+    frame = orthonormal_frame(tangent)
+    sigma = rng.uniform(0, 3, (n, 3))
+    weight = rng.uniform(0, 1, n) * (np.arange(n) % 9 != 0)  # some points in shadow
+    slot = rng.integers(0, r, n)
+    terms = EXITANCE_TERMS[exitance]
+    toward = exitance_reads(d, frame, terms)
+    table = fibre.albedo
+    for light in head_lights():
+        _, to_light, _ = unshadowed_irradiance(light, centre, tangent)
+        cos_l = np.sqrt(np.clip(1 - np.einsum("ij,ij->i", tangent, to_light) ** 2, 0, None))
+        e = irradiance(light, centre + radius[:, None] * facing(tangent, to_light), to_light,
+                       None)
+        w = exitance_weights(table, tangent, to_light, sigma, exitance, frame)
+        value = sum(t[:, None] * wa for t, wa in zip(toward, w, strict=True))
+        value *= e * (cos_l * weight)[:, None]
+        want = np.stack([np.bincount(slot, value[:, c], minlength=r) for c in range(3)],
+                        axis=1)
+        got = np.zeros((r, 3))
+        shaded_reads(emitter_for(light).kernel_row(light), centre, tangent, radius, sigma,
+                     *frame, np.stack(toward, axis=1), weight, slot, table.values,
+                     table.sin_theta, table.root_sigma, got)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+        assert np.abs(want).max() > 0

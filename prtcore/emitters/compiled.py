@@ -66,6 +66,46 @@ def _sign(x):  # pragma: no cover - compiled
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
+@numba.njit(inline="always", cache=True)
+def light_at(row, x0, x1, x2, n0, n1, n2):  # pragma: no cover - compiled
+    """The unshadowed light of ``row`` (:func:`light_row`) at the point (x0, x1, x2) of
+    unit normal (n0, n1, n2): the unit direction toward it (w0, w1, w2), the vector
+    toward its position (d0, d1, d2; zeros for a directional light) and the irradiance
+    (e0, e1, e2), as the emitters' ``unshadowed``."""
+    kind = row[0]
+    px, py, pz = row[1], row[2], row[3]
+    a0, a1, a2 = row[4], row[5], row[6]
+    cr, cg, cb = row[7], row[8], row[9]
+    rng, cone_scale, cone_offset = row[10], row[11], row[12]
+    d0, d1, d2 = 0.0, 0.0, 0.0
+    if kind == 1.0:  # directional: w is the axis
+        w0, w1, w2 = a0, a1, a2
+        cos = _dot(n0, n1, n2, w0, w1, w2)
+        att = cos if cos > 0.0 else 0.0
+        return w0, w1, w2, d0, d1, d2, att * cr, att * cg, att * cb
+    d0, d1, d2 = px - x0, py - x1, pz - x2
+    r2 = _dot(d0, d1, d2, d0, d1, d2)
+    dist = np.sqrt(r2)
+    if dist > 0.0:
+        w0, w1, w2 = d0 / dist, d1 / dist, d2 / dist
+    else:
+        w0, w1, w2 = 0.0, 0.0, 0.0
+    cos = _dot(n0, n1, n2, w0, w1, w2)
+    att = cos if cos > 0.0 else 0.0
+    if rng > 0.0:
+        q = 1.0 - (dist / rng) ** 4.0
+        q = min(max(q, 0.0), 1.0)
+        att = att * (q * q)
+    else:
+        att = att * 1.0
+    if cone_scale != 0.0:
+        c = -_dot(w0, w1, w2, a0, a1, a2) * cone_scale + cone_offset
+        c = min(max(c, 0.0), 1.0)
+        att = att * (c * c)
+    att = att / r2 if r2 > 0.0 else 0.0
+    return w0, w1, w2, d0, d1, d2, att * cr, att * cg, att * cb
+
+
 @numba.njit(cache=True, nogil=True)
 def shadow_rays(row, positions, normals, per, offset, tfar, e, origin, direction,
                 tmax, index):  # pragma: no cover - compiled
@@ -82,41 +122,12 @@ def shadow_rays(row, positions, normals, per, offset, tfar, e, origin, direction
     """
     kind = row[0]
     px, py, pz = row[1], row[2], row[3]
-    a0, a1, a2 = row[4], row[5], row[6]
-    cr, cg, cb = row[7], row[8], row[9]
-    rng, cone_scale, cone_offset = row[10], row[11], row[12]
     count = 0
     for i in range(len(positions)):
         x0, x1, x2 = positions[i, 0], positions[i, 1], positions[i, 2]
         nrm = normals[i // per]
         n0, n1, n2 = nrm[0], nrm[1], nrm[2]
-        if kind == 1.0:  # directional: w is the axis
-            w0, w1, w2 = a0, a1, a2
-            cos = _dot(n0, n1, n2, w0, w1, w2)
-            att = cos if cos > 0.0 else 0.0
-            e0, e1, e2 = att * cr, att * cg, att * cb
-        else:
-            d0, d1, d2 = px - x0, py - x1, pz - x2
-            r2 = _dot(d0, d1, d2, d0, d1, d2)
-            dist = np.sqrt(r2)
-            if dist > 0.0:
-                w0, w1, w2 = d0 / dist, d1 / dist, d2 / dist
-            else:
-                w0, w1, w2 = 0.0, 0.0, 0.0
-            cos = _dot(n0, n1, n2, w0, w1, w2)
-            att = cos if cos > 0.0 else 0.0
-            if rng > 0.0:
-                q = 1.0 - (dist / rng) ** 4.0
-                q = min(max(q, 0.0), 1.0)
-                att = att * (q * q)
-            else:
-                att = att * 1.0
-            if cone_scale != 0.0:
-                c = -_dot(w0, w1, w2, a0, a1, a2) * cone_scale + cone_offset
-                c = min(max(c, 0.0), 1.0)
-                att = att * (c * c)
-            att = att / r2 if r2 > 0.0 else 0.0
-            e0, e1, e2 = att * cr, att * cg, att * cb
+        w0, w1, w2, d0, d1, d2, e0, e1, e2 = light_at(row, x0, x1, x2, n0, n1, n2)
         e[i, 0], e[i, 1], e[i, 2] = e0, e1, e2
         if not ((e0 + e1) + e2 > 0.0):
             continue

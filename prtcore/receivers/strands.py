@@ -409,12 +409,19 @@ def build_strand_space(hair: Hair, texels_per_strand: int = DEFAULT_TEXELS_PER_S
                        albedo=albedo, footprint=footprint)
 
 
+def arc_of_hit(hair: Hair, mesh: FibreMesh, triangle: np.ndarray, barycentric: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Where hits on ``mesh``'s own triangles (indices local to the fibre mesh, (n,)) with
+    their barycentrics (n, 3) lie on the hair: the strand (n,) int64 and the arc length
+    (n,) float64, metres from its root."""
+    seg, t = segment_hits(mesh, triangle, barycentric)
+    p0 = hair.segment_start[seg]
+    arc = hair.arc_length[p0] + t * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
+    return hair.strand_of_segment[seg], arc
+
+
 def texel_of_hit(space: StrandSpace, mesh: FibreMesh, triangle: np.ndarray,
                  barycentric: np.ndarray) -> np.ndarray:
     """(n,) int64 strand texel hit, for hits on ``mesh``'s own triangles (indices local to
     the fibre mesh) with their barycentrics."""
-    hair = space.hair
-    seg, t = segment_hits(mesh, triangle, barycentric)
-    p0 = hair.segment_start[seg]
-    arc = hair.arc_length[p0] + t * (hair.arc_length[p0 + 1] - hair.arc_length[p0])
-    return space.texel_of(hair.strand_of_segment[seg], arc)
+    return space.texel_of(*arc_of_hit(space.hair, mesh, triangle, barycentric))

@@ -80,6 +80,7 @@ from prtcore.core.scene import Light
 from prtcore.core.sparse import RayBlockProduct
 from prtcore.core.spec import ChiangSpec
 from prtcore.emitters.base import emitter_for
+from prtcore.emitters.compiled import light_at
 from prtcore.emitters.environment_light import environment_radiance
 from prtcore.emitters.punctual import unshadowed_irradiance
 from prtcore.receivers.strands import StrandSpace, axis_frame
@@ -230,6 +231,73 @@ def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
     return out
 
 
+@numba.njit(inline="always", cache=True)
+def _add_weighted(t0, t1, t2, w0, w1, w2, fu, fv, r, jq, fq, values, sin_nodes, m, acc
+                  ):  # pragma: no cover - compiled
+    """Adds :func:`exitance_weights`' weights of light from (w0, w1, w2) at a fibre of
+    tangent (t0, t1, t2) (frame fu, fv (3,)), times the radiance r (3,) per channel, to
+    acc (F, 3) (F = acc.shape[0]: 1, 4, 6 or 9); the table :class:`~prtcore.core.bcsdf.
+    FibreAlbedo`'s values (6, S, Q) bilinear in sin θ and √σ (jq, fq (3,): each
+    channel's √σ node and fraction); m (6,) scratch."""
+    terms = acc.shape[0]
+    ns = len(sin_nodes)
+    s0, ds = sin_nodes[0], sin_nodes[1] - sin_nodes[0]
+    moments = 1 if terms == 1 else (3 if terms == 4 else (4 if terms == 6 else 6))
+    sn = t0 * w0 + t1 * w1 + t2 * w2
+    x = (min(max(sn, s0), sin_nodes[ns - 1]) - s0) / ds
+    ii = min(int(x), ns - 2)
+    fx = x - ii
+    p0, p1, p2 = w0 - sn * t0, w1 - sn * t1, w2 - sn * t2
+    pn = max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2), 1e-12)
+    p0, p1, p2 = p0 / pn, p1 / pn, p2 / pn
+    c2 = s2 = eu = ev = 0.0
+    if terms >= 6:
+        a = w0 * fu[0] + w1 * fu[1] + w2 * fu[2]
+        b = w0 * fv[0] + w1 * fv[1] + w2 * fv[2]
+        c2, s2 = a * a - b * b, 2 * a * b
+        norm = max(c2 * c2 + s2 * s2, 1e-24) ** 0.5
+        c2, s2 = c2 / norm, s2 / norm
+        eu = p0 * fu[0] + p1 * fu[1] + p2 * fu[2]
+        ev = p0 * fv[0] + p1 * fv[1] + p2 * fv[2]
+    for c in range(3):
+        rc = r[c]
+        if rc == 0:
+            continue
+        jj, fy = jq[c], fq[c]
+        for mo in range(moments):
+            v = values[mo]
+            top = v[ii, jj] * (1 - fy) + v[ii, jj + 1] * fy
+            bottom = v[ii + 1, jj] * (1 - fy) + v[ii + 1, jj + 1] * fy
+            m[mo] = top * (1 - fx) + bottom * fx
+        acc[0, c] += m[0] * rc
+        if terms >= 4:
+            at, ap = 4 * m[1] * rc, 8 / 3 * m[2] * rc
+            acc[1, c] += at * t0 + ap * p0
+            acc[2, c] += at * t1 + ap * p1
+            acc[3, c] += at * t2 + ap * p2
+        if terms >= 6:
+            a2 = 16 / 5 * m[3] * rc
+            acc[4, c] += a2 * c2
+            acc[5, c] += a2 * s2
+        if terms == 9:
+            acc[6, c] += 16 * m[4] * rc
+            acc[7, c] += 16 * m[5] * rc * eu
+            acc[8, c] += 16 * m[5] * rc * ev
+
+
+@numba.njit(inline="always", cache=True)
+def _sigma_nodes(sigma, root_nodes, jq, fq):  # pragma: no cover - compiled
+    """Each channel's √σ node and fraction (jq, fq (3,), written) of σ (3,) in the table's
+    root_nodes (Q,)."""
+    nq = len(root_nodes)
+    r0, dr = root_nodes[0], root_nodes[1] - root_nodes[0]
+    rmax2 = root_nodes[nq - 1] ** 2
+    for c in range(3):
+        y = (np.sqrt(min(max(sigma[c], 0.0), rmax2)) - r0) / dr
+        jj = min(int(y), nq - 2)
+        jq[c], fq[c] = jj, y - jj
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_nodes, fu, fv,
                      out):  # pragma: no cover - compiled
@@ -243,66 +311,72 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
     (F, n, 3) float32, written."""
     n, nj = rad.shape[0], rad.shape[1]
     terms = out.shape[0]
-    ns, nq = len(sin_nodes), len(root_nodes)
-    s0, ds = sin_nodes[0], sin_nodes[1] - sin_nodes[0]
-    r0, dr = root_nodes[0], root_nodes[1] - root_nodes[0]
-    rmax2 = root_nodes[nq - 1] ** 2
-    moments = 1 if terms == 1 else (3 if terms == 4 else (4 if terms == 6 else 6))
     for i in numba.prange(n):
         jq = np.empty(3, np.int64)
         fq = np.empty(3)
-        for c in range(3):
-            y = (np.sqrt(min(max(sigma[i, c], 0.0), rmax2)) - r0) / dr
-            jj = min(int(y), nq - 2)
-            jq[c], fq[c] = jj, y - jj
+        _sigma_nodes(sigma[i], root_nodes, jq, fq)
         acc = np.zeros((terms, 3))
         m = np.empty(6)
         for j in range(nj):
-            t0, t1, t2 = tangent[i, j, 0], tangent[i, j, 1], tangent[i, j, 2]
-            w0, w1, w2 = to_light[i, j, 0], to_light[i, j, 1], to_light[i, j, 2]
-            sn = t0 * w0 + t1 * w1 + t2 * w2
-            x = (min(max(sn, s0), sin_nodes[ns - 1]) - s0) / ds
-            ii = min(int(x), ns - 2)
-            fx = x - ii
-            p0, p1, p2 = w0 - sn * t0, w1 - sn * t1, w2 - sn * t2
-            pn = max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2), 1e-12)
-            p0, p1, p2 = p0 / pn, p1 / pn, p2 / pn
-            c2 = s2 = eu = ev = 0.0
-            if terms >= 6:
-                a = w0 * fu[i, 0] + w1 * fu[i, 1] + w2 * fu[i, 2]
-                b = w0 * fv[i, 0] + w1 * fv[i, 1] + w2 * fv[i, 2]
-                c2, s2 = a * a - b * b, 2 * a * b
-                norm = max(c2 * c2 + s2 * s2, 1e-24) ** 0.5
-                c2, s2 = c2 / norm, s2 / norm
-                eu = p0 * fu[i, 0] + p1 * fu[i, 1] + p2 * fu[i, 2]
-                ev = p0 * fv[i, 0] + p1 * fv[i, 1] + p2 * fv[i, 2]
-            for c in range(3):
-                r = rad[i, j, c]
-                if r == 0:
-                    continue
-                jj, fy = jq[c], fq[c]
-                for mo in range(moments):
-                    v = values[mo]
-                    top = v[ii, jj] * (1 - fy) + v[ii, jj + 1] * fy
-                    bottom = v[ii + 1, jj] * (1 - fy) + v[ii + 1, jj + 1] * fy
-                    m[mo] = top * (1 - fx) + bottom * fx
-                acc[0, c] += m[0] * r
-                if terms >= 4:
-                    at, ap = 4 * m[1] * r, 8 / 3 * m[2] * r
-                    acc[1, c] += at * t0 + ap * p0
-                    acc[2, c] += at * t1 + ap * p1
-                    acc[3, c] += at * t2 + ap * p2
-                if terms >= 6:
-                    a2 = 16 / 5 * m[3] * r
-                    acc[4, c] += a2 * c2
-                    acc[5, c] += a2 * s2
-                if terms == 9:
-                    acc[6, c] += 16 * m[4] * r
-                    acc[7, c] += 16 * m[5] * r * eu
-                    acc[8, c] += 16 * m[5] * r * ev
+            _add_weighted(tangent[i, j, 0], tangent[i, j, 1], tangent[i, j, 2],
+                          to_light[i, j, 0], to_light[i, j, 1], to_light[i, j, 2],
+                          fu[i], fv[i], rad[i, j], jq, fq, values, sin_nodes, m, acc)
         for f in range(terms):
             for c in range(3):
                 out[f, i, c] = acc[f, c] / nj
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def shaded_reads(row, centre, tangent, radius, sigma, fu, fv, reads, weight, slot, values,
+                 sin_nodes, root_nodes, out):  # pragma: no cover - compiled
+    """One punctual light's direct light at fibre points, turned into their exitance
+    coefficients as the strand texels' direct light does (:func:`chiang_direct`:
+    :func:`exitance_weights`' ``w(ωl) · E⊥ · cos θl``, the weights as
+    :func:`weighted_samples` makes them), read toward a ray and summed per receiver:
+    ``out[slot_i] += weight_i Σ_f reads_if w_f(ωl_i) E⊥_i cos θl_i``. ωl is the light's
+    direction from the axis point, E⊥ its unshadowed irradiance on the fibre's side
+    facing it (the point ``centre + radius · facing``, normal ωl: as
+    :func:`prtcore.emitters.punctual.irradiance` there).
+
+    row (ROW_SIZE,) float64 the light (:func:`prtcore.emitters.compiled.light_row`);
+    centre, tangent, fu, fv (n, 3) float64 the axis points, tangents and frames (F ≥ 6);
+    radius (n,) float64 the outside radius; sigma (n, 3) float64; reads (n, F) float64
+    what each ray reads of each coefficient (:func:`exitance_reads`); weight (n,)
+    float64 each point's share (its visibility, over its receiver's rays and π²); slot
+    (n,) int64 its receiver; values, sin_nodes, root_nodes the table; out (r, 3) float64,
+    added to."""
+    n, terms = reads.shape
+    value = np.zeros((n, 3))
+    for i in numba.prange(n):
+        if weight[i] == 0.0:
+            continue
+        t0, t1, t2 = tangent[i, 0], tangent[i, 1], tangent[i, 2]
+        x0, x1, x2 = centre[i, 0], centre[i, 1], centre[i, 2]
+        w0, w1, w2, _, _, _, _, _, _ = light_at(row, x0, x1, x2, t0, t1, t2)
+        sn = t0 * w0 + t1 * w1 + t2 * w2
+        f0, f1, f2 = w0 - sn * t0, w1 - sn * t1, w2 - sn * t2
+        fn = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        if fn <= 1e-9:  # the light along the fibre: cos θl = 0
+            continue
+        rr = radius[i] / fn
+        _, _, _, _, _, _, e0, e1, e2 = light_at(row, x0 + rr * f0, x1 + rr * f1,
+                                                x2 + rr * f2, w0, w1, w2)
+        s = np.sqrt(max(1.0 - sn * sn, 0.0)) * weight[i]
+        r = np.empty(3)
+        r[0], r[1], r[2] = e0 * s, e1 * s, e2 * s
+        jq = np.empty(3, np.int64)
+        fq = np.empty(3)
+        _sigma_nodes(sigma[i], root_nodes, jq, fq)
+        acc = np.zeros((terms, 3))
+        m = np.empty(6)
+        _add_weighted(t0, t1, t2, w0, w1, w2, fu[i], fv[i], r, jq, fq, values, sin_nodes, m,
+                      acc)
+        for f in range(terms):
+            for c in range(3):
+                value[i, c] += reads[i, f] * acc[f, c]
+    for i in range(n):  # serial: receivers repeat
+        for c in range(3):
+            out[slot[i], c] += value[i, c]
 
 
 def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],

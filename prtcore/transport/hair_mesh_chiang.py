@@ -115,6 +115,9 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       atlas rays that meet a fibre within reach (``density``'s share, at most every atlas
       ray) each add NEAR_FIBRE_RAYS entries, kept until the product is made, and the
       first bounce one more correction of at most T_m rows beside the sum it joins.
+      Their shadow pieces' visibility (a bit a piece and light, at most ⌈K/8⌉ bytes a
+      near hit) is held after the surface gather's matrix and the mesh hits are
+      dropped, so it stays below this phase's peak.
     * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
       ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
@@ -412,7 +415,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                 near, valid_rays, space, fibres, fibre, tracer, lights, exitance,
                 near_fibre_direct(near, valid_rays, direct, product.coefficient_rows, t_m,
                                   t_h, n_f, frames, [k for k, light in enumerate(lights)
-                                                     if not shaded_at_point(light)])))
+                                                     if not shaded_at_point(light)]),
+                spec.seed + 4, stats=near_rays.stats))
     del near
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
