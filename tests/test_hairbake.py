@@ -327,13 +327,13 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
     with pytest.raises(LimitExceeded, match=r"head.hair: .*139089 atlas texels"):
         check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
     # once its density is traced (the shares measured on this head, hair_density) it is
-    # dense, denoised, and the second order's estimate with 128 fibre rays (14.3 GiB:
-    # entries and near-field rows at their shares, not every ray's and every texel's)
-    # fits the default limit, above the 11.93 GiB peak RSS that bake measured
-    # (docs/hair.md; 11.29 GiB with 64 fibre rays)
+    # dense, denoised, and the second order's estimate with 128 fibre rays and the near
+    # fibres at 5 footprints (14.8 GiB: entries, near-field rows and near fibre hits at
+    # their shares, not every ray's and every texel's) fits the default limit, above the
+    # 11.93 GiB peak RSS that bake measured (docs/hair.md; 11.29 GiB with 64 fibre rays)
     from prtcore.hairbake import DENSE_MESH_RAYS, dense_hair
     from prtcore.transport.fibre import HairDensity
-    density = HairDensity(0.679, 0.093, 0.806, 0.786)
+    density = HairDensity(0.679, 0.093, 0.806, 0.786, 0.177)
     dense, lines = dense_hair("head.hair", space, got, density, limit, atlas, True)
     assert lines[1].endswith("the strand texels are denoised")
     assert lines[2].startswith(f"hair.gather_rays auto → {DENSE_MESH_RAYS}: dense hair")

@@ -105,13 +105,14 @@ DOCS: dict[str, str] = {
                        "cheapest); with a `--mesh` too",
     "chiang.near_fibres": "with a `--mesh`: an atlas texel's gather ray that meets a fibre "
                           "closer than this many of the texel's footprints is shaded at "
-                          "the point it meets (its direct light from punctual lights with "
-                          "a shadow ray per light, its light from the mesh and the other "
-                          "fibres with 2 rays), not read as the strand texel's mean; "
-                          "0–64, 0 off. 5 took the 10k head's scalp from 15.0 to 12.3 % "
-                          "per texel with dark hair (bias +1.5 → +2.1 %), from 9.4 to "
-                          "7.4 % with light hair (bias −1.6 → −0.5 %), at one shadow ray "
-                          "per near hit and light: 2.7 s a light there (docs/hair.md)",
+                          "the point it meets (its direct light from punctual lights, "
+                          "the hits on a 32nd of a strand texel sharing a shadow ray a "
+                          "light; its light from the mesh and the other fibres with 2 "
+                          "rays), not read as the strand texel's mean; 0–64, 0 off. 5 "
+                          "(the default) takes the 10k head's scalp from 15.0 to 12.4 % "
+                          "per texel with dark hair (bias +1.5 → +2.4 %), from 9.4 to "
+                          "7.7 % with light hair (bias −1.6 → −0.5 %), for 0.36 s a "
+                          "light there: 3.1 min at 528 lights (docs/hair.md)",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `adaptive` for hair "
                       "baked with a mesh) · `first_bounce` (the direct light's first "
                       "azimuthal harmonic in the first bounce) · `all_bounces` (every "
