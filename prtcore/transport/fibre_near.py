@@ -255,12 +255,18 @@ def piece_visibility(pieces: ShadowPieces, near: NearFibreHits, space: StrandSpa
         hair, fibres, outside_offset(hair, fibres.sides), fibre.sigma_points,
         near.triangle[hit], near.barycentric[hit].astype(np.float64))
     seen = np.zeros((pieces.count, -(-len(lights) // 8)), np.uint8)
-    for k, light in enumerate(lights):
+    for k, light in enumerate(bar(lights, "near fibres (shadow pieces)", total=len(lights))):
         _, to_light, _ = unshadowed_irradiance(light, centre, tangent)
         e = irradiance(light, centre + radius[:, None] * facing(tangent, to_light), to_light,
                        tracer)
         seen[:, k >> 3] |= (e.sum(axis=1) > 0).astype(np.uint8) << np.uint8(7 - (k & 7))
     return seen
+
+
+def piece_lit(seen: np.ndarray, k: int) -> np.ndarray:
+    """(u,) uint8 0 or 1: light ``k``'s column of :func:`piece_visibility`'s packed
+    bits ``seen`` (u, ⌈L/8⌉)."""
+    return (seen[:, k >> 3] >> (7 - (k & 7))) & 1
 
 
 def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: StrandSpace,
@@ -310,13 +316,12 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
                                          terms), axis=1)
         scale = 1.0 / (np.pi ** 2 * np.maximum(valid_rays[near.row[idx]], 1))
         mine, at = np.unique(slot[idx], return_inverse=True)  # this chunk's rows
-        at = at.astype(np.int64)
         lit = seen[cut.of_hit[idx]]
         sums = np.empty((len(mine), 3))
         for j, k in enumerate(punctual):
             sums[:] = 0
             shaded_reads(light_rows[j], centre, tangent, radius, sigma, fu, fv, toward,
-                         scale * ((lit[:, j >> 3] >> (7 - (j & 7))) & 1), at,
+                         scale * piece_lit(lit, j), at,
                          table.values, table.sin_theta, table.root_sigma, sums)
             out[mine, k] += sums.astype(np.float32)
     return rows, out
