@@ -303,6 +303,33 @@ def test_the_reference_can_leave_out_the_light_the_hair_sends_to_the_head(scalp)
     assert cut < 0.8 * whole, (cut, whole)  # measured 0.49 of it
 
 
+def test_the_reference_tallies_its_paths_by_depth_and_vertex_kind(scalp):
+    """``tally`` keeps the next-event estimates of the chosen (depth, kind) vertices and
+    draws the same paths: the four parts of two bounces sum to the whole, draw for draw,
+    an atlas texel's depth-2 mesh vertices (the scalp's light sent back to it through a
+    fibre) carry light on the head, and its depth-1 mesh vertices none (the head is
+    convex). An unknown kind is refused."""
+    scene, texels, space, tracer, fibres, _ = scalp
+    fibre = chiang_fibre(LIGHT_HAIR, space)
+    n_m, rows = _receivers(texels, space, 16)
+
+    def run(tally):
+        return chiang_hair_mesh_reference(scene, texels, space, tracer, fibres, LIGHTS,
+                                          rows, 256, 10, fibre.params, fibre.sigma_points,
+                                          max_depth=2, tally=tally)
+    whole = run(None)
+    parts = {key: run(frozenset({key})) for key in
+             ((1, "fibre"), (1, "mesh"), (2, "fibre"), (2, "mesh"))}
+    for h in range(2):
+        np.testing.assert_allclose(sum(p[h] for p in parts.values()), whole[h],
+                                   rtol=1e-12, atol=1e-15)
+    assert not np.any(parts[(1, "mesh")][0][:n_m])
+    loop = np.mean(parts[(2, "mesh")][0][:n_m])
+    assert 0 < loop < np.mean(whole[0][:n_m]), loop
+    with pytest.raises(ValueError, match=r"tally's kinds must be 'fibre' or 'mesh'"):
+        run(frozenset({(2, "scalp")}))
+
+
 @pytest.mark.parametrize("exitance", ["linear", "quadratic"])
 def test_projected_exitance_s_first_bounce_is_its_model_path_traced(scalp, exitance):
     """Linear and quadratic exitance with a mesh: the first bounce against the hair + mesh

@@ -147,7 +147,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                                seed: int, params: ChiangParams, sigma_points: np.ndarray,
                                max_depth: int = 64, rr_depth: int = 3,
                                exitance: str = "exact", where: str = "every",
-                               fibre_to_mesh: bool = True, scalp_reach: float = 0.0
+                               fibre_to_mesh: bool = True, scalp_reach: float = 0.0,
+                               tally: frozenset | None = None
                                ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`hair_mesh_reference` with Chiang fibres: every fibre vertex is that of
     :func:`prtcore.reference.chiang.chiang_reference` (next-event estimation with the
@@ -167,7 +168,14 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     exact there (what a near field of that reach for the scalp's reads would leave).
     ``fibre_to_mesh`` False ends every path that goes from a fibre to the mesh: the light
     the hair sends back to the head left out, for a fast path baked without it.
+    ``tally``: a set of (depth, "fibre" | "mesh"); only the next-event estimates at
+    those depths' vertices of those kinds are counted (a diagnostic: at depth 2, "mesh"
+    from an atlas texel is the light the scalp sends back to itself through one fibre,
+    light → mesh → fibre → texel).
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
+    if tally is not None and not {kind for _, kind in tally} <= {"fibre", "mesh"}:
+        raise ValueError(f"chiang_hair_mesh_reference: tally's kinds must be 'fibre' or "
+                         f"'mesh', not {sorted(tally)!r}")
     if where not in ("every", "scalp", "scalp_arc"):
         raise ValueError(f"chiang_hair_mesh_reference: where must be 'every', 'scalp' or "
                          f"'scalp_arc', not {where!r}")
@@ -251,9 +259,10 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                     beta[m] *= projection_kernel(tangent[m], wo[m], -d[fi][pick],
                                                  EXITANCE_ORDERS[exitance])[:, None]
                 geo[v] = 0.0
-                np.add.at(acc, owner[v], fibre_nee(
-                    lights, tracer, params, beta[v], pos[v], tangent[v], radius[v], wo[v],
-                    sigma[v], 2 * rng.random(len(v)) - 1, rng))
+                nee = fibre_nee(lights, tracer, params, beta[v], pos[v], tangent[v],
+                                radius[v], wo[v], sigma[v], 2 * rng.random(len(v)) - 1, rng)
+                if tally is None or (depth, "fibre") in tally:
+                    np.add.at(acc, owner[v], nee)
             if len(si):
                 v = alive[si]
                 fn = tracer.face_normals[tri[si]]
@@ -261,7 +270,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
                 nrm = shading_normals(scene, tri[si], bary[si], fn)
                 rho = clamp_albedo(albedo_at(scene, tri[si], bary[si]))[0]
                 e = irradiance_per_light(lights, tracer, p, nrm)  # (m, K, 3)
-                np.add.at(acc, owner[v], (beta[v] * rho / math.pi)[:, None, :] * e)
+                if tally is None or (depth, "mesh") in tally:
+                    np.add.at(acc, owner[v], (beta[v] * rho / math.pi)[:, None, :] * e)
                 beta[v] *= rho
                 fib[v] = False
                 pos[v], vec[v], geo[v] = p + fn * tracer.offset, nrm, fn
