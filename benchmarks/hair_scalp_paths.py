@@ -19,6 +19,9 @@ both bakes' noise and the reference's removed):
   mesh's direct light is off (``direct_radiance`` returns zeros, and the fibre gather's
   near field on the mesh is off with it); the reference tallies depth-1 and depth-2
   fibre vertices.
+* ``fibres_all``: the same to every bounce (64): all the fibres' direct light that
+  reaches an atlas texel, by any path (through the scalp too); with ``fibres`` it gives
+  the third bounce onward.
 
 The near fibre hits of the atlas (``hair.chiang.near_fibres``) are off by default here
 (``--near-fibres 0``): their rays fold a second bounce into the first, which would mix
@@ -27,7 +30,7 @@ restored after it; the library has no such option, because a bake never wants it
 
 Printed and written to benchmarks/results/hair_scalp_paths.json.
 
-Usage: python benchmarks/hair_scalp_paths.py [--strands 10000] [--parts loop fibres]
+Usage: python benchmarks/hair_scalp_paths.py [--strands 10000] [--parts loop fibres fibres_all]
        [--hairs dark] [--rays 128] [--atlas-rays 64] [--paths 2048] [--texels 2000]
        [--near-fibres 0]
 """
@@ -66,6 +69,7 @@ PARTS = {
     "loop": ("fibres", 2, "mesh", frozenset({(2, "mesh")}), None),
     "loop_strands": ("fibres", 1, "hair", frozenset({(1, "mesh")}), None),
     "fibres": ("mesh", 2, "mesh", frozenset({(1, "fibre"), (2, "fibre")}), 0.0),
+    "fibres_all": ("mesh", 64, "mesh", frozenset((d, "fibre") for d in range(1, 65)), 0.0),
 }
 
 
@@ -91,7 +95,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--strands", type=int, default=10_000)
     ap.add_argument("--texels-per-strand", type=int, default=10)
-    ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=list(PARTS))
+    ap.add_argument("--parts", nargs="+", default=["loop", "loop_strands", "fibres"],
+                    choices=list(PARTS))
     ap.add_argument("--hairs", nargs="+", default=["dark"], choices=list(HAIRS))
     ap.add_argument("--rays", type=int, default=128, help="fibre gather rays M_h")
     ap.add_argument("--atlas-rays", type=int, default=64)
