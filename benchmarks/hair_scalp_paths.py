@@ -51,9 +51,9 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import prtcore.transport.hair_mesh_chiang as hair_mesh_chiang  # noqa: E402
-from benchmarks.hair_mesh_accuracy import LIGHTS  # noqa: E402
 from benchmarks.hair_mesh_chiang_accuracy import (  # noqa: E402
     HAIRS,
+    LIGHTS,
     _bake,
     _per_light,
     head_setup,
@@ -61,7 +61,7 @@ from benchmarks.hair_mesh_chiang_accuracy import (  # noqa: E402
 from prtcore.core.spec import TransportSpec  # noqa: E402
 from prtcore.reference.fibres import noise_corrected_error  # noqa: E402
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference  # noqa: E402
-from prtcore.transport.fibre_chiang import chiang_fibre  # noqa: E402
+from prtcore.transport.fibre_chiang import EXITANCE_TERMS, chiang_fibre  # noqa: E402
 
 #: part -> (source switched off, bounces baked, receivers "mesh" | "hair", the
 #: reference's tally, the fibre gather's near field on the mesh: None the spec's, 0 off)
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--paths", type=int, default=2048)
     ap.add_argument("--texels", type=int, default=2000)
     ap.add_argument("--resolution", type=int, default=512)
-    ap.add_argument("--exitance", default="second_order")
+    ap.add_argument("--exitance", default="second_order", choices=list(EXITANCE_TERMS))
     ap.add_argument("--near-fibres", type=float, default=0.0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/hair_scalp_paths.json"))
     args = ap.parse_args(argv)

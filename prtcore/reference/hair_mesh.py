@@ -171,7 +171,8 @@ def chiang_hair_mesh_reference(scene: Scene, texels: TexelSpace, space: StrandSp
     ``tally``: a set of (depth, "fibre" | "mesh"); only the next-event estimates at
     those depths' vertices of those kinds are counted (a diagnostic: at depth 2, "mesh"
     from an atlas texel is the light the scalp sends back to itself through one fibre,
-    light → mesh → fibre → texel).
+    light → mesh → fibre → texel). Every estimate is still drawn, so the paths are the
+    untallied reference's draw for draw and the parts of a partition sum to it.
     Returns (a, b), each (n, K, 3) float64, for ``rows`` in the combined numbering."""
     if tally is not None and not {kind for _, kind in tally} <= {"fibre", "mesh"}:
         raise ValueError(f"chiang_hair_mesh_reference: tally's kinds must be 'fibre' or "
