@@ -42,6 +42,7 @@ from prtcore.transport.fibre import hair_tracer  # noqa: E402
 from prtcore.transport.fibre_chiang import (  # noqa: E402
     EXITANCE_TERMS,
     chiang_fibre,
+    needs_frames,
     texel_frames,
 )
 from prtcore.transport.fibre_near import (  # noqa: E402
@@ -97,13 +98,13 @@ def main(argv: list[str] | None = None) -> dict:
         return slice(0, t) if a == 0 else slice(t + (a - 1) * t_h, t + a * t_h)
     t0 = time.perf_counter()
     reads = near_fibre_direct(near, g.valid_rays, direct, rows_of, t_m, t_h, n_f,
-                              texel_frames(space) if n_f >= 6 else None)
+                              texel_frames(space) if needs_frames(args.exitance) else None)
     read_s = time.perf_counter() - t0
     lights = [LIGHTS[i % len(LIGHTS)] for i in range(args.timed_lights)]
     reads = near_fibre_direct(near, g.valid_rays, np.tile(direct, (1, len(lights) // k + 1,
                                                                      1))[:, :len(lights)],
                               rows_of, t_m, t_h, n_f,
-                              texel_frames(space) if n_f >= 6 else None)
+                              texel_frames(space) if needs_frames(args.exitance) else None)
     shaded = {}
     for pieces in args.pieces:  # one shadow ray a piece and light; many: one a hit
         t0 = time.perf_counter()

@@ -161,7 +161,7 @@ AUTO_EXITANCE = "linear"
 #: fibre"; hair alone is denoised by default, hair with a mesh is not)
 SECOND_ORDER_RAYS = 256
 #: the fewest fibre-gather rays a strand texel needs for "auto" to take the second order:
-#: its nine weights a ray (16 Ā_z and 16 Ā_s among them) from fewer make a noisy operator
+#: its ten weights a ray (16 Ā_z and 16 Ā_s among them) from fewer make a noisy operator
 #: whose series diverges (the 200-strand tangle at 16 rays grew 1.095× a bounce, at 32 it
 #: converges in 9; the 300-strand head at 16 grew 1.67×, at 32 converges in 15; linear
 #: and quadratic converge at 16 on both). Until 2026-12-06 nothing watched for it, and the

@@ -230,6 +230,61 @@ def test_the_compiled_direct_weights_are_the_exitance_weights(exitance):
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
 
 
+def _local_second_order(albedo, t, w, sigma, d):
+    """(n, 3): the second-order exitance toward −d of light from w at fibres of tangent t,
+    written in each fibre's own frame (u, v, t) from the duals (the module docstring):
+    Ā + 4 Ā_t sin θ* + 8/3 Ā_⊥ cos θ* cos(φ* − φ) + 16/5 Ā_2 cos² θ* cos 2(φ* − φ)
+    + 16 Ā_z (sin² θ* − 1/4) + 16 Ā_s sin θ* cos θ* cos(φ* − φ), θ*, φ* those of −d."""
+    u = np.cross(t, [0.3, 0.5, 0.8])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(t, u)
+    o = -d
+    sw = np.einsum("ij,ij->i", t, w)
+    phi_w = np.arctan2(np.einsum("ij,ij->i", w, v), np.einsum("ij,ij->i", w, u))
+    so = np.einsum("ij,ij->i", t, o)
+    co = np.sqrt(np.clip(1 - so * so, 0, None))
+    dphi = np.arctan2(np.einsum("ij,ij->i", o, v), np.einsum("ij,ij->i", o, u)) - phi_w
+    m = [albedo(sw, sigma, k) for k in range(6)]
+    return (m[0] + 4 * m[1] * so[:, None] + 8 / 3 * m[2] * (co * np.cos(dphi))[:, None]
+            + 16 / 5 * m[3] * (co * co * np.cos(2 * dphi))[:, None]
+            + 16 * m[4] * (so * so - 0.25)[:, None]
+            + 16 * m[5] * (so * co * np.cos(dphi))[:, None])
+
+
+def test_the_second_order_is_one_world_form_and_reads_a_bent_texels_mean_exitance():
+    """The second order's weights and reads (a world quadratic form, no frame) are the
+    second-order exitance written in each fibre's own frame, to rounding, whatever the
+    tangent. So the coefficients summed over points of a bent texel read the mean of the
+    points' own exitances toward every d; the mid-arc frame the quadratic exitance keeps
+    does not (its lobes' weights at each point's tangent, their directions at one frame),
+    and that cost the dark head's path light → scalp → fibre → scalp a quarter of its light
+    (docs/hair.md)."""
+    from prtcore.transport.fibre_chiang import exitance_reads
+
+    rng = np.random.default_rng(5)
+    n = 400
+    albedo = chiang_fibre(ChiangSpec(), build_strand_space(tangle(20), 4)).albedo
+    t, w, d = (x / np.linalg.norm(x, axis=1, keepdims=True) for x in rng.normal(size=(3, n, 3)))
+    sigma = rng.uniform(0, 4, (n, 3))
+    f = EXITANCE_TERMS["second_order"]
+    weights = exitance_weights(albedo, t, w, sigma, "second_order")
+    assert weights.shape == (f, n, 3)
+    reads = np.stack(exitance_reads(d, None, f))  # (F, n)
+    want = _local_second_order(albedo, t, w, sigma, d)
+    got = np.einsum("fnc,fn->nc", weights, reads)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+    # a texel bent through 60°: two points, one light direction, read toward many d
+    t2 = np.array([[0.0, 0, 1], [np.sin(np.pi / 3), 0, np.cos(np.pi / 3)]])
+    w2 = np.tile([[0.6, 0.0, -0.8]], (2, 1))
+    s2 = np.full((2, 3), 0.5)
+    mean_coeff = exitance_weights(albedo, t2, w2, s2, "second_order").mean(axis=1)  # (F, 3)
+    toward = d[:50]
+    read = np.einsum("fc,fn->nc", mean_coeff, np.stack(exitance_reads(toward, None, f)))
+    own = sum(_local_second_order(albedo, np.tile(t2[i], (50, 1)), np.tile(w2[i], (50, 1)),
+                                  np.tile(s2[i], (50, 1)), toward) for i in range(2)) / 2
+    np.testing.assert_allclose(read, own, rtol=1e-9, atol=1e-12 * np.abs(own).max())
+
+
 @pytest.mark.parametrize("orders, inside, outside", [
     (3, lambda s, c: s * s - 0.25, lambda s, c: s ** 3),
     (5, lambda s, c: s ** 4, lambda s, c: s ** 5),

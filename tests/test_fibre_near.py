@@ -26,6 +26,7 @@ from prtcore.transport.fibre_chiang import (
     chiang_fibre,
     exitance_reads,
     exitance_weights,
+    needs_frames,
     shaded_reads,
     texel_frames,
 )
@@ -94,14 +95,16 @@ def test_the_near_hits_are_the_reads_they_leave_out(scalp):
     assert plain.near().count == 0
 
 
-def test_the_near_direct_light_is_the_read_it_replaces(scalp):
-    """near_fibre_direct, with second-order exitance (nine coefficients), is what the near
-    hits read of the stacked direct light when they were texel reads: the product made
-    of those reads alone, applied to it, at the atlas rows (the product's layout)."""
+@pytest.mark.parametrize("exitance", ["quadratic", "second_order"])
+def test_the_near_direct_light_is_the_read_it_replaces(scalp, exitance):
+    """near_fibre_direct, with quadratic exitance (six coefficients, in the texels'
+    frames) and the second order (ten, a world form), is what the near hits read of the
+    stacked direct light when they were texel reads: the product made of those reads
+    alone, applied to it, at the atlas rows (the product's layout)."""
     _, texels, space, _, _, _, split, g = scalp
     t_m, t_h = texels.count, space.count
     near = split.near()
-    frames = texel_frames(space)
+    frames = texel_frames(space) if needs_frames(exitance) else None
     fibre = chiang_fibre(CLEAR_HAIR, space)
     empty = MeshHits(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
                      np.zeros((0, 3)), np.zeros(0), np.zeros((0, 6), np.float32))
@@ -110,19 +113,19 @@ def test_the_near_direct_light_is_the_read_it_replaces(scalp):
         (near.row, near.texel, near.direction.astype(np.float64), np.ones(near.count)),
         g.valid_rays, (np.zeros(0, np.int32), np.zeros(0, np.int32),
                        np.zeros((0, 6), np.float32)),
-        empty, fibre, t_m, t_h, 32, 2, "second_order", frames)
+        empty, fibre, t_m, t_h, 32, 2, exitance, frames)
     k = 3
     direct = np.random.default_rng(0).random((reads.shape[0], k, 3)).astype(np.float32)
     direct[:t_m] = 0
     want = reads(direct.reshape(len(direct), -1)).reshape(-1, k, 3)[:t_m]
     rows, values = near_fibre_direct(near, g.valid_rays, direct, reads.coefficient_rows,
-                                     t_m, t_h, 9, frames)
+                                     t_m, t_h, EXITANCE_TERMS[exitance], frames)
     assert np.array_equal(rows, np.unique(near.row))
     np.testing.assert_allclose(values, want[rows], rtol=2e-5, atol=1e-6)
     assert not np.any(np.delete(want, rows, axis=0))  # no other atlas row read anything
     # some lights' columns alone (a bake reads the environment lights' only)
     _, some = near_fibre_direct(near, g.valid_rays, direct, reads.coefficient_rows, t_m,
-                                t_h, 9, frames, [2])
+                                t_h, EXITANCE_TERMS[exitance], frames, [2])
     assert np.array_equal(some[:, 2], values[:, 2]) and not some[:, :2].any()
 
 
@@ -175,15 +178,15 @@ def test_the_direct_light_at_the_point_met_is_the_texels_model_there(scalp):
     fibre = chiang_fibre(ChiangSpec(), space)
     lights = head_lights()
     coefficients = chiang_direct(space, tracer, lights, 8, 2, fibre, "second_order")
-    direct = np.zeros((t + 8 * t_h, len(lights), 3), np.float32)
+    f = EXITANCE_TERMS["second_order"]
+    direct = np.zeros((t + (f - 1) * t_h, len(lights), 3), np.float32)
 
     def rows_of(a: int) -> slice:  # the product's layout (RayBlockProduct.coefficient_rows)
         return slice(0, t) if a == 0 else slice(t + (a - 1) * t_h, t + a * t_h)
-    for a in range(9):
+    for a in range(f):
         base = rows_of(a).start + (t_m if a == 0 else 0)
         direct[base:base + t_h] = coefficients[a]
-    rows, read = near_fibre_direct(near, g.valid_rays, direct, rows_of, t_m, t_h, 9,
-                                   texel_frames(space))
+    rows, read = near_fibre_direct(near, g.valid_rays, direct, rows_of, t_m, t_h, f, None)
     same, shaded = near_fibre_shaded(near, g.valid_rays, space, fibres, fibre, tracer,
                                      lights, "second_order", (rows, read.copy()), 4)
     assert np.array_equal(same, rows)

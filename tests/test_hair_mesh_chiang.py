@@ -24,7 +24,7 @@ from prtcore.reference.hair_mesh import chiang_hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
 from prtcore.transport.direct import direct_radiance, near_field_correction
 from prtcore.transport.fibre import SHARE_MARGIN, hair_density, hair_tracer
-from prtcore.transport.fibre_chiang import chiang_fibre, chiang_gather, texel_frames
+from prtcore.transport.fibre_chiang import EXITANCE_TERMS, chiang_fibre, chiang_gather
 from prtcore.transport.gather import HitMapper, NearField, gather_operator
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh_chiang import (
@@ -144,7 +144,7 @@ def test_atlas_rays_can_read_a_fibre_between_its_texel_centres(scalp, gathers):
 
 def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
     """The fibre gather's near mesh hits with second-order exitance: one correction whose
-    hits are shaded once and weighted nine times equals the nine corrections each
+    hits are shaded once and weighted F = 10 times equals the F corrections each
     coefficient's weights give alone, at the product's rows for that coefficient."""
     scene, texels, space, tracer, fibres, _ = scalp
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
@@ -155,11 +155,12 @@ def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
     direct = direct_radiance(scene, tracer, LIGHTS, g.direct_position, texels.normal,
                              texels.albedo)
     nf = chiang_hair_near_field(term.mesh_hits, texels, fibre, t_m, t_h, 2.0, 16,
-                                "second_order", texel_frames(space))
-    assert nf.count > 0 and nf.weight.shape == (nf.count, 9, 3)
+                                "second_order")
+    n_f = EXITANCE_TERMS["second_order"]
+    assert nf.count > 0 and nf.weight.shape == (nf.count, n_f, 3)
     rows, values = near_field_correction(scene, tracer, nf, LIGHTS, direct)
-    assert len(rows) == 9 * len(np.unique(nf.row)) and (np.diff(rows) > 0).all()
-    for a in range(9):
+    assert len(rows) == n_f * len(np.unique(nf.row)) and (np.diff(rows) > 0).all()
+    for a in range(n_f):
         alone = NearField(row=nf.row + nf.offsets[a], col=nf.col, triangle=nf.triangle,
                           barycentric=nf.barycentric,
                           weight=np.ascontiguousarray(nf.weight[:, a]))
@@ -167,7 +168,7 @@ def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
         at = np.searchsorted(rows, r)
         assert np.array_equal(rows[at], r) and np.array_equal(values[at], v)
     # coefficient a ≥ 1 of strand texel i is row T + (a − 1) T_h + i (the product's)
-    assert rows.max() < t_m + t_h + 8 * t_h and rows.min() >= t_m
+    assert rows.max() < t_m + t_h + (n_f - 1) * t_h and rows.min() >= t_m
 
 
 def test_how_dense_the_hair_is_is_known_before_the_gather(scalp):

@@ -190,8 +190,8 @@ class RayBlockProduct:
 
 
 #: rays whose weights and reads a :class:`RayPart` makes at once in
-#: :func:`assemble_ray_blocks` (their float64 temporaries: about 0.2 GB at nine
-#: coefficients)
+#: :func:`assemble_ray_blocks` (their float64 temporaries: about 0.2 GB at nine or
+#: ten coefficients)
 ASSEMBLY_CHUNK = 1 << 18
 
 

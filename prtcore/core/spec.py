@@ -273,7 +273,7 @@ class ChiangSpec:
     #: what transport carries of each texel's outgoing radiance: "linear" (its average
     #: plus a linear function of direction, through every bounce: 11 % per texel on the
     #: tangle), "quadratic" (plus second-order azimuthal terms: 10 %, 1.5× linear's
-    #: solve), "second_order" (the whole second order: nine terms), "isotropic" (the
+    #: solve), "second_order" (the whole second order: ten terms), "isotropic" (the
     #: average alone, the paper's: 38 %, the least memory) or "auto": second_order with
     #: ≥ 256 gather rays or denoised strand texels (hair alone; dense hair with a
     #: mesh), else linear, where the bake's memory estimate allows it, else

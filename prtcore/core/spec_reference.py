@@ -100,7 +100,7 @@ DOCS: dict[str, str] = {
                        "every bounce: 11 % per texel on the tangle, docs/hair.md) · "
                        "`quadratic` (plus cos² θ (cos 2φ, sin 2φ): 10 %, 1.5× the solve) "
                        "· `second_order` (plus sin² θ − 1/4 and sin θ cos θ (cos φ, "
-                       "sin φ): nine terms) "
+                       "sin φ), kept as one quadratic form in world axes: ten terms) "
                        "· `isotropic` (the average alone, the paper's: 38 %, the "
                        "cheapest); with a `--mesh` too",
     "chiang.near_fibres": "with a `--mesh`: an atlas texel's gather ray that meets a fibre "

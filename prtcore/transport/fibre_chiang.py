@@ -50,8 +50,19 @@ texel's frame at the middle of its arc (:func:`texel_frames`), dual weight
 **Second-order exitance** (``"second_order"``): also the rest of the second order,
 ``sin² θ − 1/4`` (how much of the light leaves near the fibre's normal plane, where the
 longitudinal lobe puts it) and ``sin θ cos θ (cos φ, sin φ)``, duals ``16 Ā_z`` and
-``16 Ā_s ω̂i⊥`` (the table's moments 4 and 5): a (9T, 9T) operator; 8.5 % (its
-truncation 4.2 %, the rest its larger noise), 6.3 % with M = 512.
+``16 Ā_s ω̂i⊥`` (the table's moments 4 and 5). These five and the quadratic's two are
+quadratic forms of the direction, and they are kept as one symmetric 3 × 3 form in world
+axes, ``Q = A_2 (2 p pᵀ + t tᵀ − I) + A_z (t tᵀ − I/4) + (A_s/2)(t pᵀ + p tᵀ)`` with p = ω̂i⊥,
+t the tangent where the light arrives, ``A_2 = (16/5) Ā_2``, ``A_z = 16 Ā_z``,
+``A_s = 16 Ā_s``; a ray toward d reads ``dᵀ Q d``. Its six entries make a (10T, 10T)
+operator. In the fibre's own frame that is the same exitance, to rounding; summed over a
+curly texel's arc it is the arc's mean exitance in every direction, where the quadratic's
+mid-arc frame (until 2026-12-07 the second order's too) keeps the lobes' weights at each
+point's tangent but their directions at the arc's middle: the dark head's path
+light → scalp → fibre → scalp read −24 % with it, and +21 % with the world form, against
+the second order's own model +16 ± 4 % (docs/hair.md). On the straight tangle's fibres
+the two agree: 8.5 % (its truncation 4.2 %, the rest its larger noise), 6.3 % with
+M = 512.
 
 The gather rays are randomised quasi-Monte Carlo (:func:`prtcore.transport.fibre.
 stratified_rays`): 15–20 % less noise per texel than independent rays.
@@ -155,16 +166,20 @@ def check_lights(lights: Sequence[Light]) -> None:
 #: tangent (24) and row/column (8) as gathered, the matrix-free operator's copy of those
 #: (8) with F × 3 weights and F reads (16 F), the weights' float64 temporaries (48 F)
 CHIANG_BYTES_PER_RAY = {"isotropic": 100, "linear": 300, "quadratic": 420,
-                        "second_order": 600}
+                        "second_order": 680}
 #: the fibre's outgoing radiance carried through transport (``hair.chiang.exitance``)
 EXITANCE = ("isotropic", "linear", "quadratic", "second_order")
 #: coefficients per texel of each
-EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6, "second_order": 9}
+EXITANCE_TERMS = {"isotropic": 1, "linear": 4, "quadratic": 6, "second_order": 10}
+#: the world quadratic form's six entries (xx, yy, zz, xy, xz, yz) as index pairs, and what
+#: a ray toward d reads of each: d_i d_j, twice for i ≠ j (:func:`exitance_reads`)
+FORM_ENTRIES = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
 def needs_frames(exitance: str) -> bool:
-    """Whether ``exitance`` has terms in each texel's frame (:func:`texel_frames`)."""
-    return EXITANCE_TERMS[exitance] >= 6
+    """Whether ``exitance`` has terms in each texel's frame (:func:`texel_frames`): the
+    quadratic exitance alone (the second order's form is in world axes)."""
+    return EXITANCE_TERMS[exitance] == 6
 
 
 def texel_frames(space: StrandSpace) -> tuple[np.ndarray, np.ndarray]:
@@ -190,8 +205,8 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
     exitance coefficients, (F, n, 3): F = 1, Ā (isotropic); F = 4, Ā then the world
     vector ``g = 4 Ā_t t + (8/3) Ā_⊥ ŵ_⊥`` (linear); F = 6, those then
     ``(16/5) Ā_2 (cos 2φ, sin 2φ)`` of w in the receiving texels' ``frame`` (u, v)
-    (quadratic); F = 9, those then ``16 Ā_z`` and ``16 Ā_s (ŵ_⊥·u, ŵ_⊥·v)``
-    (second_order)."""
+    (quadratic); F = 10, Ā, g, then the world form Q's six entries (second_order:
+    :data:`FORM_ENTRIES`, the module docstring; no frame)."""
     sin = np.einsum("ij,ij->i", tangent, w)
     mean = albedo(sin, sigma)
     if exitance == "isotropic":
@@ -206,28 +221,30 @@ def exitance_weights(albedo: FibreAlbedo, tangent: np.ndarray, w: np.ndarray,
         norm = np.maximum(c2 * c2 + s2 * s2, 1e-24) ** 0.5  # cos² θ of w
         a2 = 16 / 5 * albedo(sin, sigma, 3)
         out += [(a2 * (c2 / norm)[:, None])[None], (a2 * (s2 / norm)[:, None])[None]]
-    if EXITANCE_TERMS[exitance] == 9:
-        a_s = 16 * albedo(sin, sigma, 5)
-        out += [(16 * albedo(sin, sigma, 4))[None]] + [
-            (a_s * np.einsum("ij,ij->i", perp, f)[:, None])[None] for f in frame]
+    if EXITANCE_TERMS[exitance] == 10:
+        a2 = 16 / 5 * albedo(sin, sigma, 3)
+        a_z, a_s = 16 * albedo(sin, sigma, 4), 16 * albedo(sin, sigma, 5)
+        for i, j in FORM_ENTRIES:
+            delta = float(i == j)
+            g2 = 2 * perp[:, i] * perp[:, j] + tangent[:, i] * tangent[:, j] - delta
+            gz = tangent[:, i] * tangent[:, j] - delta / 4
+            gs = (tangent[:, i] * perp[:, j] + perp[:, i] * tangent[:, j]) / 2
+            out.append((a2 * g2[:, None] + a_z * gz[:, None] + a_s * gs[:, None])[None])
     return np.concatenate(out)
 
 
 def exitance_reads(d: np.ndarray, frame: tuple | None, terms: int) -> list:
-    """What a ray toward d (n, 3) reads of each coefficient of the fibre it hits (frames
-    (u, v) (n, 3) of the texels hit, for the second-order terms): 1, −d, then
-    cos² θ (cos 2φ, sin 2φ) of −d, then sin² θ − 1/4 and sin θ cos θ (cos φ, sin φ) of −d
-    (t = u × v; all even in d)."""
+    """What a ray toward d (n, 3) reads of each coefficient of the fibre it hits: 1, −d,
+    then (quadratic, with the texels' frames (u, v) (n, 3)) cos² θ (cos 2φ, sin 2φ) of −d,
+    or (second order) the world form's entries d_i d_j (:data:`FORM_ENTRIES`, twice off
+    the diagonal; all even in d)."""
     out = [np.ones(len(d))]
     if terms >= 4:
         out += [-d[:, 0], -d[:, 1], -d[:, 2]]
-    if terms >= 6:
+    if terms == 6:
         out += list(_second_order(d, *frame))  # even in d
-    if terms == 9:
-        u, v = frame
-        s = np.einsum("ij,ij->i", d, np.cross(u, v))
-        out += [s * s - 0.25, s * np.einsum("ij,ij->i", d, u),
-                s * np.einsum("ij,ij->i", d, v)]
+    if terms == 10:
+        out += [d[:, i] * d[:, j] * (1.0 if i == j else 2.0) for i, j in FORM_ENTRIES]
     return out
 
 
@@ -236,13 +253,14 @@ def _add_weighted(t0, t1, t2, w0, w1, w2, fu, fv, r, jq, fq, values, sin_nodes, 
                   ):  # pragma: no cover - compiled
     """Adds :func:`exitance_weights`' weights of light from (w0, w1, w2) at a fibre of
     tangent (t0, t1, t2) (frame fu, fv (3,)), times the radiance r (3,) per channel, to
-    acc (F, 3) (F = acc.shape[0]: 1, 4, 6 or 9); the table :class:`~prtcore.core.bcsdf.
+    acc (F, 3) (F = acc.shape[0]: 1, 4, 6 or 10); the table :class:`~prtcore.core.bcsdf.
     FibreAlbedo`'s values (6, S, Q) bilinear in sin θ and √σ (jq, fq (3,): each
     channel's √σ node and fraction); m (6,) scratch."""
     terms = acc.shape[0]
     ns = len(sin_nodes)
     s0, ds = sin_nodes[0], sin_nodes[1] - sin_nodes[0]
     moments = 1 if terms == 1 else (3 if terms == 4 else (4 if terms == 6 else 6))
+    quadratic = terms == 6
     sn = t0 * w0 + t1 * w1 + t2 * w2
     x = (min(max(sn, s0), sin_nodes[ns - 1]) - s0) / ds
     ii = min(int(x), ns - 2)
@@ -250,15 +268,13 @@ def _add_weighted(t0, t1, t2, w0, w1, w2, fu, fv, r, jq, fq, values, sin_nodes, 
     p0, p1, p2 = w0 - sn * t0, w1 - sn * t1, w2 - sn * t2
     pn = max(np.sqrt(p0 * p0 + p1 * p1 + p2 * p2), 1e-12)
     p0, p1, p2 = p0 / pn, p1 / pn, p2 / pn
-    c2 = s2 = eu = ev = 0.0
-    if terms >= 6:
+    c2 = s2 = 0.0
+    if quadratic:
         a = w0 * fu[0] + w1 * fu[1] + w2 * fu[2]
         b = w0 * fv[0] + w1 * fv[1] + w2 * fv[2]
         c2, s2 = a * a - b * b, 2 * a * b
         norm = max(c2 * c2 + s2 * s2, 1e-24) ** 0.5
         c2, s2 = c2 / norm, s2 / norm
-        eu = p0 * fu[0] + p1 * fu[1] + p2 * fu[2]
-        ev = p0 * fv[0] + p1 * fv[1] + p2 * fv[2]
     for c in range(3):
         rc = r[c]
         if rc == 0:
@@ -275,14 +291,24 @@ def _add_weighted(t0, t1, t2, w0, w1, w2, fu, fv, r, jq, fq, values, sin_nodes, 
             acc[1, c] += at * t0 + ap * p0
             acc[2, c] += at * t1 + ap * p1
             acc[3, c] += at * t2 + ap * p2
-        if terms >= 6:
+        if quadratic:
             a2 = 16 / 5 * m[3] * rc
             acc[4, c] += a2 * c2
             acc[5, c] += a2 * s2
-        if terms == 9:
-            acc[6, c] += 16 * m[4] * rc
-            acc[7, c] += 16 * m[5] * rc * eu
-            acc[8, c] += 16 * m[5] * rc * ev
+        if terms == 10:  # the world form (exitance_weights), entry by entry
+            a2, az, a_s = 16 / 5 * m[3] * rc, 16 * m[4] * rc, 8 * m[5] * rc
+            acc[4, c] += a2 * (2 * p0 * p0 + t0 * t0 - 1) + az * (t0 * t0 - 0.25) \
+                + a_s * 2 * t0 * p0
+            acc[5, c] += a2 * (2 * p1 * p1 + t1 * t1 - 1) + az * (t1 * t1 - 0.25) \
+                + a_s * 2 * t1 * p1
+            acc[6, c] += a2 * (2 * p2 * p2 + t2 * t2 - 1) + az * (t2 * t2 - 0.25) \
+                + a_s * 2 * t2 * p2
+            acc[7, c] += a2 * (2 * p0 * p1 + t0 * t1) + az * t0 * t1 \
+                + a_s * (t0 * p1 + p0 * t1)
+            acc[8, c] += a2 * (2 * p0 * p2 + t0 * t2) + az * t0 * t2 \
+                + a_s * (t0 * p2 + p0 * t2)
+            acc[9, c] += a2 * (2 * p1 * p2 + t1 * t2) + az * t1 * t2 \
+                + a_s * (t1 * p2 + p1 * t2)
 
 
 @numba.njit(inline="always", cache=True)
@@ -303,11 +329,11 @@ def weighted_samples(tangent, to_light, sigma, rad, values, sin_nodes, root_node
                      out):  # pragma: no cover - compiled
     """Each texel's exitance coefficients from its J samples of one light: ``(1/J) Σ_j
     w_f(ωl) rad_j`` with :func:`exitance_weights`' weights w_f (F = out.shape[0]: 1, 4, 6 or
-    9), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
+    10), the table :class:`~prtcore.core.bcsdf.FibreAlbedo`'s bilinear interpolation.
 
     tangent, to_light (n, J, 3) float64 at the samples; sigma (n, 3) float64 per texel;
     rad (n, J, 3) float32 the samples' radiance; values (6, S, Q) float64, sin_nodes (S,),
-    root_nodes (Q,) the table; fu, fv (n, 3) the texels' frames (F ≥ 6); out
+    root_nodes (Q,) the table; fu, fv (n, 3) the texels' frames (F = 6; else unread); out
     (F, n, 3) float32, written."""
     n, nj = rad.shape[0], rad.shape[1]
     terms = out.shape[0]
@@ -339,7 +365,7 @@ def shaded_reads(row, centre, tangent, radius, sigma, fu, fv, reads, weight, slo
     :func:`prtcore.emitters.punctual.irradiance` there).
 
     row (ROW_SIZE,) float64 the light (:func:`prtcore.emitters.compiled.light_row`);
-    centre, tangent, fu, fv (n, 3) float64 the axis points, tangents and frames (F ≥ 6);
+    centre, tangent, fu, fv (n, 3) float64 the axis points, tangents and frames (F = 6);
     radius (n,) float64 the outside radius; sigma (n, 3) float64; reads (n, F) float64
     what each ray reads of each coefficient (:func:`exitance_reads`); weight (n,)
     float64 each point's share (its visibility, over its receiver's rays and π²); slot

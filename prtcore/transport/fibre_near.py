@@ -187,7 +187,7 @@ def near_fibre_direct(near: NearFibreHits, valid_rays: np.ndarray, direct: np.nd
     direct (N, K, 3) float32: the stacked direct light of the product's layout
     (``coefficient_rows(a)``: coefficient a's rows, the strand texels' after the first
     T_m for a = 0, :meth:`~prtcore.core.sparse.RayBlockProduct.coefficient_rows`);
-    ``terms`` F coefficients; ``frames``: the strand texels' (F ≥ 6); ``lights``: the
+    ``terms`` F coefficients; ``frames``: the strand texels' (quadratic exitance); ``lights``: the
     light columns read (None: every one; the others are left 0)."""
     if not near.count:
         return None

@@ -247,7 +247,7 @@ def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
     origin); hits: its rays to the mesh, with the same data. Strand rows take the
     exitance weights × 2 / M per channel (the solver's albedo is 1/2 there, as in
     :func:`prtcore.transport.fibre_chiang.chiang_operator`); a ray to the mesh reads its
-    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (F ≥ 6).
+    texel's one value. ``frames``: :func:`texel_frames` of the strand texels (quadratic exitance).
     ``near``: the rays from the atlas's near fibre hits
     (:func:`~prtcore.transport.fibre_near.near_fibre_rays`; those hits are not in
     ``strand_rays``): mesh rows, each weighing its weight per channel and reading an
