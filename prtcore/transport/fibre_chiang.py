@@ -184,7 +184,8 @@ def needs_frames(exitance: str) -> bool:
 
 def texel_frames(space: StrandSpace) -> tuple[np.ndarray, np.ndarray]:
     """(u, v) (T, 3) float64: a unit frame across each texel's fibre at the middle of its
-    arc (the transported frame; its tangent is u × v), for the second-order terms."""
+    arc (the transported frame; its tangent is u × v), for the quadratic exitance's terms
+    (the second order's world form needs none)."""
     _, tangent, u = axis_frame(space.hair, space.strand, space.arc.mean(axis=1))
     return u, np.cross(tangent, u)
 
@@ -537,8 +538,8 @@ def chiang_operator(space: StrandSpace, term: FibreTerm, fibre: ChiangFibre, ray
     W_c (FT, FT) per channel c, matrix-free (:class:`prtcore.core.sparse.RayBlockProduct`):
     row block a of the receiving texel takes each ray's weight a (:func:`ray_weights`: of
     its direction, the receiving texel's σ) times column block b of the texel hit, read
-    toward the ray (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic: plus its
-    second-order terms at −d, :func:`exitance_reads`), over M. The solver computes
+    toward the ray (isotropic: L̄_j; linear: ``c_j0 − c_j · d``; quadratic and second
+    order: plus their second-order terms at −d, :func:`exitance_reads`), over M. The solver computes
     ``L = ρ ∘ W'(L_d + L)``; with ``W' = 2 W`` and ρ = 1/2 (below its albedo clamp) that
     is ``L = W (L_d + L)``."""
     rows, cols, data = term.rays
