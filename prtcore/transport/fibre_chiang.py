@@ -60,9 +60,9 @@ curly texel's arc it is the arc's mean exitance in every direction, where the qu
 mid-arc frame (until 2026-12-07 the second order's too) keeps the lobes' weights at each
 point's tangent but their directions at the arc's middle: the dark head's path
 light → scalp → fibre → scalp read −24 % with it, and +21 % with the world form, against
-the second order's own model +16 ± 4 % (docs/hair.md). On the straight tangle's fibres
-the two agree: 8.5 % (its truncation 4.2 %, the rest its larger noise), 6.3 % with
-M = 512.
+the second order's own model +16 ± 4 % (docs/hair.md). On the 1000-strand tangle the two
+read alike (denoised at M = 64, light hair: 10.0 % before and after); measured there with
+the frame: 8.5 % (its truncation 4.2 %, the rest its larger noise), 6.3 % with M = 512.
 
 The gather rays are randomised quasi-Monte Carlo (:func:`prtcore.transport.fibre.
 stratified_rays`): 15–20 % less noise per texel than independent rays.
