@@ -199,11 +199,17 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--second-seed", action="store_true",
                     help="also bake with seed 1: each row's systematic error (the fast "
                          "path's noise removed with the two bakes) and its noise")
+    ap.add_argument("--reference-seed", type=int, default=101,
+                    help="the path tracer's seed (its halves draw from it): the dark "
+                         "scalp's error hangs on a few texels' rare paths, so compare "
+                         "against more than one draw (docs/hair.md)")
     ap.add_argument("--save", default=None,
                     help="a folder: each row's per-texel values (.npz), for analysis")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_accuracy.json"))
     args = ap.parse_args(argv)
+    if args.save:  # made before the hours of baking, not after
+        Path(args.save).mkdir(parents=True, exist_ok=True)
     scene, texels, space, tracer, fibres, points, rows, n_m = head_setup(
         args.strands, args.texels_per_strand, args.resolution, args.texels)
     t_m = texels.count
@@ -224,8 +230,9 @@ def main(argv: list[str] | None = None) -> dict:
             key = (name, bounces, exitance)
             if key not in refs:
                 refs[key] = chiang_hair_mesh_reference(
-                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths, 101,
-                    fibre.params, fibre.sigma_points, max_depth=bounces, exitance=exitance)
+                    scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths,
+                    args.reference_seed, fibre.params, fibre.sigma_points,
+                    max_depth=bounces, exitance=exitance)
             return refs[key]
         for row, bounces, exitance, k in (
                 ("exact", 64, "exact", 0), ("exact_1", 1, "exact", 0),
@@ -264,7 +271,8 @@ def main(argv: list[str] | None = None) -> dict:
                     line += "  " + text
                 print(line, flush=True)
                 if args.save:  # every texel's two bakes and the reference's halves
-                    np.savez_compressed(Path(args.save) / f"{name}_{row}_{part}.npz",
+                    stem = f"{name}_{row}_{part}".replace(":", "-")
+                    np.savez_compressed(Path(args.save) / f"{stem}.npz",
                                         rows=rows[sl], fast=fast[sl], a=a[sl], b=b[sl],
                                         **({"fast1": runs[1][0][sl]} if len(runs) > 1
                                            else {}))
@@ -273,11 +281,11 @@ def main(argv: list[str] | None = None) -> dict:
         # texels' own fibre hits (every later vertex exact) against the exact one, both
         # references' noise removed: what that shortcut costs the scalp alone
         variants = [(f"scalp_reads{'' if read == model else ':' + read}",
-                     {"exitance": read, "where": "scalp"}, 202)
+                     {"exitance": read, "where": "scalp"}, args.reference_seed + 101)
                     for read in ((model, *args.read_models) if "scalp_reads" in args.rows
                                  and model != "isotropic" else ())]
         if "scalp_arc" in args.rows:  # the texel's mean read where the scalp sees a point
-            variants.append(("scalp_arc", {"where": "scalp_arc"}, 303))
+            variants.append(("scalp_arc", {"where": "scalp_arc"}, args.reference_seed + 202))
         for label, kwargs, seed in variants:
             t1 = time.perf_counter()
             a, b = reference(64, "exact")
