@@ -31,7 +31,8 @@ colour) and dark hair (eumelanin 1.3):
   ``exact_denoised_k{k}``; a bake of dense hair with a mesh takes 128), the plane and the
   fibre's direction, ``t2``, what the Chiang fibre takes when it denoises) and the
   atlas texels through the bake's seam-aware filter (``fit.denoise`` "auto":
-  DENOISE_FALLBACK texels; until 2026-12-06 this row left them as traced).
+  DENOISE_FALLBACK texels, or ``--atlas-radius``; until 2026-12-06 this row left them
+  as traced).
 * with ``--second-seed`` each row is baked twice (seeds 0 and 1), and printed with its
   systematic error (the fast path's noise removed too: what more rays cannot take) and
   that noise.
@@ -113,13 +114,15 @@ def head_setup(strands: int, texels_per_strand: int, resolution: int, texels: in
 def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: str,
           rows: np.ndarray, neighbours: int, fibre_rays: int | None = None,
           arc_reads: str | None = None, hair_near: float | None = None,
-          near_fibres: float = ChiangSpec().near_fibres) -> tuple[np.ndarray, float]:
+          near_fibres: float = ChiangSpec().near_fibres,
+          atlas_radius: float = DENOISE_FALLBACK) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
     so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
     for the transport's; ``arc_reads``: how the atlas reads a fibre; ``hair_near``: the
     fibre gather's near-field reach, None for the transport's; ``near_fibres``: the
     atlas's near field on the fibres, ``hair.chiang.near_fibres``), denoised as a bake
-    denoises with ``neighbours`` k > 0 (and its atlas filtered): the indirect light at
+    denoises with ``neighbours`` k > 0 (and its atlas filtered, ``atlas_radius`` texels,
+    ``fit.denoise``): the indirect light at
     ``rows`` (n, K, 3) float64 and the seconds it took."""
     scene, texels, space, fibres, points, tracer = setup
     key = (transport.max_bounces, transport.seed)
@@ -136,7 +139,7 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
         data = denoise_dataset(data, space, neighbours, albedo=texel_albedo(fibre),
                                first_row=texels.count, direction="t2")
         # the atlas rows through the bake's seam-aware filter, into a new array
-        atlas = denoise_lightmaps(texels, data.indirect[:texels.count], DENOISE_FALLBACK)
+        atlas = denoise_lightmaps(texels, data.indirect[:texels.count], atlas_radius)
         seconds += time.perf_counter() - t0
         return np.concatenate([atlas, data.indirect[texels.count:]])[rows].astype(
             np.float64), seconds
@@ -216,6 +219,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--second-seed", action="store_true",
                     help="also bake with seed 1: each row's systematic error (the fast "
                          "path's noise removed with the two bakes) and its noise")
+    ap.add_argument("--atlas-radius", type=float, default=DENOISE_FALLBACK,
+                    help="the exact_denoised rows' atlas filter radius in texels (a bake's "
+                         "fit.denoise; 'auto' is this default)")
     ap.add_argument("--reference-seed", type=int, default=101,
                     help="the path tracer's seed (its halves draw from it): the dark "
                          "scalp's error hangs on a few texels' rare paths, so compare "
@@ -266,7 +272,7 @@ def main(argv: list[str] | None = None) -> dict:
                                         else bounces),
                           model, rows, k, m,
                           None if args.arc_reads == "mean" else args.arc_reads,
-                          args.hair_near, args.near_fibres)
+                          args.hair_near, args.near_fibres, args.atlas_radius)
                     for seed in seeds]
             t1 = time.perf_counter()
             a, b = reference(bounces, exitance)
