@@ -63,7 +63,9 @@ def transport(asset: Path, spec_dict: dict, timer: StageTimer):
     spec = hairbake.hair_spec(parse_spec(spec_dict))
     intake = hairbake.run_hair_intake(asset, spec, timer, limits)
     space = intake.strands
-    spec = hairbake.arc_pieces(spec, space)
+    spec, lines = hairbake.strand_spec(spec, space, with_mesh=False)
+    for line in lines:
+        print(line, flush=True)
     spec, why = hairbake.chiang_exitance(asset, space, spec, limits.max_bake_bytes)
     if why:
         print(why, flush=True)

@@ -100,6 +100,7 @@ from prtcore.transport.fibre_chiang import (
     EXITANCE_TERMS,
     check_lights,
     chiang_fibre,
+    chiang_samples,
     texel_albedo,
 )
 from prtcore.transport.hair import bake_hair_dataset
@@ -195,16 +196,18 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     """The spec as a hair bake runs it: points on the hull, ``fit.denoise`` resolved (with a
     mesh, "auto" is :data:`~prtcore.transport.noise.DENOISE_FALLBACK` texels, the filter of
     the mesh's atlas rows; hair alone has no atlas: 0),
-    ``hair.denoise_neighbours = "auto"`` resolved (64; for the Chiang fibre with a mesh
-    before its transport, by how dense the hair is: :func:`dense_hair`), likewise
+    ``hair.denoise_neighbours = "auto"`` resolved for the diffuse fibre (64; the Chiang
+    fibre's once its strands are counted: with a mesh by how dense the hair is,
+    :func:`dense_hair`, without by the rays its texels get, :func:`small_hair`), likewise
     ``hair.gather_rays`` (``transport.gather_rays``), ``hair.max_bounces``
     (:data:`CHIANG_MAX_BOUNCES` for the Chiang fibre, ``transport.max_bounces`` for the
     diffuse one) and
     ``hair.denoise_direction``
     ("t2" for the Chiang fibre, "none" for the diffuse one), ``hair.direct_samples =
     "auto"`` resolved for the diffuse fibre
-    (:func:`prtcore.transport.fibre.direct_sample_count`), ``hair.harmonics = "auto"``
-    resolved (adaptive with a mesh: the
+    (:func:`prtcore.transport.fibre.direct_sample_count`) and the Chiang fibre with a mesh
+    (:func:`~prtcore.transport.fibre_chiang.chiang_samples`; alone: :func:`small_hair`),
+    ``hair.harmonics = "auto"`` resolved (adaptive with a mesh: the
     light that goes head → hair → head needs the side of the fibre that faced the head,
     and the fibre-to-fibre harmonics hold where the fibre is straight along a texel or
     the hair is sparse, docs/hair.md; mesh_bounces without a mesh is exactly first_bounce,
@@ -226,11 +229,12 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     spec = fixed_counts(spec)  # hair bakes do not size themselves (yet)
     harmonics = spec.hair.harmonics
     denoise = spec.hair.denoise_neighbours
-    if denoise == "auto" and not (spec.hair.fibre == "chiang" and with_mesh):
-        # measured in docs/hair.md, "Denoising the strand texels" and "Denoising the
-        # Chiang fibre" (hair alone within the per-texel bounds, and the verdict passes
-        # on more points: "More measurement points, no more transport"); the Chiang
-        # fibre with a mesh is decided by how dense the hair is (dense_hair)
+    if denoise == "auto" and spec.hair.fibre == "diffuse":
+        # measured in docs/hair.md, "Denoising the strand texels" (hair alone within the
+        # per-texel bounds, and the verdict passes on more points: "More measurement
+        # points, no more transport"); the Chiang fibre's is decided once its strands
+        # are counted: by how dense the hair is with a mesh (dense_hair), by the rays
+        # its texels get without (small_hair)
         denoise = DEFAULT_NEIGHBOURS
     direction = spec.hair.denoise_direction
     if direction == "auto":  # docs/hair.md, "Denoising the Chiang fibre"
@@ -249,8 +253,8 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
                         "transported for hair with a mesh only; hair alone is "
                         "transported by whole texels (leave it 'auto' or 1)")
     rays = spec.hair.gather_rays
-    if rays == "auto" and not (spec.hair.fibre == "chiang" and with_mesh):
-        rays = spec.transport.gather_rays  # the Chiang fibre with a mesh: dense_hair
+    if rays == "auto" and spec.hair.fibre == "diffuse":
+        rays = spec.transport.gather_rays  # the Chiang fibre: dense_hair or small_hair
     bounces = spec.hair.max_bounces
     if bounces == "auto":
         bounces = CHIANG_MAX_BOUNCES if spec.hair.fibre == "chiang" \
@@ -259,6 +263,8 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.hair.fibre == "diffuse":
         samples = direct_sample_count(spec.hair.direct, samples,
                                       spec.transport.direct_samples)
+    elif with_mesh:  # the Chiang fibre alone: small_hair
+        samples = chiang_samples(samples, spec.transport.direct_samples)
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,
                                                      placement="hull"),
@@ -292,6 +298,80 @@ def arc_pieces(spec: BakeSpec, space: StrandSpace) -> BakeSpec:
     curly = space.count > 0 and float(np.median(texel_turn(space))) >= STRAIGHT_TURN_DEG
     return dataclasses.replace(spec, hair=dataclasses.replace(
         spec.hair, arc_subdivision=MESH_ARC_SUBDIVISION if curly else 1))
+
+
+#: Chiang-fibre hair alone, "auto" rays and samples: the strand texels of the 10k
+#: hairball (100 000), the largest hair they were measured on, whose fibre gather at
+#: ``transport.gather_rays`` rays a texel (64: 6.4 M rays) and direct light at 4 samples
+#: are the budget smaller hair spends too, at most :data:`MAX_RAY_SCALE` times the rays
+#: and samples a texel (:func:`small_hair`)
+RAY_BUDGET_TEXELS = 100_000
+MAX_RAY_SCALE = 8
+#: from this many fibre-gather rays a texel, Chiang-fibre hair alone is denoised with
+#: :data:`MANY_RAYS_NEIGHBOURS` neighbours by default, not 64: on the 1000-strand tangle
+#: at 512 rays (with t2, against 16 384 paths a texel) k = 64 reads 7.9 % / 8.9 % per
+#: texel (light / dark, 16 samples; its blur −1.0 % / −1.6 % of bias), undenoised 7.7 % /
+#: 7.8 % and k = 16 7.4 % / 7.6 % (32 samples; docs/hair.md, "Small hair spends the
+#: hairball's rays")
+MANY_RAYS = 512
+MANY_RAYS_NEIGHBOURS = 16
+
+
+def small_hair(spec: BakeSpec, space: StrandSpace) -> tuple[BakeSpec, list[str]]:
+    """Chiang-fibre hair alone: ``hair.gather_rays``, ``hair.direct_samples`` and
+    ``hair.denoise_neighbours`` "auto" (left by :func:`hair_spec`) resolved once the
+    strand texels are counted. With s the largest power of two such that s·T ≤
+    :data:`RAY_BUDGET_TEXELS` (T strand texels), at least 1 and at most
+    :data:`MAX_RAY_SCALE`:
+
+    * ``hair.gather_rays``: ``transport.gather_rays`` × s;
+    * ``hair.direct_samples``: :func:`~prtcore.transport.fibre_chiang.chiang_samples`'s
+      J × s;
+    * ``hair.denoise_neighbours``: :data:`MANY_RAYS_NEIGHBOURS` from :data:`MANY_RAYS`
+      fibre rays, else :data:`~prtcore.transport.strand_denoise.DEFAULT_NEIGHBOURS`.
+
+    So small hair gets the rays and samples the 10k hairball spends: the fast path's
+    noise is what kept the 1000-strand tangle over the per-texel bounds at 64 rays and 4
+    samples (10.0 % / 10.9 %, denoised with k = 64); at 512 and 32, with k = 16, it is
+    inside them. Returns the spec and the lines saying what was chosen and why; the
+    diffuse fibre and given values come back as they are."""
+    if spec.hair.fibre != "chiang":
+        return spec, []
+    lines = []
+    scale = min(MAX_RAY_SCALE, max(1, RAY_BUDGET_TEXELS // max(1, space.count)))
+    scale = 1 << (scale.bit_length() - 1)  # a power of two, rounded down
+    why = (f"(the budget of {RAY_BUDGET_TEXELS} texels, at most {MAX_RAY_SCALE}×)"
+           if scale > 1 else f"(more only under {RAY_BUDGET_TEXELS // 2} texels)")
+    rays = spec.hair.gather_rays
+    if rays == "auto":
+        rays = spec.transport.gather_rays * scale
+        lines.append(f"hair.gather_rays auto → {rays}: {space.count} strand texels, "
+                     f"{scale}× transport.gather_rays {why}")
+    samples = spec.hair.direct_samples
+    if samples == "auto":
+        base = chiang_samples(samples, spec.transport.direct_samples)
+        samples = base * scale
+        lines.append(f"hair.direct_samples auto → {samples}: {space.count} strand "
+                     f"texels, {scale}× the fibre's {base} {why}")
+    denoise = spec.hair.denoise_neighbours
+    if denoise == "auto":
+        denoise = MANY_RAYS_NEIGHBOURS if rays >= MANY_RAYS else DEFAULT_NEIGHBOURS
+        lines.append(f"hair.denoise_neighbours auto → {denoise}: {rays} fibre rays a "
+                     f"texel ({MANY_RAYS_NEIGHBOURS} from {MANY_RAYS}: the strand texels' "
+                     "noise is lower, and a wider kernel's blur costs more)")
+    return dataclasses.replace(spec, hair=dataclasses.replace(
+        spec.hair, gather_rays=rays, direct_samples=samples,
+        denoise_neighbours=denoise)), lines
+
+
+def strand_spec(spec: BakeSpec, space: StrandSpace, with_mesh: bool
+                ) -> tuple[BakeSpec, list[str]]:
+    """The "auto" keys :func:`hair_spec` leaves until the strands are counted and before
+    the memory check: :func:`arc_pieces`, and :func:`small_hair` for hair alone (with a
+    mesh, the Chiang fibre's wait for the hair's density, :func:`dense_hair`). Returns
+    the spec and the lines saying what was chosen."""
+    spec = arc_pieces(spec, space)
+    return (spec, []) if with_mesh else small_hair(spec, space)
 
 
 def atlas_radius(spec: BakeSpec, with_mesh: bool) -> float:
@@ -415,7 +495,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     k = spec.lights.count + spec.lights.holdout
     if spec.hair.chiang.exitance == "auto":  # estimated at what it may resolve to
         spec = _with_exitance(spec, AUTO_EXITANCE)
-    pieces = arc_pieces(spec, space).hair.arc_subdivision
+    spec = strand_spec(spec, space, with_mesh=mesh_texels > 0)[0]  # "auto" as the bake
+    pieces = spec.hair.arc_subdivision  # resolves it
     space = space.subdivided(pieces)  # the texels the transport holds: S pieces each,
     t = space.count  # ⌈M/S⌉ fibre-gather rays per piece
     m = per_piece(fibre_gather_rays(spec), pieces)
@@ -542,7 +623,9 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
     limits = limits or IntakeLimits.from_env()
     intake = run_hair_intake(asset, spec, timer, limits, mesh, mesh_intake)
     space, hair, scene = intake.strands, intake.hair, intake.scene
-    spec = arc_pieces(spec, space)
+    spec, lines = strand_spec(spec, space, with_mesh=scene is not None)
+    for line in lines:
+        timer.note(f"[prtcore] {line}")
     mesh_texels = intake.texels.mesh.count if scene is not None else 0
     exitance_auto = spec.hair.chiang.exitance == "auto"
     spec, why = chiang_exitance(asset, space, spec, limits.max_bake_bytes, mesh_texels)
@@ -747,7 +830,8 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                              transport, timer, fibre,
                                              exitance=spec.hair.chiang.exitance,
                                              fibre_rays=rays,
-                                             near_fibres=spec.hair.chiang.near_fibres)
+                                             near_fibres=spec.hair.chiang.near_fibres,
+                                             direct_samples=spec.hair.direct_samples)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, transport, timer,

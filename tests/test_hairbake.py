@@ -410,17 +410,18 @@ def test_a_chiang_bake_carries_second_order_exitance_by_default_and_reports_what
 
     asset = write_hair(tmp_path / "tangle.hair", tangle(200))
     spec = {**CHIANG, "measurement_points": {**SPEC["measurement_points"], "count": "auto"},
-            "transport": {**SPEC["transport"], "gather_rays": SECOND_ORDER_MIN_RAYS}}
+            "hair": {**CHIANG["hair"], "gather_rays": SECOND_ORDER_MIN_RAYS}}
     out = bake(asset, parse_spec(spec), tmp_path / "out", quiet=True)
     report = json.loads((out / "report.json").read_text())
     assert report["transport"]["exitance"] == "second_order"
     solve = report["transport"]["solve"]
     assert solve["converged"] and solve["residual"] < 1e-3 and solve["bounces"] <= 64
-    few = {**CHIANG, "measurement_points": {"count": 32}}  # 16 rays
+    few = {**CHIANG, "measurement_points": {"count": 32},
+           "hair": {**CHIANG["hair"], "gather_rays": 16}}
     few_out = bake(asset, parse_spec(few), tmp_path / "few", quiet=True)
     assert json.loads((few_out / "report.json").read_text())["transport"]["exitance"] \
         == "linear"
-    asked = {**few, "hair": {**CHIANG["hair"], "chiang": {"exitance": "second_order"}}}
+    asked = {**few, "hair": {**few["hair"], "chiang": {"exitance": "second_order"}}}
     with pytest.raises(TransportDiverged, match=r"hair\.gather_rays"):
         bake(asset, parse_spec(asked), tmp_path / "asked", quiet=True)
     m = json.loads((out / "manifest.json").read_text())
@@ -466,10 +467,12 @@ def test_auto_exitance_takes_the_second_order_when_denoised_or_with_many_gather_
         check_hair_memory,
         chiang_exitance,
         hair_spec,
+        strand_spec,
     )
+    from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS
     space = build_strand_space(tangle(300), 4)
-    many = {**CHIANG, "transport": {"gather_rays": SECOND_ORDER_RAYS},
-            "hair": {**CHIANG["hair"], "denoise_neighbours": 0}}  # the rays decide
+    many = {**CHIANG, "hair": {**CHIANG["hair"], "gather_rays": SECOND_ORDER_RAYS,
+                               "denoise_neighbours": 0}}  # the rays decide
     spec = hair_spec(parse_spec(many))
     est = {e: check_hair_memory("t.hair", space, hair_spec(parse_spec(
         {**many, "hair": {**many["hair"], "chiang": {"exitance": e}}})), 1 << 50)
@@ -484,13 +487,84 @@ def test_auto_exitance_takes_the_second_order_when_denoised_or_with_many_gather_
     assert f"max_bake_bytes={limit}" in why
     got, why = chiang_exitance("t.hair", space, spec, est["isotropic"])
     assert got.hair.chiang.exitance == "isotropic" and "with linear exitance" in why
-    fewer = {**CHIANG, "transport": {"gather_rays": SECOND_ORDER_RAYS - 1},
-             "hair": {**CHIANG["hair"], "denoise_neighbours": 0}}
+    fewer = {**CHIANG, "hair": {**CHIANG["hair"], "gather_rays": SECOND_ORDER_RAYS - 1,
+                                "denoise_neighbours": 0}}
     assert chiang_exitance("t.hair", space, hair_spec(parse_spec(fewer)), 1 << 50
                            )[0].hair.chiang.exitance == "linear"  # not denoised
-    denoised = hair_spec(parse_spec({**fewer, "hair": CHIANG["hair"]}))  # the default
+    denoised = strand_spec(hair_spec(parse_spec({**fewer, "hair": {  # the default
+        **fewer["hair"], "denoise_neighbours": "auto"}})), space, with_mesh=False)[0]
+    assert denoised.hair.denoise_neighbours == DEFAULT_NEIGHBOURS
     assert chiang_exitance("t.hair", space, denoised, 1 << 50
                            )[0].hair.chiang.exitance == "second_order"
+
+
+def test_small_chiang_hair_spends_the_hairballs_rays_and_denoises_less_with_many():
+    """Chiang-fibre hair alone, "auto": hair.gather_rays is transport.gather_rays × s and
+    hair.direct_samples the fibre's 4 × s, s the power of two (at most 8) that spends the
+    10k hairball's budget (100 000 texels' worth); from 512 fibre rays the strand texels
+    are denoised with 16 neighbours, not 64 (docs/hair.md, "Small hair spends the
+    hairball's rays"). The hairball keeps the rays it was measured with; given values,
+    the diffuse fibre and hair with a mesh are kept."""
+    from prtcore.hairbake import (
+        MANY_RAYS_NEIGHBOURS,
+        RAY_BUDGET_TEXELS,
+        hair_spec,
+        small_hair,
+        strand_spec,
+    )
+    from prtcore.transport.strand_denoise import DEFAULT_NEIGHBOURS
+
+    class Texels:  # the count is all small_hair reads
+        def __init__(self, count):
+            self.count = count
+
+    auto = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}))
+    got = {}
+    for t in (1000 * 10, RAY_BUDGET_TEXELS, 3 * RAY_BUDGET_TEXELS, 30_000, 200 * 4):
+        spec, lines = small_hair(auto, Texels(t))
+        got[t] = (spec.hair.gather_rays, spec.hair.direct_samples,
+                  spec.hair.denoise_neighbours)
+        assert len(lines) == 3 and lines[0].startswith(
+            f"hair.gather_rays auto → {spec.hair.gather_rays}: {t} strand texels")
+    assert got == {10_000: (512, 32, MANY_RAYS_NEIGHBOURS),  # the tangle: 8×, capped
+                   RAY_BUDGET_TEXELS: (64, 4, DEFAULT_NEIGHBOURS),  # the hairball as was
+                   3 * RAY_BUDGET_TEXELS: (64, 4, DEFAULT_NEIGHBOURS),  # never fewer
+                   30_000: (128, 8, DEFAULT_NEIGHBOURS),  # 3.3 → 2
+                   800: (512, 32, MANY_RAYS_NEIGHBOURS)}
+    assert MANY_RAYS_NEIGHBOURS == 16 < DEFAULT_NEIGHBOURS
+    given = hair_spec(parse_spec({"hair": {"fibre": "chiang", "gather_rays": 600,
+                                           "direct_samples": 5, "denoise_neighbours": 32}}))
+    spec, lines = small_hair(given, Texels(800))
+    assert (spec.hair.gather_rays, spec.hair.direct_samples,
+            spec.hair.denoise_neighbours, lines) == (600, 5, 32, [])
+    rays_only = hair_spec(parse_spec({"hair": {"fibre": "chiang", "gather_rays": 100}}))
+    assert small_hair(rays_only, Texels(800))[0].hair.denoise_neighbours == 64  # < 512
+    diffuse = hair_spec(parse_spec({}))
+    assert small_hair(diffuse, Texels(800)) == (diffuse, [])
+    mesh = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True)
+    space = build_strand_space(tangle(20), 4)
+    assert strand_spec(mesh, space, with_mesh=True)[0].hair.gather_rays == "auto"
+    assert mesh.hair.direct_samples == 4  # with a mesh: the fibre's default
+
+
+def test_a_small_chiang_bake_reports_the_rays_it_spent(tmp_path, capsys):
+    """A bake of a small tangle with the Chiang fibre spends the budget's rays and samples
+    and says so in its stage lines; the manifest's spec carries what was resolved, and
+    baking that spec again gives the same bundle."""
+    asset = write_hair(tmp_path / "tangle.hair", tangle(60))
+    spec = {**CHIANG, "lights": {**SPEC["lights"], "count": 16},
+            "transport": {"gather_rays": 4, "direct_samples": 1}}  # 240 texels: 8×
+    out = bake(asset, parse_spec(spec), tmp_path / "out")
+    err = capsys.readouterr().err
+    assert "hair.gather_rays auto → 32: 240 strand texels, 8× transport.gather_rays" in err
+    assert "hair.direct_samples auto → 32: 240 strand texels, 8× the fibre's 4" in err
+    m = read_manifest(out)
+    assert (m["spec"]["hair"]["gather_rays"], m["spec"]["hair"]["direct_samples"],
+            m["spec"]["hair"]["denoise_neighbours"]) == (32, 32, 64)
+    report = json.loads((out / "report.json").read_text())
+    assert report["transport"]["rays"]["fibre_gather"] == 60 * 4 * 32
+    again = bake(asset, parse_spec(m["spec"]), tmp_path / "again", quiet=True)
+    assert (load_runtime(again).planes == load_runtime(out).planes).all()
 
 
 def test_a_chiang_bake_trains_on_more_lights_by_default():
@@ -669,7 +743,8 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     spec = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True)
     assert spec.hair.denoise_neighbours == "auto"
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair.denoise_neighbours \
-        == DEFAULT_NEIGHBOURS  # hair alone: as before
+        == "auto"  # hair alone: small_hair's, by its rays
+    assert hair_spec(parse_spec({})).hair.denoise_neighbours == DEFAULT_NEIGHBOURS
     limit, atlas = 16 * 2**30, 1000
     spec, why = chiang_exitance("h.hair", space, spec, limit, mesh_texels=atlas)
     assert spec.hair.chiang.exitance == "linear" and why is None  # not denoised yet
@@ -713,9 +788,10 @@ def test_the_chiang_fibre_with_a_mesh_denoises_dense_hair_with_the_second_order(
     assert hair_spec(parse_spec({"transport": {"max_bounces": 9}})).hair.max_bounces == 9
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang", "max_bounces": 12}}),
                      with_mesh=True).hair.max_bounces == 12
-    # hair_spec resolves it everywhere else: the diffuse fibre, hair alone
+    # hair_spec resolves it for the diffuse fibre; the Chiang fibre alone waits for its
+    # strands to be counted (small_hair)
     assert hair_spec(parse_spec({}), with_mesh=True).hair.gather_rays == 64
     assert hair_spec(parse_spec({"hair": {"fibre": "chiang"}, "transport": {
-        "gather_rays": 32}})).hair.gather_rays == 32
+        "gather_rays": 32}})).hair.gather_rays == "auto"
 
 

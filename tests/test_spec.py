@@ -66,7 +66,7 @@ def test_empty_spec_is_defaults():
     ({"hair": {"direct": "exact"}}, "hair.direct"),
     ({"hair": {"direct_samples": 0}}, "hair.direct_samples"),
     ({"hair": {"fibre": "chiang", "direct": "sampled"}}, "hair.direct"),
-    ({"hair": {"fibre": "chiang", "direct_samples": 2}}, "hair.direct_samples"),
+    ({"hair": {"fibre": "chiang", "direct_samples": 0}}, "hair.direct_samples"),
     ([1, 2], "<root>"),
 ])
 def test_invalid_specs_name_their_key(data, key):

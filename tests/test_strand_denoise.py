@@ -187,10 +187,11 @@ def test_the_spec_key_and_its_default_per_fibre():
     assert hair_spec(parse_spec({})).hair.denoise_neighbours == 64
     assert hair_spec(parse_spec({})).hair.denoise_direction == "none"
     # the Chiang fibre's texels differ with the fibre's direction (docs/hair.md): its fit
-    # takes the direction's second band; with a mesh how dense the hair is decides it,
-    # before the transport (tests/test_hairbake.py, dense_hair)
+    # takes the direction's second band; whether it is denoised waits for the strands
+    # to be counted: alone, by the rays its texels get (small_hair), with a mesh by how
+    # dense the hair is, before the transport (tests/test_hairbake.py, dense_hair)
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}})).hair
-    assert (chiang.denoise_neighbours, chiang.denoise_direction) == (64, "t2")
+    assert (chiang.denoise_neighbours, chiang.denoise_direction) == ("auto", "t2")
     chiang = hair_spec(parse_spec({"hair": {"fibre": "chiang"}}), with_mesh=True).hair
     assert (chiang.denoise_neighbours, chiang.denoise_direction) == ("auto", "t2")
     assert hair_spec(parse_spec({}), with_mesh=True).hair.denoise_neighbours == 64

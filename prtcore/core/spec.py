@@ -332,9 +332,11 @@ class HairSpec:
     #: and light from across the projected width, the azimuth in closed form) | "sampled"
     #: (J stratified azimuths per texel, each shaded) (prtcore.transport.fibre_facing)
     direct: str = "facing"
-    #: the diffuse fibre's samples per strand texel for the direct light: arc samples
-    #: (facing) or surface points (sampled); "auto": FACING_SAMPLES (facing), or max(4,
-    #: transport.direct_samples) (sampled; the Chiang fibre always takes that)
+    #: samples per strand texel for the direct light: the diffuse fibre's arc samples
+    #: (facing) or surface points (sampled), the Chiang fibre's surface points; "auto":
+    #: FACING_SAMPLES (facing), or max(4, transport.direct_samples) (sampled, and the
+    #: Chiang fibre with a mesh; alone, times the small-hair scale of
+    #: prtcore.hairbake.small_hair, up to 4×)
     direct_samples: int | str = "auto"
     #: how many pieces each strand texel is transported as (the diffuse fibre with a
     #: mesh): S pieces of 1/S the arc, ⌈M/S⌉ fibre-gather rays and ⌈J/S⌉ facing samples
@@ -840,10 +842,9 @@ def _parse(data: Any) -> BakeSpec:
         raise SpecError("hair.arc_subdivision", "pieces of texels are transported for the "
                         "diffuse fibre only; the 'chiang' fibre's texels are transported "
                         "whole (leave it 'auto' or 1)")
-    if hair.fibre == "chiang" and (hair.direct != "facing" or hair.direct_samples != "auto"):
-        key = "hair.direct" if hair.direct != "facing" else "hair.direct_samples"
-        raise SpecError(key, "the direct-light estimator belongs to the diffuse fibre; the "
-                        "'chiang' fibre samples its own (transport.direct_samples)")
+    if hair.fibre == "chiang" and hair.direct != "facing":
+        raise SpecError("hair.direct", "the direct-light estimator belongs to the diffuse "
+                        "fibre; the 'chiang' fibre samples its own (hair.direct_samples)")
     if hair.fibre == "chiang" and hair.harmonics != "auto":
         raise SpecError("hair.harmonics", "the azimuthal harmonics belong to the diffuse "
                         "fibre; the 'chiang' fibre averages over every direction (leave "

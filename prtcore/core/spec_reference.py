@@ -90,7 +90,7 @@ DOCS: dict[str, str] = {
     "chiang.beta_n": "azimuthal roughness, 0.1–1",
     "chiang.alpha_deg": "cuticle tilt in degrees, −10–10",
     "chiang.eta": "index of refraction of the fibre, 1–3",
-    "chiang.exitance": "`auto` (`second_order` with `transport.gather_rays` ≥ 256 or "
+    "chiang.exitance": "`auto` (`second_order` with `hair.gather_rays` ≥ 256 or "
                        "where the strand texels are denoised (hair alone, or dense "
                        "hair with a mesh), "
                        "else `linear`, where the bake's memory estimate is within "
@@ -126,7 +126,9 @@ DOCS: dict[str, str] = {
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
-    "hair.denoise_neighbours": "`auto` (64; for `chiang` with a mesh 128 where at least "
+    "hair.denoise_neighbours": "`auto` (64; for `chiang` alone 0 from 512 fibre-gather "
+                               "rays a texel, docs/hair.md \"The tangle at more rays\"; "
+                               "for `chiang` with a mesh 128 where at least "
                                "0.6 of the fibre gather's rays meet another fibre, traced "
                                "on 4096 texels before the transport, else 0: docs/hair.md, "
                                "\"Dense hair with a mesh: second order, denoised\"), or k "
@@ -134,7 +136,10 @@ DOCS: dict[str, str] = {
                                "taken from a local linear fit through its k nearest texels "
                                "in space (Epanechnikov weights, adaptive radius; "
                                "docs/hair.md); 0 or 1: off",
-    "hair.gather_rays": "`auto` (`transport.gather_rays`; for `chiang` with a mesh 128 "
+    "hair.gather_rays": "`auto` (`transport.gather_rays`; for `chiang` alone that × s, "
+                        "s the largest power of two up to 8 with s·T ≤ 100 000 strand "
+                        "texels: small hair spends the 10k hairball's rays; for `chiang` "
+                        "with a mesh 128 "
                         "on dense hair, where the memory estimate allows it: docs/hair.md, "
                         "\"Dense hair with a mesh: second order, denoised\"), or M_h in "
                         "1–4096: the fibre gather's rays per strand texel; "
@@ -167,7 +172,9 @@ DOCS: dict[str, str] = {
                    "azimuths per texel, each shaded); refused with the `chiang` fibre, "
                    "which samples its own; docs/hair.md",
     "hair.direct_samples": "`auto` (2 arc samples for `facing`, max(4, "
-                           "`transport.direct_samples`) points for `sampled`), or 1–256; "
+                           "`transport.direct_samples`) points for `sampled` and for "
+                           "`chiang`, times min(s, 4) for `chiang` alone, s as for "
+                           "`hair.gather_rays`), or 1–256; "
                            "`facing` with 1 traces half the shadow rays (the 10k "
                            "hairball's dataset 35 s instead of 46 s, 7.9 % instead of "
                            "6.4 % against the path tracer; docs/hair.md)",

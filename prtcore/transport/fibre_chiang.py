@@ -406,6 +406,17 @@ def shaded_reads(row, centre, tangent, radius, sigma, fu, fv, reads, weight, slo
             out[slot[i], c] += value[i, c]
 
 
+#: the fewest direct-light samples a Chiang-fibre strand texel takes by default
+MIN_DIRECT_SAMPLES = 4
+
+
+def chiang_samples(given: int | str, transport_samples: int) -> int:
+    """J, the Chiang fibre's direct-light samples per strand texel: ``hair.direct_samples``
+    when given (an int), else ("auto") the larger of :data:`MIN_DIRECT_SAMPLES` and
+    ``transport_samples`` (``transport.direct_samples``)."""
+    return int(given) if given != "auto" else max(MIN_DIRECT_SAMPLES, int(transport_samples))
+
+
 def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
                   samples: int, seed: int, fibre: ChiangFibre, exitance: str = "isotropic",
                   out: Sequence[np.ndarray] | None = None

@@ -37,6 +37,7 @@ from prtcore.transport.fibre_chiang import (
     chiang_direct,
     chiang_gather,
     chiang_operator,
+    chiang_samples,
 )
 from prtcore.transport.low_rank import solve_low_rank
 from prtcore.transport.solve import solve_indirect
@@ -83,7 +84,8 @@ def bake_hair_dataset(space: StrandSpace, points: MeasurementPoints, tracer: Ray
     if fibre is not None:
         return _chiang_dataset(space, points, tracer, lights_train, lights_holdout,
                                spec or TransportSpec(), timer or StageTimer(quiet=True),
-                               scene, keep_direct_texels, fibre, chiang_exitance)
+                               scene, keep_direct_texels, fibre, chiang_exitance,
+                               direct_samples)
     spec = spec or TransportSpec()
     timer = timer or StageTimer(quiet=True)
     lights = (*tuple(lights_train), *tuple(lights_holdout))
@@ -144,10 +146,12 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
                     lights_train: Sequence[Light], lights_holdout: Sequence[Light],
                     spec: TransportSpec, timer: StageTimer, scene: Scene | None,
                     keep_direct_texels: bool, fibre: ChiangFibre,
-                    exitance: str = "isotropic") -> Dataset:
+                    exitance: str = "isotropic", direct_samples: int | str = "auto"
+                    ) -> Dataset:
     """:func:`bake_hair_dataset` with the Chiang fibre: the same stages and rays, every
     gather ray and direct sample weighted by the fibre's directional albedo, the three
-    channels' operators solved together."""
+    channels' operators solved together; ``direct_samples`` J per texel
+    (:func:`~prtcore.transport.fibre_chiang.chiang_samples`)."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     rays0 = tracer.rays_traced
     with timer.stage("fibre gather"):  # the operator made from the rays, which then go
@@ -162,7 +166,8 @@ def _chiang_dataset(space: StrandSpace, points: MeasurementPoints, tracer: RayTr
     direct_points = direct_at_points(scene, tracer, lights, points, timer)
     rays2 = tracer.rays_traced
     with timer.stage("direct fibres"):
-        direct = chiang_direct(space, tracer, lights, max(4, spec.direct_samples),
+        direct = chiang_direct(space, tracer, lights,
+                               chiang_samples(direct_samples, spec.direct_samples),
                                spec.seed + 1, fibre, exitance)
     rays3 = tracer.rays_traced
     t = space.count

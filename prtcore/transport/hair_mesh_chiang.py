@@ -48,6 +48,7 @@ from prtcore.transport.fibre_chiang import (
     ChiangFibre,
     chiang_direct,
     chiang_gather,
+    chiang_samples,
     exitance_reads,
     needs_frames,
     ray_weights,
@@ -330,7 +331,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   exitance: str = "isotropic",
                                   fibre_rays: int | None = None,
                                   arc_reads: str | None = None, near_fibres: float = 0.0,
-                                  near_fibre_count: int = NEAR_FIBRE_RAYS) -> Dataset:
+                                  near_fibre_count: int = NEAR_FIBRE_RAYS,
+                                  direct_samples: int | str = "auto") -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
@@ -346,7 +348,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     (``hair.chiang.near_fibres``): an atlas ray that meets a fibre closer than this many
     footprints of its texel is shaded at the point it meets
     (:mod:`prtcore.transport.fibre_near`, ``near_fibre_count`` rays from each such hit);
-    0: every hit reads its strand texel."""
+    0: every hit reads its strand texel. ``direct_samples`` (``hair.direct_samples``):
+    the hair's direct samples per strand texel (:func:`chiang_samples`)."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
@@ -406,8 +409,9 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         for a in range(n_f):
             rows = product.coefficient_rows(a)
             views.append(direct[rows.start + (t_m if a == 0 else 0):rows.stop])
-        chiang_direct(space, tracer, lights, max(4, spec.direct_samples), spec.seed + 1,
-                      fibre, exitance, out=views)
+        chiang_direct(space, tracer, lights, chiang_samples(direct_samples,
+                                                            spec.direct_samples),
+                      spec.seed + 1, fibre, exitance, out=views)
         del views
     if near.count:  # the near hits' direct light: at the point met, or as read
         with timer.stage("near fibres (direct)"):  # its rays count as the direct fibres'
