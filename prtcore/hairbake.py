@@ -341,7 +341,7 @@ def small_hair(spec: BakeSpec, space: StrandSpace) -> tuple[BakeSpec, list[str]]
     scale = min(MAX_RAY_SCALE, max(1, RAY_BUDGET_TEXELS // max(1, space.count)))
     scale = 1 << (scale.bit_length() - 1)  # a power of two, rounded down
     why = (f"(the budget of {RAY_BUDGET_TEXELS} texels, at most {MAX_RAY_SCALE}×)"
-           if scale > 1 else f"(more only under {RAY_BUDGET_TEXELS // 2} texels)")
+           if scale > 1 else f"(more only at {RAY_BUDGET_TEXELS // 2} texels or fewer)")
     rays = spec.hair.gather_rays
     if rays == "auto":
         rays = spec.transport.gather_rays * scale
