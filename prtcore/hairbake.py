@@ -263,7 +263,7 @@ def hair_spec(spec: BakeSpec, with_mesh: bool = False) -> BakeSpec:
     if spec.hair.fibre == "diffuse":
         samples = direct_sample_count(spec.hair.direct, samples,
                                       spec.transport.direct_samples)
-    elif with_mesh:  # the Chiang fibre alone: small_hair
+    elif with_mesh:  # the Chiang fibre with a mesh; alone, small_hair resolves it
         samples = chiang_samples(samples, spec.transport.direct_samples)
     return dataclasses.replace(
         spec, measurement_points=dataclasses.replace(spec.measurement_points,

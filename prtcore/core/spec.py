@@ -336,7 +336,7 @@ class HairSpec:
     #: (facing) or surface points (sampled), the Chiang fibre's surface points; "auto":
     #: FACING_SAMPLES (facing), or max(4, transport.direct_samples) (sampled, and the
     #: Chiang fibre with a mesh; alone, times the small-hair scale of
-    #: prtcore.hairbake.small_hair, up to 4×)
+    #: prtcore.hairbake.small_hair, up to 8×)
     direct_samples: int | str = "auto"
     #: how many pieces each strand texel is transported as (the diffuse fibre with a
     #: mesh): S pieces of 1/S the arc, ⌈M/S⌉ fibre-gather rays and ⌈J/S⌉ facing samples

@@ -126,8 +126,9 @@ DOCS: dict[str, str] = {
                       "of the rays from the fibres meet another fibre, `turn_bounces` "
                       "otherwise; the report's `transport.fibre.harmonic_receivers` "
                       "says which texels took other fibres' light)",
-    "hair.denoise_neighbours": "`auto` (64; for `chiang` alone 0 from 512 fibre-gather "
-                               "rays a texel, docs/hair.md \"The tangle at more rays\"; "
+    "hair.denoise_neighbours": "`auto` (64; for `chiang` alone 16 from 512 fibre-gather "
+                               "rays a texel, docs/hair.md \"Small hair spends the "
+                               "hairball's rays\"; "
                                "for `chiang` with a mesh 128 where at least "
                                "0.6 of the fibre gather's rays meet another fibre, traced "
                                "on 4096 texels before the transport, else 0: docs/hair.md, "
@@ -173,7 +174,7 @@ DOCS: dict[str, str] = {
                    "which samples its own; docs/hair.md",
     "hair.direct_samples": "`auto` (2 arc samples for `facing`, max(4, "
                            "`transport.direct_samples`) points for `sampled` and for "
-                           "`chiang`, times min(s, 4) for `chiang` alone, s as for "
+                           "`chiang`, times s for `chiang` alone, s as for "
                            "`hair.gather_rays`), or 1–256; "
                            "`facing` with 1 traces half the shadow rays (the 10k "
                            "hairball's dataset 35 s instead of 46 s, 7.9 % instead of "
