@@ -90,6 +90,7 @@ from prtcore.transport.fibre import (
     STACKED_HARMONICS,
     STRAIGHT_TURN_DEG,
     HairDensity,
+    direct_block_bytes,
     direct_sample_count,
     hair_density,
     hair_tracer,
@@ -480,7 +481,10 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     (3T, K, 3) float32 direct light in
     place of the T rows, the direct light's mean and harmonics beside it and, for hair
     alone, the solve's result (with a mesh the solve writes over the direct light); the
-    solve's working arrays over 3T rows, bounded alike. The Chiang fibre: each hit's data.
+    solve's working arrays over 3T rows, bounded alike. The Chiang fibre: each hit's data,
+    and the direct light's largest block at its J samples
+    (:func:`~prtcore.transport.fibre.direct_block_bytes`, at most 0.5 GiB; until
+    2026-12-07 it was not counted, and the tangle's J = 32 block held 2.5 GiB).
     ``mesh_texels`` T_m > 0 (a hair + mesh bake): the surface bake's estimate of T_m
     texels less its process and its solve (one of each, counted above: the solve's rows
     include the atlas), and the atlas rows of the direct light. Measured
@@ -496,6 +500,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if spec.hair.chiang.exitance == "auto":  # estimated at what it may resolve to
         spec = _with_exitance(spec, AUTO_EXITANCE)
     spec = strand_spec(spec, space, with_mesh=mesh_texels > 0)[0]  # "auto" as the bake
+    samples = chiang_samples(spec.hair.direct_samples, spec.transport.direct_samples)
     pieces = spec.hair.arc_subdivision  # resolves it
     space = space.subdivided(pieces)  # the texels the transport holds: S pieces each,
     t = space.count  # ⌈M/S⌉ fibre-gather rays per piece
@@ -510,7 +515,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
         return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
             mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport, density,
-            spec.hair.chiang.near_fibres))
+            spec.hair.chiang.near_fibres, samples=samples))
     gather = operator_for("fibre").estimate_bytes(
         t, k, dataclasses.replace(spec.transport, gather_rays=m))
     entries = t * m * MEM_PER_OPERATOR_ENTRY  # one operator matrix
@@ -524,10 +529,10 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if spec.hair.fibre == "chiang":  # each hit's data; with F > 1 coefficients the stacked
         # direct light's other F − 1 (the solve works in its buffer, transport/low_rank.py;
         # its column blocks are bounded by SOLVE_BLOCK_BYTES) and the first coefficient's
-        # sum of bounces beside it (clamped in place)
+        # sum of bounces beside it (clamped in place); the direct light's largest block
         f = EXITANCE_TERMS[spec.hair.chiang.exitance]
         est += t * m * CHIANG_BYTES_PER_RAY[spec.hair.chiang.exitance] \
-            + (f * t * k * 12 if f > 1 else 0)
+            + (f * t * k * 12 if f > 1 else 0) + direct_block_bytes(t, samples, k, f)
     if everything:  # the operator's blocks before they are summed; beside the stacked
         # (3T, K, 3) direct light (``light``) the direct light's mean and harmonics, and
         # for hair alone the solve's result (with a mesh it is written over the direct)

@@ -70,6 +70,31 @@ def test_melanin_or_colour_sets_the_absorption():
     assert (light.sigma_texels < dark.sigma_texels).all()
 
 
+def test_direct_light_blocks_bound_their_memory_not_the_numbers(monkeypatch):
+    """The direct light's texel blocks (``direct_block``) shrink as J·K and the exitance's
+    F grow, so a block holds at most DIRECT_BLOCK_BYTES; each texel's value is the same
+    whichever block computes it, so smaller blocks give the same array bit for bit."""
+    from prtcore.transport import fibre as fibre_module
+
+    assert fibre_module.direct_block(4, 16) == fibre_module.DIRECT_BLOCK
+    assert fibre_module.direct_block(16, 528, 10) * 26 * 528 * 12 \
+        <= fibre_module.DIRECT_BLOCK_BYTES < (fibre_module.direct_block(16, 528, 10) + 1) \
+        * 26 * 528 * 12
+    assert fibre_module.direct_block(1 << 20, 1 << 20) == 1
+    assert fibre_module.direct_block_bytes(100, 4, 8, 4) == 100 * 8 * 8 * 12
+    hair = tangle(40)
+    space = build_strand_space(hair, 6)
+    tracer, _ = hair_tracer(space)
+    fibre = chiang_fibre(ChiangSpec(), space)
+    lights = tangle_lights()
+    whole = chiang_direct(space, tracer, lights, 8, 3, fibre, "linear")
+    per_texel = 12 * (8 + EXITANCE_TERMS["linear"]) * len(lights)
+    monkeypatch.setattr(fibre_module, "DIRECT_BLOCK_BYTES", 7 * per_texel)
+    assert fibre_module.direct_block(8, len(lights), 4) == 7 < space.count
+    np.testing.assert_array_equal(
+        chiang_direct(space, tracer, lights, 8, 3, fibre, "linear"), whole)
+
+
 @pytest.fixture(scope="module")
 def tangle_fast():
     """The fast path on a 600-strand tangle: {(exitance, bounces): (T, K, 3)}."""

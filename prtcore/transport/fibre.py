@@ -129,6 +129,35 @@ def hair_tracer(space: StrandSpace, scene: Scene | None = None, sides: int = DEF
 #: azimuthal harmonics of the direct light carried through the first bounce
 HARMONICS = 1
 
+#: Texels per block of :func:`direct_of_samples` at most: Morton-ordered blocks share
+#: Embree's nodes in cache (:func:`direct_samples`).
+DIRECT_BLOCK = 1 << 14
+#: Bytes a block of :func:`direct_of_samples` holds at most (:func:`direct_block`): its
+#: samples' radiance (n, J, K, 3) and a weight's F coefficients (F, n, K, 3), float32.
+#: Until 2026-12-07 the block was always 16 384 texels, so they grew with (J + F)·K: the
+#: 10k head's second order (F = 10, K = 528) held 1.4 GiB of them at J = 4 and 2.5 GiB at
+#: J = 16 (peak 15.0 GiB against 13.6), the tangle at J = 32 all of its 10 000 texels'
+#: 2.5 GiB.
+DIRECT_BLOCK_BYTES = 1 << 29
+
+
+def direct_block(samples: int, lights: int, terms: int = 0) -> int:
+    """Texels per block of :func:`direct_of_samples` for J = ``samples`` surface samples,
+    K = ``lights`` and a weight of F = ``terms`` coefficients (0: none, the diffuse
+    fibre's mean and harmonics): :data:`DIRECT_BLOCK`, fewer where the block's
+    ``(J + F) K`` float32 triples per texel would pass :data:`DIRECT_BLOCK_BYTES`; at
+    least one. Each texel's value is the same whichever block computes it."""
+    per_texel = 12 * (samples + terms) * max(1, lights)
+    return int(max(1, min(DIRECT_BLOCK, DIRECT_BLOCK_BYTES // per_texel)))
+
+
+def direct_block_bytes(texels: int, samples: int, lights: int, terms: int = 0) -> int:
+    """What the largest block of :func:`direct_of_samples` holds (bytes) for ``texels``
+    strand texels (:func:`direct_block`): the memory estimates add it to the direct
+    light's stage."""
+    n = min(texels, direct_block(samples, lights, terms))
+    return n * (samples + terms) * lights * 12
+
 
 @dataclass(frozen=True)
 class FibreDirect:
@@ -202,13 +231,12 @@ def direct_of_draw(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light
     """:func:`fibre_direct` for ``lights`` from :func:`draw_direct`'s ``drawn``."""
     facing, sampled = drawn
     if facing is None:
-        return direct_of_samples(space, tracer, lights, sampled, harmonics, 1 << 14,
-                                 progress)
+        return direct_of_samples(space, tracer, lights, sampled, harmonics, progress)
     mean, harm = facing_direct(space, tracer, lights, facing, harmonics, progress)
     rest = _rowless(lights)
     if rest:
         part = direct_of_samples(space, tracer, [lights[i] for i in rest], sampled,
-                                 harmonics, 1 << 14, progress=False)
+                                 harmonics, progress=False)
         mean[:, rest] = part.mean
         harm[:, :, rest] = part.harmonics
     return FibreDirect(mean, harm)
@@ -227,21 +255,22 @@ def direct_samples(space: StrandSpace, samples: int, seed: int) -> tuple:
 
 
 def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light],
-                      drawn: tuple, harmonics: int, block: int, progress: bool,
-                      weight: Callable | None = None,
+                      drawn: tuple, harmonics: int, progress: bool,
+                      weight: Callable | None = None, terms: int = 0,
                       out: Sequence[np.ndarray] | None = None
                       ) -> FibreDirect | np.ndarray | Sequence[np.ndarray]:
     """:func:`fibre_direct` for ``lights`` from :func:`direct_samples`' ``drawn``,
-    ``block`` texels at a time (a progress bar over them with ``progress``).
+    :func:`direct_block` texels at a time (a progress bar over them with ``progress``).
     weight : another fibre's weighting of the samples instead of the texel's ρ,
     ``weight(idx (n,) texels, origin (n, J, 3), lights, rad (n, J, K, 3) float32)`` →
-    (F, n, K, 3) float32, the F weighted means of the samples' ``E/π · max(0, n·ωl) · V``
-    (``rad``; :mod:`prtcore.transport.fibre_chiang`); the result is then those means
-    (F, T, K, 3) float32 (no harmonics), or written into ``out``, F (T, K, 3) float32
-    arrays (views of a larger one: a hair + mesh bake's stacked direct light), and
-    ``out`` returned."""
+    (F, n, K, 3) float32, the F (``terms``) weighted means of the samples'
+    ``E/π · max(0, n·ωl) · V`` (``rad``; :mod:`prtcore.transport.fibre_chiang`); the
+    result is then those means (F, T, K, 3) float32 (no harmonics), or written into
+    ``out``, F (T, K, 3) float32 arrays (views of a larger one: a hair + mesh bake's
+    stacked direct light), and ``out`` returned."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
+    block = direct_block(j, k, terms if weight is not None else 0)
     if weight is None:
         mean = np.empty((t, k, 3), dtype=np.float32)
         harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)

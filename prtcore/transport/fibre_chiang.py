@@ -465,14 +465,14 @@ def chiang_direct(space: StrandSpace, tracer: RayTracer, lights: Sequence[Light]
     env = [k for k, light in enumerate(lights) if light.type == "environment"]
     punctual = [k for k in range(len(lights)) if k not in set(env)]
     if not env:
-        return direct_of_samples(space, tracer, lights, drawn, 0, 1 << 14, progress=True,
-                                 weight=weight, out=out)
+        return direct_of_samples(space, tracer, lights, drawn, 0, progress=True,
+                                 weight=weight, terms=terms, out=out)
     given, out = out, np.empty((EXITANCE_TERMS[exitance], space.count, len(lights), 3),
                                np.float32)
     if punctual:
         out[:, :, punctual] = direct_of_samples(space, tracer, [lights[k] for k in punctual],
-                                                drawn, 0, 1 << 14, progress=True,
-                                                weight=weight)
+                                                drawn, 0, progress=True,
+                                                weight=weight, terms=terms)
     out[:, :, env] = _environment_direct(space, tracer, [lights[k] for k in env], drawn,
                                          tangent, fibre, exitance, frames)
     if given is None:

@@ -42,7 +42,7 @@ from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import operator_for
 from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
 from prtcore.transport.direct import direct_radiance, near_field_correction
-from prtcore.transport.fibre import HairDensity, MeshHits
+from prtcore.transport.fibre import HairDensity, MeshHits, direct_block_bytes
 from prtcore.transport.fibre_chiang import (
     EXITANCE_TERMS,
     ChiangFibre,
@@ -88,16 +88,18 @@ MESH_HIT_BYTES = 56
 
 def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                       transport: TransportSpec, density: HairDensity | None = None,
-                      near_fibres: float = 0.0) -> int:
+                      near_fibres: float = 0.0, *, samples: int) -> int:
     """The transport's own peak memory (bytes, beyond the process and the texels' and
     fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
     ``t_m`` atlas and ``t_h`` strand texels (the transport's arc pieces), ``k`` lights
     (training + held-out), ``rays`` gather rays per strand texel (per piece) and
-    ``exitance``, with ``transport`` the spec the gathers' own estimates take, and
+    ``exitance``, ``samples`` J direct-light samples per strand texel
+    (:func:`~prtcore.transport.fibre_chiang.chiang_samples`), with ``transport`` the
+    spec the gathers' own estimates take, and
     ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
     transport; None: every ray a hit and every strand texel with near-field rows) the
     shares of rays that make product entries and of strand texels whose near-field
-    corrections are kept: the largest of three phases.
+    corrections are kept: the largest of four phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the product, at most one entry per gather ray of either
@@ -119,6 +121,12 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       Their shadow pieces' visibility (a bit a piece and light, at most ⌈K/8⌉ bytes a
       near hit) is held after the surface gather's matrix and the mesh hits are
       dropped, so it stays below this phase's peak.
+    * **Direct fibres.** The product, the stacked direct light, the near-field
+      corrections, and the largest block of :func:`~prtcore.transport.fibre.
+      direct_of_samples` (its J samples' radiance and F coefficients for K lights,
+      :func:`~prtcore.transport.fibre.direct_block_bytes`, at most DIRECT_BLOCK_BYTES).
+      Until 2026-12-07 this phase was not counted and its block grew with J: the 10k
+      head at J = 16 peaked at 15.0 GiB against an estimate of 14.8.
     * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
       ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
@@ -145,9 +153,10 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     corrections = (2 * near + (t_m if near_fibres > 0 else 0)) * k * 12
     near_stage = (product + stacked + corrections + t_m * transport.gather_rays * 12
                   + t_h * rays * MESH_HIT_BYTES)
+    direct_stage = product + stacked + corrections + direct_block_bytes(t_h, samples, k, f)
     solve = (product + stacked + n * k * 12 + near * k * 12
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
-    return int(max(gathers, near_stage, solve))
+    return int(max(gathers, near_stage, direct_stage, solve))
 
 
 class StrandRays(StrandHits):
