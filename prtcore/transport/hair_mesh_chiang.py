@@ -126,7 +126,8 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       direct_of_samples` (its J samples' radiance and F coefficients for K lights,
       :func:`~prtcore.transport.fibre.direct_block_bytes`, at most DIRECT_BLOCK_BYTES).
       Until 2026-12-07 this phase was not counted and its block grew with J: the 10k
-      head at J = 16 peaked at 15.0 GiB against an estimate of 14.8.
+      head at J = 16 peaked at 15.0 GiB (13.97 GiB since, in its solve), 0.7 GiB under
+      the estimate; at J = 32 its block alone would have held 4.1 GiB.
     * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
       ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
       working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
