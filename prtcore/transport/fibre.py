@@ -147,16 +147,21 @@ def direct_block(samples: int, lights: int, terms: int = 0) -> int:
     fibre's mean and harmonics): :data:`DIRECT_BLOCK`, fewer where the block's
     ``(J + F) K`` float32 triples per texel would pass :data:`DIRECT_BLOCK_BYTES`; at
     least one. Each texel's value is the same whichever block computes it."""
-    per_texel = 12 * (samples + terms) * max(1, lights)
-    return int(max(1, min(DIRECT_BLOCK, DIRECT_BLOCK_BYTES // per_texel)))
+    return int(max(1, min(DIRECT_BLOCK,
+                          DIRECT_BLOCK_BYTES // _block_texel_bytes(samples, lights, terms))))
 
 
 def direct_block_bytes(texels: int, samples: int, lights: int, terms: int = 0) -> int:
     """What the largest block of :func:`direct_of_samples` holds (bytes) for ``texels``
     strand texels (:func:`direct_block`): the memory estimates add it to the direct
     light's stage."""
-    n = min(texels, direct_block(samples, lights, terms))
-    return n * (samples + terms) * lights * 12
+    return min(texels, direct_block(samples, lights, terms)) \
+        * _block_texel_bytes(samples, lights, terms)
+
+
+def _block_texel_bytes(samples: int, lights: int, terms: int) -> int:
+    """A texel's share of a direct-light block: (J + F)·K float32 triples."""
+    return 12 * (samples + terms) * max(1, lights)
 
 
 @dataclass(frozen=True)
@@ -270,7 +275,7 @@ def direct_of_samples(space: StrandSpace, tracer: RayTracer, lights: Sequence[Li
     stacked direct light), and ``out`` returned."""
     origin, normal, phi, order = drawn
     t, j, k = space.count, phi.shape[1], len(lights)
-    block = direct_block(j, k, terms if weight is not None else 0)
+    block = direct_block(j, k, terms)
     if weight is None:
         mean = np.empty((t, k, 3), dtype=np.float32)
         harm = np.empty((2 * harmonics, t, k, 3), dtype=np.float32)
