@@ -148,6 +148,14 @@ def test_ray_block_product_is_the_sum_of_its_rank_one_blocks(f, first):
         m = sp.csr_matrix((v[keep], (r[keep], q[keep])), shape=(size, size))
         want[:, c::3] = m @ x[:, c::3].astype(np.float64)
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+    head = int((rows < first).sum())  # their rays keep coefficient 0's three weights
+    assert product.head_weight.shape == (head, 3) and product.weight.shape == (n - head, f, 3)
+    given = RayBlockProduct(rows, cols, weight[head:], read, t, threads=2, first=first,
+                            head_weight=weight[:head, 0])
+    assert np.array_equal(given(x), got)  # the same product from its weights given apart
+    with pytest.raises(ValueError, match=rf"{head} rays from texels below {first} take "):
+        RayBlockProduct(rows, cols, weight[head:], read, t, first=first,
+                        head_weight=weight[:, 0])
     for a in range(f):  # each coefficient's rows where the layout says
         sl = product.coefficient_rows(a)
         assert sl.stop - sl.start == (t if a == 0 else t - first)
@@ -183,7 +191,13 @@ def test_assembled_ray_blocks_are_the_parts_sorted_by_row_without_the_sort(chunk
     got = assemble_ray_blocks(parts, t, f, threads=2, first=5, chunk=chunk)
     order = np.argsort(np.concatenate([p[0] for p in whole]), kind="stable")
     for field, want in zip(("row", "col", "weight", "read"), zip(*whole, strict=True), strict=True):
-        want = np.concatenate(want)[order].astype(getattr(got, field).dtype)
+        want = np.concatenate(want)[order].astype(np.float32 if field in ("weight", "read")
+                                                  else getattr(got, field).dtype)
+        if field == "weight":  # rows below first keep coefficient 0's weights alone
+            head = int((np.concatenate([p[0] for p in whole]) < 5).sum())
+            assert got.head == head and got.head_weight.shape == (head, 3)
+            assert np.array_equal(got.head_weight, want[:head, 0])
+            want = want[head:]
         assert np.array_equal(getattr(got, field), want), field
     assert got.first == 5 and got.shape == (40 + 3 * 35, 40 + 3 * 35)
     want_idle = np.setdiff1d(np.arange(t), np.concatenate([p[0] for p in whole]))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from prtcore.core.sparse import RayBlockProduct
-from prtcore.transport.low_rank import RANK_TOLERANCE, solve_low_rank
+from prtcore.transport.low_rank import RANK_TOLERANCE, first_bounce_in_place, solve_low_rank
 from prtcore.transport.solve import solve_indirect
 
 T, M, K = 400, 48, 64
@@ -100,6 +100,19 @@ def test_the_first_bounce_correction_and_a_single_bounce():
     one = solve_low_rank(product, rho, direct.copy(), 1, 1e-7, rows=T)[0]
     exact = solve_indirect(None, rho, direct.copy(), 1, 1.0, product=product)[0][:T]
     np.testing.assert_array_equal(one, exact)
+    # the first bounce taken apart, so the caller can drop its corrections before the
+    # later bounces: the same solve bit for bit, at every number of bounces
+    for bounces in (1, 3, 200):
+        whole = solve_low_rank(product, rho, direct.copy(), bounces, 1e-7, rows=T,
+                               first_bounce=(rows, extra))
+        bounced = direct.copy()
+        first_bounce_in_place(product, rho, bounced, (rows, extra))
+        apart = solve_low_rank(product, rho, bounced, bounces, 1e-7, rows=T, bounced=True)
+        np.testing.assert_array_equal(apart[0], whole[0])
+        assert apart[1:3] == whole[1:3] and apart[3]["ranks"] == whole[3]["ranks"]
+    with pytest.raises(ValueError, match="bounced direct light has had its first-bounce"):
+        solve_low_rank(product, rho, bounced, 3, 1e-7, first_bounce=(rows, extra),
+                       bounced=True)
 
 
 def test_a_series_that_grows_is_refused_not_returned():

@@ -87,18 +87,23 @@ def _coefficient_row(i, a, t, first):  # pragma: no cover - compiled
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def ray_blocks(starts, row, col, weight, read, t, first, x, out):  # pragma: no cover
+def ray_blocks(starts, row, col, head_weight, weight, read, t, first, x,
+               out):  # pragma: no cover - compiled
     """out (N, c) ← Σ_r over rays: for row coefficient a, ``weight[r, a, col % 3] ·
     Σ_b read[r, b] · x[col[r]'s coefficient b]`` added at row[r]'s coefficient a (out
-    zeroed here). Texels below ``first`` carry coefficient 0 only (their other weights
-    and reads are skipped); coefficient a ≥ 1 of texel i ≥ first is row
-    ``T + (a − 1)(T − first) + i − first`` (with first = 0: ``i + a·T``).
+    zeroed here). Texels below ``first`` carry coefficient 0 only (their other reads are
+    skipped, and their rays, the first ``len(head_weight)``, keep that coefficient's
+    weights alone: ``head_weight[r]``; ray r ≥ that count has ``weight[r − count]``);
+    coefficient a ≥ 1 of texel i ≥ first is row ``T + (a − 1)(T − first) + i − first``
+    (with first = 0: ``i + a·T``).
 
     starts (n_chunks + 1,) int64 ray boundaries that never split one row's rays (rows
-    sorted); row, col (n,) int32; weight (n, F, 3) and read (n, F) float32; x (N, c)
-    float32 C-contiguous, c = 3·k columns with the colour channel fastest."""
+    sorted); row, col (n,) int32; head_weight (h, 3), weight (n − h, F, 3) and read (n, F)
+    float32; x (N, c) float32 C-contiguous, c = 3·k columns with the colour channel
+    fastest."""
     f = read.shape[1]
     c = x.shape[1]
+    h = head_weight.shape[0]
     for ci in numba.prange(len(starts) - 1):
         acc = np.empty(c, dtype=x.dtype)
         if starts[ci] < starts[ci + 1]:
@@ -118,7 +123,10 @@ def ray_blocks(starts, row, col, weight, read, t, first, x, out):  # pragma: no 
             i = row[r]
             for a in range(f if i >= first else 1):
                 oa = out[_coefficient_row(i, a, t, first)]
-                w0, w1, w2 = weight[r, a, 0], weight[r, a, 1], weight[r, a, 2]
+                if r < h:
+                    w0, w1, w2 = head_weight[r, 0], head_weight[r, 1], head_weight[r, 2]
+                else:
+                    w0, w1, w2 = weight[r - h, a, 0], weight[r - h, a, 1], weight[r - h, a, 2]
                 for k in range(0, c, 3):
                     oa[k] += w0 * acc[k]
                     oa[k + 1] += w1 * acc[k + 1]
@@ -129,7 +137,7 @@ class RayBlockProduct:
     """``W @ x`` for an operator given as the rays that build it: ray r from row texel i to
     column texel j adds, per colour channel c, the rank-one block ``weight[r, :, c] ⊗
     read[r, :]`` between i's and j's F coefficients (rows and columns ``texel + a·T``).
-    Matrix-free: 16 + 4F bytes a ray instead of F² CSR entries per channel (the Chiang
+    Matrix-free: 8 + 16F bytes a ray instead of F² CSR entries per channel (the Chiang
     fibre's projected exitance, :mod:`prtcore.transport.fibre_chiang`). Rays must come
     sorted by row (as the fibre gather makes them); chunks of rays that never split a row
     go to the threads, so no two write the same row.
@@ -138,23 +146,40 @@ class RayBlockProduct:
     ``first`` (a hair + mesh bake's atlas texels, Lambertian) carry coefficient 0 alone:
     the operator is then N × N with N = T + (F − 1)(T − first), coefficient a ≥ 1 of
     texel i at row ``T + (a − 1)(T − first) + i − first`` (:meth:`coefficient_rows`), and
-    those texels' other weights and reads are not used."""
+    those texels' other weights and reads are not used. Their rays, the first
+    ``head`` (rows sorted), keep coefficient 0's weights alone (``head_weight`` (head, 3)
+    float32; ``weight`` holds the other rays'): 20 + 4F bytes a ray, not 8 + 16F (on the
+    10k head's second order half its rays, 1.1 GB). ``head_weight``: those weights given
+    apart, with ``weight`` (n − head, F, 3) the others' (:func:`assemble_ray_blocks`, which
+    never makes the whole); None: taken from ``weight`` (n, F, 3)."""
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, weight: np.ndarray,
-                 read: np.ndarray, texels: int, threads: int = 2, first: int = 0):
+                 read: np.ndarray, texels: int, threads: int = 2, first: int = 0,
+                 head_weight: np.ndarray | None = None):
         self.row = np.ascontiguousarray(rows, dtype=np.int32)
         self.col = np.ascontiguousarray(cols, dtype=np.int32)
         if len(self.row) > 1 and (np.diff(self.row) < 0).any():
             raise ValueError("RayBlockProduct: rays must be sorted by row")
+        self.t, self.first = int(texels), int(first)
+        self.head = int(np.searchsorted(self.row, self.first, side="left"))
+        if head_weight is None:
+            weight = np.asarray(weight)
+            head_weight, weight = weight[:self.head, 0], weight[self.head:]
+        self.head_weight = np.ascontiguousarray(head_weight, dtype=np.float32)
         self.weight = np.ascontiguousarray(weight, dtype=np.float32)
         self.read = np.ascontiguousarray(read, dtype=np.float32)
-        self.t, self.first = int(texels), int(first)
         f = self.read.shape[1]
+        n = len(self.row)
+        if self.head_weight.shape != (self.head, 3) or \
+                self.weight.shape != (n - self.head, f, 3):
+            raise ValueError(f"RayBlockProduct: {self.head} rays from texels below {first} "
+                             f"take weights ({self.head}, 3) and the other {n - self.head} "
+                             f"({n - self.head}, {f}, 3), got {self.head_weight.shape} and "
+                             f"{self.weight.shape}")
         n_rows = self.t + (f - 1) * (self.t - self.first)
         self.shape = (n_rows, n_rows)
         self.threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
         # ray chunks, each boundary moved to the first ray of a row
-        n = len(self.row)
         cuts = row_chunks(n, self.threads)
         cuts = np.searchsorted(self.row, self.row[np.minimum(cuts, max(n - 1, 0))],
                                side="left") if n else cuts
@@ -181,8 +206,8 @@ class RayBlockProduct:
         if out is None:
             out = np.empty((self.shape[0], x.shape[1]), dtype=np.float32)
         numba.set_num_threads(self.threads)
-        ray_blocks(self.starts, self.row, self.col, self.weight, self.read, self.t,
-                   self.first, x, out)
+        ray_blocks(self.starts, self.row, self.col, self.head_weight, self.weight, self.read,
+                   self.t, self.first, x, out)
         out[self.idle] = 0
         for a in range(1, self.read.shape[1]):
             out[self.coefficient_rows(a).start + self._idle_higher] = 0
@@ -224,7 +249,8 @@ def assemble_ray_blocks(parts: Sequence[RayPart], texels: int, terms: int,
     (the order of a stable argsort of the parts' rows concatenated), made without that
     sort: each ray is written at its place (a counting sort), its weight and read made
     ``chunk`` rays at a time and cast to float32 as they are written. The assembly holds
-    the product's arrays (8 + 16 F bytes a ray) and one chunk's temporaries; a sort of the
+    the product's arrays (8 + 16 F bytes a ray, 20 + 4 F for a ray of a row below
+    ``first``) and one chunk's temporaries; a sort of the
     concatenated parts held the parts, the order and a sorted copy beside them (on the
     10k head with the second order, 492 bytes a ray)."""
     counts = np.zeros(texels, np.int64)
@@ -240,9 +266,11 @@ def assemble_ray_blocks(parts: Sequence[RayPart], texels: int, terms: int,
     nxt = np.zeros(texels, np.int64)
     np.cumsum(counts[:-1], out=nxt[1:])
     n = int(counts.sum())
+    head = int(counts[:max(0, min(first, texels))].sum())  # the rays of rows below first
     del counts
     row, col = np.empty(n, np.int32), np.empty(n, np.int32)
-    weight, read = np.empty((n, terms, 3), np.float32), np.empty((n, terms), np.float32)
+    head_weight = np.empty((head, 3), np.float32)
+    weight, read = np.empty((n - head, terms, 3), np.float32), np.empty((n, terms), np.float32)
     for p in parts:
         for a in range(0, len(p.rows), chunk):
             sl = slice(a, min(a + chunk, len(p.rows)))
@@ -251,8 +279,12 @@ def assemble_ray_blocks(parts: Sequence[RayPart], texels: int, terms: int,
             _places(r, nxt, place)
             row[place], col[place] = r, p.cols[sl]
             w, v = p.values(sl)
-            weight[place], read[place] = w, v
-    return RayBlockProduct(row, col, weight, read, texels, threads, first)
+            read[place] = v
+            low = place < head
+            head_weight[place[low]] = w[low, 0]
+            weight[place[~low] - head] = w[~low]
+    return RayBlockProduct(row, col, weight, read, texels, threads, first,
+                           head_weight=head_weight)
 
 
 def permute_csr(matrix: sp.csr_matrix, order: np.ndarray) -> sp.csr_matrix:

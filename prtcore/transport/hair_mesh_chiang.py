@@ -26,6 +26,7 @@ weights).
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -66,7 +67,7 @@ from prtcore.transport.fibre_near import (
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
-from prtcore.transport.low_rank import solve_low_rank
+from prtcore.transport.low_rank import first_bounce_in_place, solve_low_rank
 from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
 
 #: bytes of one entry of the product (:class:`~prtcore.core.sparse.RayBlockProduct`:
@@ -78,6 +79,10 @@ from prtcore.transport.solve import SOLVE_BLOCK_BYTES, SOLVE_WORK_ARRAYS
 #: bytes an entry beside the product (469 measured at F = 9) and 48 F per fibre ray for
 #: its weights, made whole
 PRODUCT_ENTRY_BYTES = (8, 16)
+#: the same for an entry of an atlas row (int32 row and column, coefficient 0's three
+#: float32 weights, F float32 reads), a + b F: until 2026-12-07 an atlas entry held all
+#: F × 3 weights, 168 bytes at F = 10 where it now holds 60 (the 10k head: 1.0 GiB)
+ATLAS_ENTRY_BYTES = (20, 4)
 ASSEMBLY_RAY_BYTES = (100, 100)
 #: bytes per ray that either gather keeps until the product is made (its rows, the texel
 #: hit and its direction, and the fibre rays' tangents) and per fibre ray to the mesh,
@@ -128,9 +133,14 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       Until 2026-12-07 this phase was not counted and its block grew with J: the 10k
       head at J = 16 peaked at 15.0 GiB (13.97 GiB since, in its solve), 0.7 GiB under
       the estimate; at J = 32 its block alone would have held 4.1 GiB.
-    * **Solve.** The product, the stacked direct light, the sum of the bounces beside it
-      ((T_m + T_h), K, 3), the first bounce's near-field corrections, and the solve's
-      working arrays in their column blocks (bounded by SOLVE_BLOCK_BYTES).
+    * **Solve.** The product, the stacked direct light, the first bounce's near-field
+      corrections and then, once they are dropped, the sum of the bounces beside it
+      ((T_m + T_h), K, 3) (until 2026-12-07 the corrections were held through the
+      solve, 1.4 GiB on the 10k head), and the solve's working arrays in their column
+      blocks (bounded by SOLVE_BLOCK_BYTES).
+
+    An atlas row's entry of the product holds coefficient 0's weights alone
+    (ATLAS_ENTRY_BYTES; :class:`~prtcore.core.sparse.RayBlockProduct`'s ``head_weight``).
 
     Measured (benchmarks/stage_memory.py, 2000 curly strands on the head, 512² atlas:
     139 089 + 20 000 texels, K = 528, M = 64, linear): peak 6.36 GiB in the solve, 3.75
@@ -141,9 +151,10 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     d = density or HairDensity(1.0)  # at most one entry per gather ray; the atlas keeps
     near_rays = (t_m * transport.gather_rays * d.atlas_near_share * NEAR_FIBRE_RAYS
                  if near_fibres > 0 else 0)
-    entries = (t_m * transport.gather_rays * d.atlas_hit_share  # the spec's M
-               + t_h * rays * d.hit_share + near_rays)
-    product = entries * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f)
+    atlas = t_m * transport.gather_rays * d.atlas_hit_share + near_rays  # the spec's M
+    entries = atlas + t_h * rays * d.hit_share
+    product = (atlas * (ATLAS_ENTRY_BYTES[0] + ATLAS_ENTRY_BYTES[1] * f)
+               + (entries - atlas) * (PRODUCT_ENTRY_BYTES[0] + PRODUCT_ENTRY_BYTES[1] * f))
     gathers = (operator_for("surface").estimate_bytes(t_m, k, transport)
                + operator_for("fibre").estimate_bytes(
                    t_h, k, dataclasses.replace(transport, gather_rays=rays))
@@ -155,7 +166,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     near_stage = (product + stacked + corrections + t_m * transport.gather_rays * 12
                   + t_h * rays * MESH_HIT_BYTES)
     direct_stage = product + stacked + corrections + direct_block_bytes(t_h, samples, k, f)
-    solve = (product + stacked + n * k * 12 + near * k * 12
+    solve = (product + stacked + max(n, near) * k * 12  # the corrections, then the sum
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
     return int(max(gathers, near_stage, direct_stage, solve))
 
@@ -435,9 +446,16 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
     albedo[:t_m] = texels.albedo
-    indirect, bounces, resid, solve_stats = solve_low_rank(
-        product, albedo, direct, spec.max_bounces, spec.tolerance, rows=t, timer=timer,
-        threads=tracer.threads, first_bounce=first)
+    with timer.stage("indirect solve"):  # the corrections go after the first bounce
+        t_first = time.perf_counter()
+        if spec.max_bounces >= 1:
+            first_bounce_in_place(product, albedo, direct, first, tracer.threads)
+        del first
+        t_first = time.perf_counter() - t_first
+        indirect, bounces, resid, solve_stats = solve_low_rank(
+            product, albedo, direct, spec.max_bounces, spec.tolerance, rows=t,
+            threads=tracer.threads, bounced=True)
+        solve_stats["seconds"] = solve_stats.get("seconds", 0.0) + t_first
     del direct
     if n_f > 1:  # the truncated exitance can dip below zero at a few texels; light cannot
         solve_stats["negative_clamped"] = int((indirect < 0).sum())
