@@ -22,7 +22,8 @@ from prtcore.receivers.strands import build_strand_space
 from prtcore.reference.fibres import noise_corrected_error
 from prtcore.reference.hair_mesh import chiang_hair_mesh_reference
 from prtcore.scenes.hair import head_hair, head_lights, write_head
-from prtcore.transport.direct import direct_radiance, near_field_correction
+from prtcore.transport.dataset import add_first_bounce, first_bounce_rows
+from prtcore.transport.direct import direct_radiance, near_field_correction, near_field_rows
 from prtcore.transport.fibre import SHARE_MARGIN, hair_density, hair_tracer
 from prtcore.transport.fibre_chiang import EXITANCE_TERMS, chiang_fibre, chiang_gather
 from prtcore.transport.gather import HitMapper, NearField, gather_operator
@@ -169,6 +170,28 @@ def test_the_near_field_is_shaded_once_for_every_exitance_coefficient(scalp):
         assert np.array_equal(rows[at], r) and np.array_equal(values[at], v)
     # coefficient a ≥ 1 of strand texel i is row T + (a − 1) T_h + i (the product's)
     assert rows.max() < t_m + t_h + (n_f - 1) * t_h and rows.min() >= t_m
+    # corrections of other rows added into one array (the bake's, no union beside
+    # them): each correction's rows read what it gives alone, bit for bit, and a third
+    # whose rows are all its own is added in place (add_first_bounce)
+    assert np.array_equal(near_field_rows(nf), rows)
+    # an atlas near field (the convex head has none of its own): the same mesh points
+    # received by random atlas texels, with coefficient 0's weights
+    g_near = NearField(row=np.sort(np.random.default_rng(5).integers(0, t_m, nf.count)),
+                       col=nf.col, triangle=nf.triangle, barycentric=nf.barycentric,
+                       weight=np.ascontiguousarray(nf.weight[:, 0]))
+    g_rows = near_field_rows(g_near)
+    one = first_bounce_rows(g_rows, rows, configurations=len(LIGHTS))
+    assert np.array_equal(one[0], np.union1d(g_rows, rows))
+    for x in (g_near, nf):
+        assert near_field_correction(scene, tracer, x, LIGHTS, direct, into=one) is one
+    atlas = near_field_correction(scene, tracer, g_near, LIGHTS, direct)
+    assert len(g_rows) and np.array_equal(one[1][np.searchsorted(one[0], g_rows)], atlas[1])
+    assert np.array_equal(one[1][np.searchsorted(one[0], rows)], values)
+    want = add_first_bounce(add_first_bounce(atlas, (rows, values)), atlas)
+    assert add_first_bounce(one, atlas) is one and np.array_equal(one[1], want[1])
+    with pytest.raises(ValueError, match="into's rows must hold every row"):
+        near_field_correction(scene, tracer, nf, LIGHTS, direct,
+                              into=first_bounce_rows(g_rows, configurations=len(LIGHTS)))
 
 
 def test_how_dense_the_hair_is_is_known_before_the_gather(scalp):

@@ -116,9 +116,19 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
     return out
 
 
+def near_field_rows(near: NearField) -> np.ndarray:
+    """(r,) or (F r,) int64: the rows :func:`near_field_correction` returns for ``near``
+    (its receiving texels sorted unique, each coefficient's at ``rows + offsets[a]``)."""
+    rows = np.unique(near.row)
+    if near.offsets is None:
+        return rows
+    return (rows[None, :] + np.asarray(near.offsets, np.int64)[:, None]).ravel()
+
+
 def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
                           lights: Sequence[Light], direct_texels: np.ndarray,
-                          timer: StageTimer | None = None
+                          timer: StageTimer | None = None,
+                          into: tuple[np.ndarray, np.ndarray] | None = None
                           ) -> tuple[np.ndarray, np.ndarray]:
     """The first bounce of the near field at the hit points instead of their texels.
 
@@ -130,13 +140,28 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
     (r, K, 3) float32; :func:`prtcore.transport.solve.solve_indirect` adds them to the
     first bounce. With per-coefficient weights (``near.offsets``, F of them, increasing
     and at least the rows' span apart) each hit's change is shaded once and weighted F
-    times: rows (F r,), coefficient a's at ``rows + offsets[a]``.
+    times: rows (F r,), coefficient a's at ``rows + offsets[a]`` (:func:`near_field_rows`).
+
+    ``into``: a correction (rows sorted unique, values (R, K, 3) float32) whose rows hold
+    every one of these; the changes are added into its values, in place, and it is
+    returned. Two corrections of other rows then share one array instead of being summed
+    into a third (:func:`prtcore.transport.dataset.first_bounce_rows`).
     """
     k = direct_texels.shape[1]
     rows = np.unique(near.row)
     offsets = np.zeros(1, np.int64) if near.offsets is None else near.offsets
     r = len(rows)
-    out = np.zeros((len(offsets) * r, k, 3), dtype=np.float32)
+    if into is None:
+        out = np.zeros((len(offsets) * r, k, 3), dtype=np.float32)
+        place = np.arange(len(out))
+    else:
+        mine = near_field_rows(near)
+        place = np.searchsorted(into[0], mine)
+        if len(mine) and (place.max() >= len(into[0]) or
+                          not np.array_equal(into[0][place], mine)):
+            raise ValueError("near_field_correction: into's rows must hold every row of "
+                             "the near field")
+        out = into[1]
     slot = np.searchsorted(rows, near.row)
     starts = range(0, near.count, NEAR_CHUNK)
     if timer is not None:
@@ -154,11 +179,12 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
         run = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
         if near.offsets is None:
             ld *= w[:, None, None] if w.ndim == 1 else w[:, None, :]
-            out[sk[run]] += np.add.reduceat(ld, run, axis=0)
+            out[place[sk[run]]] += np.add.reduceat(ld, run, axis=0)
             continue
         for a in range(len(offsets)):  # the same shading, each coefficient's weights
-            out[a * r + sk[run]] += np.add.reduceat(ld * w[:, None, a, :], run, axis=0)
-    if near.offsets is not None:
-        rows = (rows[None, :] + offsets[:, None]).ravel()
-    return rows, out
+            out[place[a * r + sk[run]]] += np.add.reduceat(ld * w[:, None, a, :], run,
+                                                           axis=0)
+    if into is not None:
+        return into
+    return near_field_rows(near), out
 

@@ -41,8 +41,13 @@ from prtcore.intake.points import MeasurementPoints
 from prtcore.receivers.strands import StrandSpace
 from prtcore.receivers.texels import TexelSpace
 from prtcore.transport.base import operator_for
-from prtcore.transport.dataset import Dataset, add_first_bounce, direct_at_points
-from prtcore.transport.direct import direct_radiance, near_field_correction
+from prtcore.transport.dataset import (
+    Dataset,
+    add_first_bounce,
+    direct_at_points,
+    first_bounce_rows,
+)
+from prtcore.transport.direct import direct_radiance, near_field_correction, near_field_rows
 from prtcore.transport.fibre import HairDensity, MeshHits, direct_block_bytes
 from prtcore.transport.fibre_chiang import (
     EXITANCE_TERMS,
@@ -104,7 +109,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
     transport; None: every ray a hit and every strand texel with near-field rows) the
     shares of rays that make product entries and of strand texels whose near-field
-    corrections are kept: the largest of four phases.
+    corrections are kept: the largest of five phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the product, at most one entry per gather ray of either
@@ -116,16 +121,17 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       they carried F, all but the first zero, which cost the 10k head's second order
       6.6 GiB), the first bounce's near-field corrections (at most T_m + F T_h rows of
       (K, 3); T_m + F × ``near_share`` T_h: on the 10k head 4.4 % of its strand texels)
-      twice (the atlas's and the fibres' beside their sum), the surface gather's matrix
-      and the fibre rays' mesh hits, dropped before the solve (until 2026-12-06 they
-      were kept through it).
+      in one array that each is added into (until 2026-12-07 twice: the atlas's and the
+      fibres' beside their sum), the surface gather's matrix and the fibre rays' mesh
+      hits, dropped before the solve (until 2026-12-06 they were kept through it).
     * **Near fibres** (``near_fibres`` > 0, :mod:`prtcore.transport.fibre_near`): the
       atlas rays that meet a fibre within reach (``density``'s share, at most every atlas
-      ray) each add NEAR_FIBRE_RAYS entries, kept until the product is made, and the
-      first bounce one more correction of at most T_m rows beside the sum it joins.
-      Their shadow pieces' visibility (a bit a piece and light, at most ⌈K/8⌉ bytes a
-      near hit) is held after the surface gather's matrix and the mesh hits are
-      dropped, so it stays below this phase's peak.
+      ray) each add NEAR_FIBRE_RAYS entries, kept until the product is made, and their
+      direct light one more correction of at most T_m rows beside the corrections it is
+      added into (a phase of its own after the direct fibres: the product, the stacked
+      direct light and both). Their shadow pieces' visibility (a bit a piece and light,
+      at most ⌈K/8⌉ bytes a near hit) is held after the surface gather's matrix and the
+      mesh hits are dropped, so it stays below this phase's peak.
     * **Direct fibres.** The product, the stacked direct light, the near-field
       corrections, and the largest block of :func:`~prtcore.transport.fibre.
       direct_of_samples` (its J samples' radiance and F coefficients for K lights,
@@ -162,13 +168,15 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                + ASSEMBLY_CHUNK * (ASSEMBLY_RAY_BYTES[0] + ASSEMBLY_RAY_BYTES[1] * f))
     near = t_m + f * d.near_share * t_h
     stacked = (n + (f - 1) * t_h) * k * 12
-    corrections = (2 * near + (t_m if near_fibres > 0 else 0)) * k * 12
+    corrections = near * k * 12  # one array, each correction added into it
     near_stage = (product + stacked + corrections + t_m * transport.gather_rays * 12
                   + t_h * rays * MESH_HIT_BYTES)
     direct_stage = product + stacked + corrections + direct_block_bytes(t_h, samples, k, f)
+    near_fibre_stage = product + stacked + corrections + (
+        t_m * k * 12 if near_fibres > 0 else 0)  # the near hits' direct light
     solve = (product + stacked + max(n, near) * k * 12  # the corrections, then the sum
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
-    return int(max(gathers, near_stage, direct_stage, solve))
+    return int(max(gathers, near_stage, direct_stage, near_fibre_stage, solve))
 
 
 class StrandRays(StrandHits):
@@ -409,18 +417,22 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         direct[:t_m] = direct_radiance(scene, tracer, lights, gather.direct_position,
                                        texels.normal, texels.albedo, timer, "direct texels")
     r4 = tracer.rays_traced
-    first = None
     with timer.stage("near field"):
-        if gather.near is not None and gather.near.count:
-            first = near_field_correction(scene, tracer, gather.near, lights, direct[:t_m],
-                                          timer)
+        atlas_near = gather.near if gather.near is not None and gather.near.count else None
         reach = spec.near_field if hair_near is None else hair_near
-        if reach > 0 and hits.row.size:
-            nf = chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach, m_h,
-                                        exitance, frames)
-            if nf.count:
-                first = add_first_bounce(first, near_field_correction(
-                    scene, tracer, nf, lights, direct[:t_m], timer))
+        nf = chiang_hair_near_field(hits, texels, fibre, t_m, t_h, reach, m_h, exitance,
+                                    frames) if reach > 0 and hits.row.size else None
+        nf = nf if nf is not None and nf.count else None
+        # one array for every first-bounce correction, each added into it in place
+        first = first_bounce_rows(*(near_field_rows(x) for x in (atlas_near, nf)
+                                    if x is not None),
+                                  *((np.unique(near.row),) if near.count else ()),
+                                  configurations=len(lights))
+        for x in (atlas_near, nf):
+            if x is not None:
+                near_field_correction(scene, tracer, x, lights, direct[:t_m], timer,
+                                      into=first)
+        del atlas_near, nf
     r5 = tracer.rays_traced
     gather_stats = gather.stats
     valid_rays = gather.valid_rays
