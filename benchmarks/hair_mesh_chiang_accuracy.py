@@ -56,6 +56,7 @@ Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 64
        [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark] [--second-seed]
        [--neighbours 64 128] [--atlas-rays 64] [--arc-reads extrapolate] [--bounces 16]
        [--read-models longitudinal_4 longitudinal_6] [--save DIR] [--hair-near 3]
+       [--reference-cache DIR]
 """
 
 from __future__ import annotations
@@ -226,13 +227,19 @@ def main(argv: list[str] | None = None) -> dict:
                     help="the path tracer's seed (its halves draw from it): the dark "
                          "scalp's error hangs on a few texels' rare paths, so compare "
                          "against more than one draw (docs/hair.md)")
+    ap.add_argument("--reference-cache", default=None,
+                    help="a folder: the path tracer's halves are read from it when a run "
+                         "with the same head, texels, paths and seed wrote them, and "
+                         "written to it otherwise (another variant then costs its bakes "
+                         "alone)")
     ap.add_argument("--save", default=None,
                     help="a folder: each row's per-texel values (.npz), for analysis")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/"
                                          "hair_mesh_chiang_accuracy.json"))
     args = ap.parse_args(argv)
-    if args.save:  # made before the hours of baking, not after
-        Path(args.save).mkdir(parents=True, exist_ok=True)
+    for folder in (args.save, args.reference_cache):  # made before the hours of baking
+        if folder:
+            Path(folder).mkdir(parents=True, exist_ok=True)
     scene, texels, space, tracer, fibres, points, rows, n_m = head_setup(
         args.strands, args.texels_per_strand, args.resolution, args.texels)
     t_m = texels.count
@@ -251,11 +258,19 @@ def main(argv: list[str] | None = None) -> dict:
             """The path tracer's halves at ``rows``, made once per hair, depth and
             exitance: the rows that compare with it share it."""
             key = (name, bounces, exitance)
+            cached = None if args.reference_cache is None else Path(args.reference_cache) / (
+                f"{name}_{bounces}_{exitance}_s{args.strands}_t{args.texels_per_strand}_"
+                f"r{args.resolution}_n{args.texels}_p{args.paths}_S{args.reference_seed}.npz")
+            if key not in refs and cached is not None and cached.is_file():
+                with np.load(cached) as z:
+                    refs[key] = (z["a"], z["b"])
             if key not in refs:
                 refs[key] = chiang_hair_mesh_reference(
                     scene, texels, space, tracer, fibres, LIGHTS, rows, args.paths,
                     args.reference_seed, fibre.params, fibre.sigma_points,
                     max_depth=bounces, exitance=exitance)
+                if cached is not None:
+                    np.savez(cached, a=refs[key][0], b=refs[key][1])
             return refs[key]
         for row, bounces, exitance, k in (
                 ("exact", 64, "exact", 0), ("exact_1", 1, "exact", 0),
