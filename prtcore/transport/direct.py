@@ -119,10 +119,14 @@ def direct_radiance(scene: Scene, tracer: RayTracer, lights: Sequence[Light],
 def near_field_rows(near: NearField) -> np.ndarray:
     """(r,) or (F r,) int64: the rows :func:`near_field_correction` returns for ``near``
     (its receiving texels sorted unique, each coefficient's at ``rows + offsets[a]``)."""
-    rows = np.unique(near.row)
-    if near.offsets is None:
+    return _coefficient_rows(np.unique(near.row), near.offsets)
+
+
+def _coefficient_rows(rows: np.ndarray, offsets: np.ndarray | None) -> np.ndarray:
+    """``rows`` (r,), or each coefficient's ``rows + offsets[a]`` one after another."""
+    if offsets is None:
         return rows
-    return (rows[None, :] + np.asarray(near.offsets, np.int64)[:, None]).ravel()
+    return (rows[None, :] + np.asarray(offsets, np.int64)[:, None]).ravel()
 
 
 def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
@@ -151,11 +155,11 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
     rows = np.unique(near.row)
     offsets = np.zeros(1, np.int64) if near.offsets is None else near.offsets
     r = len(rows)
+    mine = _coefficient_rows(rows, near.offsets)  # (len(offsets) r,)
     if into is None:
-        out = np.zeros((len(offsets) * r, k, 3), dtype=np.float32)
+        out = np.zeros((len(mine), k, 3), dtype=np.float32)
         place = np.arange(len(out))
     else:
-        mine = near_field_rows(near)
         place = np.searchsorted(into[0], mine)
         if len(mine) and (place.max() >= len(into[0]) or
                           not np.array_equal(into[0][place], mine)):
@@ -184,7 +188,5 @@ def near_field_correction(scene: Scene, tracer: RayTracer, near: NearField,
         for a in range(len(offsets)):  # the same shading, each coefficient's weights
             out[place[a * r + sk[run]]] += np.add.reduceat(ld * w[:, None, a, :], run,
                                                            axis=0)
-    if into is not None:
-        return into
-    return near_field_rows(near), out
+    return into if into is not None else (mine, out)
 

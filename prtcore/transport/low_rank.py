@@ -193,11 +193,12 @@ def solve_low_rank(product: RayBlockProduct, albedo: np.ndarray, direct: np.ndar
         stride = max(1, n // max(1, GRAM_ROWS_PER_LIGHT * k))
         bounces, resid, lift = 0, 1.0, None
         growth = _Growth()
-        while bounces < max_bounces:  # full width, in place
-            if bounces or not bounced:
+        if not bounced:
+            first_bounce_in_place(product, albedo, direct, first_bounce, threads)
+        while bounces < max_bounces:  # full width, in place; the first is taken above
+            if bounces:
                 solve_indirect(None, albedo, direct, 1, 1.0, threads=threads,
-                               product=product,
-                               first_bounce=first_bounce if bounces == 0 else None, out=direct)
+                               product=product, out=direct)
             bounces += 1
             stats["ranks"].append(k)
             if acc is None:
