@@ -116,12 +116,15 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
           rows: np.ndarray, neighbours: int, fibre_rays: int | None = None,
           arc_reads: str | None = None, hair_near: float | None = None,
           near_fibres: float = ChiangSpec().near_fibres,
-          atlas_radius: float = DENOISE_FALLBACK) -> tuple[np.ndarray, float]:
+          atlas_radius: float = DENOISE_FALLBACK,
+          shaded_fibres: float = ChiangSpec().shaded_fibres) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
     so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
     for the transport's; ``arc_reads``: how the atlas reads a fibre; ``hair_near``: the
     fibre gather's near-field reach, None for the transport's; ``near_fibres``: the
-    atlas's near field on the fibres, ``hair.chiang.near_fibres``), denoised as a bake
+    atlas's near field on the fibres, ``hair.chiang.near_fibres``; ``shaded_fibres``:
+    how far the fibres' direct light is shaded at the point, ``hair.chiang.
+    shaded_fibres``), denoised as a bake
     denoises with ``neighbours`` k > 0 (and its atlas filtered, ``atlas_radius`` texels,
     ``fit.denoise``): the indirect light at
     ``rows`` (n, K, 3) float64 and the seconds it took."""
@@ -132,7 +135,8 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
         bakes[key] = (bake_chiang_hair_mesh_dataset(
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
             StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays,
-            arc_reads=arc_reads, hair_near=hair_near, near_fibres=near_fibres),
+            arc_reads=arc_reads, hair_near=hair_near, near_fibres=near_fibres,
+            shaded_fibres=shaded_fibres),
             time.perf_counter() - t0)
     data, seconds = bakes[key]
     if neighbours:
@@ -195,6 +199,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--near-fibres", type=float, default=ChiangSpec().near_fibres,
                     help="the atlas's near field on the fibres in footprints "
                          "(hair.chiang.near_fibres; 0: off)")
+    ap.add_argument("--shaded-fibres", type=float, default=ChiangSpec().shaded_fibres,
+                    help="beyond the near field, the footprints within which a fibre's "
+                         "direct light is shaded at the point an atlas ray meets "
+                         "(hair.chiang.shaded_fibres; at most --near-fibres: off)")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -287,7 +295,8 @@ def main(argv: list[str] | None = None) -> dict:
                                         else bounces),
                           model, rows, k, m,
                           None if args.arc_reads == "mean" else args.arc_reads,
-                          args.hair_near, args.near_fibres, args.atlas_radius)
+                          args.hair_near, args.near_fibres, args.atlas_radius,
+                          args.shaded_fibres)
                     for seed in seeds]
             t1 = time.perf_counter()
             a, b = reference(bounces, exitance)

@@ -16,7 +16,7 @@ across machines.
 Printed and written to benchmarks/results/near_fibres_cost.json.
 
 Usage: python benchmarks/near_fibres_cost.py [--strands 10000] [--near-fibres 5]
-       [--lights 528] [--timed-lights 16] [--pieces 32 1048576]
+       [--lights 528] [--timed-lights 16] [--pieces 32 1048576] [--shaded-fibres R]
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ from prtcore.transport.fibre_near import (  # noqa: E402
     near_fibre_direct,
     near_fibre_rays,
     near_fibre_shaded,
+    shaded_fibre_correction,
 )
 from prtcore.transport.gather import HitMapper, gather_operator, near_field_reach  # noqa: E402
 from prtcore.transport.hair_mesh_chiang import StrandRays  # noqa: E402
@@ -69,6 +70,9 @@ def main(argv: list[str] | None = None) -> dict:
                          "once for all of them")
     ap.add_argument("--pieces", type=int, nargs="+", default=[NEAR_SHADOW_PIECES, 1 << 20],
                     help="arc pieces a texel sharing a shadow ray (many: one a hit)")
+    ap.add_argument("--shaded-fibres", type=float, default=0.0,
+                    help="also time the shaded hits' correction (hair.chiang."
+                         "shaded_fibres, footprints; above --near-fibres)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/near_fibres_cost.json"))
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
@@ -78,11 +82,14 @@ def main(argv: list[str] | None = None) -> dict:
     tracer, fibres = hair_tracer(space, scene)
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     fibre = chiang_fibre(ChiangSpec(eumelanin=1.3), space)
-    strands = StrandRays(space, fibres, f, 0, near_field_reach(texels, args.near_fibres))
+    strands = StrandRays(space, fibres, f, 0, near_field_reach(texels, args.near_fibres),
+                         near_field_reach(texels, args.shaded_fibres)
+                         if args.shaded_fibres > args.near_fibres else None)
     t0 = time.perf_counter()
     g = gather_operator(scene, texels, tracer, args.atlas_rays, 0, foreign=strands)
     gather_s = time.perf_counter() - t0
     near = strands.near()
+    hits = strands.shaded()
     fibre_hits = len(strands.rays()[0]) + near.count
     t0 = time.perf_counter()
     rays = near_fibre_rays(near, g.valid_rays, space, fibres, fibre, tracer, f,
@@ -115,6 +122,21 @@ def main(argv: list[str] | None = None) -> dict:
         shaded[str(pieces)] = {"s_per_light": s / len(lights),
                                "s_at_lights": s / len(lights) * args.lights,
                                "shadow_pieces": stats["shadow_pieces"]}
+    far = {}
+    if hits.count:  # the shaded hits' correction: texel reads out, the point's light in
+        tiled = np.tile(direct, (1, len(lights) // k + 1, 1))[:, :len(lights)]
+        into = (np.arange(t_m), np.zeros((t_m, len(lights), 3), np.float32))
+        stats = {}
+        t0 = time.perf_counter()
+        shaded_fibre_correction(hits, g.valid_rays, space, fibres, fibre, tracer, lights,
+                                args.exitance, tiled, rows_of, t_m,
+                                texel_frames(space) if needs_frames(args.exitance) else None,
+                                5, into, stats)
+        s = time.perf_counter() - t0
+        far = {"shaded_fibres": args.shaded_fibres, "hits": hits.count,
+               "share_of_fibre_hits": hits.count / max(fibre_hits, 1),
+               "shadow_pieces": stats["shadow_pieces"], "s_per_light": s / len(lights),
+               "s_at_lights": s / len(lights) * args.lights}
     per_light = shaded[str(args.pieces[0])]["s_per_light"]
     res = {"strands": args.strands, "atlas_texels": t_m, "strand_texels": t_h,
            "atlas_rays": args.atlas_rays, "near_fibres": args.near_fibres,
@@ -124,7 +146,7 @@ def main(argv: list[str] | None = None) -> dict:
            "gather_s": gather_s, "near_rays_s": rays_s, "near_rays": rays.stats,
            "texel_reads_s_per_light": read_s / k, "shaded_s_per_light": per_light,
            "shaded_s_at_lights": per_light * args.lights, "lights": args.lights,
-           "timed_lights": len(lights), "shaded_by_pieces": shaded}
+           "timed_lights": len(lights), "shaded_by_pieces": shaded, "shaded_hits": far}
     print(f"{args.strands} strands, {t_m} atlas texels × {args.atlas_rays} rays: "
           f"{near.count} near hits at {args.near_fibres:g} footprints "
           f"({res['near_share_of_atlas_rays']:.3f} of the atlas's rays, "
@@ -135,6 +157,11 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"shaded at the point, {pieces} pieces a texel ({v['shadow_pieces']} shadow "
               f"rays a light): {v['s_per_light']:.2f} s a light → "
               f"{v['s_at_lights'] / 60:.1f} min at {args.lights} lights")
+    if far:
+        print(f"shaded hits to {far['shaded_fibres']:g} footprints: {far['hits']} "
+              f"({far['share_of_fibre_hits']:.3f} of the fibre hits), "
+              f"{far['shadow_pieces']} shadow rays a light: {far['s_per_light']:.2f} s a "
+              f"light → {far['s_at_lights'] / 60:.1f} min at {args.lights} lights")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(res, indent=2))
     print(f"wrote {args.out}")

@@ -515,7 +515,8 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
         return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
             mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport, density,
-            spec.hair.chiang.near_fibres, samples=samples))
+            spec.hair.chiang.near_fibres, samples=samples,
+            shaded_fibres=spec.hair.chiang.shaded_fibres))
     gather = operator_for("fibre").estimate_bytes(
         t, k, dataclasses.replace(spec.transport, gather_rays=m))
     entries = t * m * MEM_PER_OPERATOR_ENTRY  # one operator matrix
@@ -647,6 +648,8 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                                    atlas=intake.texels.mesh,
                                    near_field=spec.transport.near_field,
                                    near_fibres=spec.hair.chiang.near_fibres
+                                   if spec.hair.fibre == "chiang" else 0.0,
+                                   shaded_fibres=spec.hair.chiang.shaded_fibres
                                    if spec.hair.fibre == "chiang" else 0.0)
         spec, lines = dense_hair(asset, space, spec, density, limits.max_bake_bytes,
                                  mesh_texels, exitance_auto)
@@ -836,7 +839,8 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                              exitance=spec.hair.chiang.exitance,
                                              fibre_rays=rays,
                                              near_fibres=spec.hair.chiang.near_fibres,
-                                             direct_samples=spec.hair.direct_samples)
+                                             direct_samples=spec.hair.direct_samples,
+                                             shaded_fibres=spec.hair.chiang.shaded_fibres)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, transport, timer,

@@ -11,6 +11,7 @@ import scipy.sparse as sp
 from prtcore.core.fibres import facing, fibre_at_hits, outside_offset
 from prtcore.core.geometry import orthonormal_frame
 from prtcore.core.progress import StageTimer
+from prtcore.core.scene import Light
 from prtcore.core.spec import ChiangSpec, TransportSpec, parse_spec
 from prtcore.emitters.base import emitter_for
 from prtcore.emitters.punctual import irradiance, unshadowed_irradiance
@@ -19,6 +20,7 @@ from prtcore.intake.points import place_measurement_points
 from prtcore.pipeline import run_intake
 from prtcore.receivers.strands import arc_of_hit, build_strand_space
 from prtcore.scenes.hair import head_hair, head_lights, write_head
+from prtcore.transport import fibre_near
 from prtcore.transport.fibre import SHARE_MARGIN, MeshHits, hair_density, hair_tracer
 from prtcore.transport.fibre_chiang import (
     EXITANCE_TERMS,
@@ -36,6 +38,7 @@ from prtcore.transport.fibre_near import (
     near_fibre_rays,
     near_fibre_shaded,
     piece_visibility,
+    shaded_fibre_correction,
     shadow_pieces,
 )
 from prtcore.transport.gather import HitMapper, gather_operator, near_field_reach
@@ -197,21 +200,26 @@ def test_the_direct_light_at_the_point_met_is_the_texels_model_there(scalp):
         assert not np.allclose(a, b)  # shaded, not read
 
 
+def _bake(scalp, bounces: int, exitance: str, **fibres_near):
+    """The scalp's hair + mesh dataset under the head's two lights (32 rays, J = 4,
+    seed 0, ``bounces`` bounces), with bake_chiang_hair_mesh_dataset's ``fibres_near``
+    (near_fibres, shaded_fibres)."""
+    scene, texels, space, tracer, fibres, *_ = scalp
+    points = place_measurement_points(hair_scene(space.hair), parse_spec(
+        {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
+    return bake_chiang_hair_mesh_dataset(
+        scene, texels, space, fibres, points, tracer, head_lights(), (),
+        TransportSpec(gather_rays=32, direct_samples=4, seed=0, max_bounces=bounces),
+        StageTimer(quiet=True), chiang_fibre(ChiangSpec(), space), exitance=exitance,
+        **fibres_near)
+
+
 def test_a_bake_with_the_near_field_on_the_fibres(scalp):
     """hair.chiang.near_fibres through the bake: its stats count the near hits and their
     rays, the atlas texels' light changes and keeps its scale, and off it is the bake
     it was (no near hits kept, no stats)."""
-    scene, texels, space, tracer, fibres, *_ = scalp
-    points = place_measurement_points(hair_scene(space.hair), parse_spec(
-        {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
-    fibre = chiang_fibre(ChiangSpec(), space)
-
-    def bake(near: float):
-        return bake_chiang_hair_mesh_dataset(
-            scene, texels, space, fibres, points, tracer, head_lights(), (),
-            TransportSpec(gather_rays=32, direct_samples=4, seed=0, max_bounces=3),
-            StageTimer(quiet=True), fibre, exitance="linear", near_fibres=near)
-    on, off = bake(REACH), bake(0.0)
+    texels = scalp[1]
+    on, off = _bake(scalp, 3, "linear", near_fibres=REACH), _bake(scalp, 3, "linear")
     s = on.stats["near_fibres"]
     assert s["hits"] > 0 and s["rays"] == 2 * s["hits"] and "near_fibres" not in off.stats
     t_m = texels.count
@@ -309,3 +317,108 @@ def test_the_compiled_shading_is_the_texels_direct_model_read_toward_the_ray(exi
                      table.sin_theta, table.root_sigma, got)
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
         assert np.abs(want).max() > 0
+
+
+@pytest.fixture(scope="module")
+def shaded_split(scalp):
+    """The scalp's atlas gather once more, its fibre hits within one footprint near and
+    those within REACH shaded (StrandRays' ``shade``)."""
+    scene, texels, space, tracer, fibres, *_ = scalp
+    both = StrandRays(space, fibres, scene.triangle_count, seed=1,
+                      reach=near_field_reach(texels, 1.0),
+                      shade=near_field_reach(texels, REACH))
+    return both, gather_operator(scene, texels, tracer, 32, 1, foreign=both)
+
+
+def test_shaded_hits_are_the_far_reads_within_the_second_reach(scalp, shaded_split):
+    """With ``shade`` beyond ``reach``, StrandRays keeps the hits closer than ``reach``
+    as near hits and leaves them out of its reads (StrandRays.rays), and marks apart the
+    reads closer than ``shade``, which it keeps: the near and the shaded hits together
+    are the near hits at ``shade``'s reach, hit for hit. Without ``shade`` none."""
+    _, _, _, _, _, plain, split, g = scalp
+    both, g3 = shaded_split
+    assert np.array_equal(g3.valid_rays, g.valid_rays)
+    near, shaded = both.near(), both.shaded()
+    assert near.count > 0 and shaded.count > 0 and split.shaded().count == 0
+    assert len(both.rays()[0]) + near.count == len(plain.rays()[0])
+
+    def keys(*h):
+        d = np.concatenate([x.direction for x in h]).astype(np.float64)
+        return sorted(zip(np.concatenate([x.row for x in h]).tolist(),
+                          np.concatenate([x.texel for x in h]).tolist(),
+                          map(tuple, np.round(d, 5).tolist()), strict=True))
+    assert keys(near, shaded) == keys(split.near())
+    reads = sorted(zip(both.rays()[0].tolist(), both.rays()[1].tolist(),
+                       map(tuple, np.round(both.rays()[2], 5).tolist()), strict=True))
+    assert set(keys(shaded)) <= set(reads)  # they stay reads
+
+
+def test_how_many_shaded_hits_there_are_is_known_before_the_gather(scalp, shaded_split):
+    """hair_density's atlas_shaded_share (the memory estimate's bound on the shaded
+    hits) bounds the share of atlas rays the gather keeps as near or shaded hits from
+    above, by at most its margin and the probe's noise."""
+    scene, texels, space, tracer, *_ = scalp
+    both, _ = shaded_split
+    share = (both.near().count + both.shaded().count) / (texels.count * 32)
+    density = hair_density(space, tracer, scene.triangle_count, 32, 0, atlas=texels,
+                           near_fibres=1.0, shaded_fibres=REACH)
+    assert 0.01 < share <= density.atlas_shaded_share <= share + SHARE_MARGIN + 0.03, (
+        share, density)
+    assert density.atlas_near_share < density.atlas_shaded_share
+
+
+def test_the_shaded_correction_swaps_the_texel_read_for_the_point_s_light(
+        scalp, shaded_split, monkeypatch):
+    """shaded_fibre_correction adds, into an accumulator with more rows than its hits',
+    each shaded hit's direct light at the point met (near_fibre_shaded) less its texel's
+    read (near_fibre_direct) for the punctual lights, whatever its chunks; an
+    environment light's columns stay as they were."""
+    both, g = shaded_split
+    _, texels, space, tracer, fibres, *_ = scalp
+    hits = both.shaded()
+    t_m, t_h = texels.count, space.count
+    fibre = chiang_fibre(ChiangSpec(), space)
+    lights = [*head_lights(), Light(type="environment", color=np.ones(3), intensity=1.0,
+                                    environment="ambient")]
+    f = EXITANCE_TERMS["second_order"]
+    direct = np.random.default_rng(3).random((t_m + t_h + (f - 1) * t_h, len(lights), 3))
+    direct = direct.astype(np.float32)
+
+    def rows_of(a: int) -> slice:
+        return slice(0, t_m + t_h) if a == 0 else slice(t_m + t_h + (a - 1) * t_h,
+                                                        t_m + t_h + a * t_h)
+    rows = np.arange(t_m)
+    start = np.random.default_rng(4).random((t_m, len(lights), 3)).astype(np.float32)
+    punctual = [0, 1]
+    _, read = near_fibre_direct(hits, g.valid_rays, direct, rows_of, t_m, t_h, f, None,
+                                punctual)
+    mine, point = near_fibre_shaded(hits, g.valid_rays, space, fibres, fibre, tracer,
+                                    lights, "second_order",
+                                    (np.unique(hits.row), np.zeros_like(read)), 6)
+    want = start.copy()
+    want[mine] += point - read
+    monkeypatch.setattr(fibre_near, "SHADED_CHUNK", 1000)  # several chunks
+    into = (rows, start.copy())
+    stats: dict = {}
+    shaded_fibre_correction(hits, g.valid_rays, space, fibres, fibre, tracer, lights,
+                            "second_order", direct, rows_of, t_m, None, 6, into, stats)
+    np.testing.assert_allclose(into[1], want, rtol=1e-5, atol=1e-6)
+    assert np.array_equal(into[1][:, 2], start[:, 2])  # the environment's
+    assert stats["shadow_pieces"] > 0 and not np.allclose(into[1], start)
+
+
+def test_a_bake_with_shaded_fibres_moves_the_first_bounce_of_its_atlas_texels_alone(scalp):
+    """hair.chiang.shaded_fibres through the bake, first bounce alone: the strand texels'
+    light is the bake without it bit for bit, some of the atlas texels change (those with
+    shaded hits) and keep their scale (the point's light against its texel's mean),
+    and the stats count the hits."""
+    texels = scalp[1]
+    on, off = (_bake(scalp, 1, "second_order", near_fibres=REACH, shaded_fibres=shaded)
+               for shaded in (4 * REACH, 0.0))
+    t_m = texels.count
+    assert np.array_equal(on.indirect[t_m:], off.indirect[t_m:])
+    assert on.stats["shaded_fibres"]["hits"] > 0 and "shaded_fibres" not in off.stats
+    a, b = on.indirect[:t_m].astype(np.float64), off.indirect[:t_m].astype(np.float64)
+    moved = np.any(a != b, axis=(1, 2))
+    assert 0 < moved.sum() < t_m and np.isfinite(a).all()
+    assert 0.8 < a.sum() / b.sum() < 1.2, a.sum() / b.sum()

@@ -328,14 +328,15 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
         check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
     # once its density is traced (the shares measured on this head, hair_density) it is
     # dense, denoised, and the second order's estimate with 128 fibre rays and the near
-    # fibres at 5 footprints (13.3 GiB: entries, near-field rows and near fibre hits at
-    # their shares, not every ray's and every texel's; 15.7 GiB until the atlas rows'
-    # entries kept three weights and the first bounce's corrections one array) fits the
+    # fibres at 5 footprints and its shaded hits at 20 (13.3 GiB without them: entries,
+    # near-field rows and near fibre hits at their shares, not every ray's and every
+    # texel's; 15.7 GiB until the atlas rows' entries kept three weights and the first
+    # bounce's corrections one array) fits the
     # default limit, above the 12.27 GiB peak RSS the default bake measured with the
     # atlas's entries made smaller (13.79 GiB before; docs/hair.md)
     from prtcore.hairbake import DENSE_MESH_RAYS, dense_hair
     from prtcore.transport.fibre import HairDensity
-    density = HairDensity(0.679, 0.093, 0.806, 0.786, 0.177)
+    density = HairDensity(0.679, 0.093, 0.806, 0.786, 0.177, 0.388)
     dense, lines = dense_hair("head.hair", space, got, density, limit, atlas, True)
     assert lines[1].endswith("the strand texels are denoised")
     assert lines[2].startswith(f"hair.gather_rays auto → {DENSE_MESH_RAYS}: dense hair")

@@ -624,6 +624,10 @@ class HairDensity(NamedTuple):
     #: the share of the atlas's gather rays that meet a fibre within ``near_fibres``
     #: footprints (the near fibre hits, :mod:`prtcore.transport.fibre_near`)
     atlas_near_share: float = 1.0
+    #: the share of the atlas's gather rays that meet a fibre within ``shaded_fibres``
+    #: footprints (the near and the shaded hits, :func:`~prtcore.transport.fibre_near.
+    #: shaded_fibre_correction`)
+    atlas_shaded_share: float = 1.0
 
 
 def _bounded(share: float) -> float:
@@ -632,7 +636,8 @@ def _bounded(share: float) -> float:
 
 def hair_density(space: StrandSpace, tracer: RayTracer, mesh_faces: int, rays: int,
                  seed: int, atlas: TexelSpace | None = None, near_field: float = 0.0,
-                 texels: int = SHARE_TEXELS, near_fibres: float = 0.0) -> HairDensity:
+                 texels: int = SHARE_TEXELS, near_fibres: float = 0.0,
+                 shaded_fibres: float = 0.0) -> HairDensity:
     """:class:`HairDensity` from ``rays`` cosine gather rays on each of at most
     ``texels`` random strand texels (and as many texels of the mesh's ``atlas``, as its
     gather traces them, :func:`~prtcore.transport.gather.hit_share`), traced before any
@@ -640,7 +645,8 @@ def hair_density(space: StrandSpace, tracer: RayTracer, mesh_faces: int, rays: i
     memory they cost is spent (``prtcore.hairbake.dense_hair``). ``mesh_faces``: the
     scene triangles before the fibre tubes in ``tracer``; ``near_field``: the transport's
     near-field reach in atlas texel footprints (the largest texel's reach bounds every
-    texel's); ``near_fibres``: the atlas's near field on the fibres, in footprints. On
+    texel's); ``near_fibres``: the atlas's near field on the fibres, in footprints, and
+    ``shaded_fibres`` the reach of its shaded hits (at least ``near_fibres``'). On
     the 10k curly head (4096 texels × 64 rays): 0.679 meet a fibre (its
     gather's 0.678), 0.756 anything, 4.3 % of its strand texels have a near mesh hit (its
     gather's 4.4 %), and 0.74 of its atlas's rays meet something (before the margins)."""
@@ -659,13 +665,15 @@ def hair_density(space: StrandSpace, tracer: RayTracer, mesh_faces: int, rays: i
     near = float(near_field_reach(atlas, near_field).max()) if atlas is not None \
         and atlas.count else 0.0
     close = (hits.hit & ~fibre & hits.front & (hits.t < near)).reshape(len(pick), m)
-    atlas_hits = atlas_near = 1.0
+    atlas_hits = atlas_near = atlas_shaded = 1.0
     if atlas is not None and atlas.count:
         shares = hit_share(atlas, tracer, m, texels, rng, mesh_faces,
-                           near_field_reach(atlas, near_fibres))
-        atlas_hits, atlas_near = _bounded(shares[0]), _bounded(shares[1])
+                           near_field_reach(atlas, near_fibres),
+                           near_field_reach(atlas, max(near_fibres, shaded_fibres)))
+        atlas_hits, atlas_near, atlas_shaded = map(_bounded, shares)
     return HairDensity(float(np.mean(fibre)), _bounded(float(close.any(axis=1).mean())),
-                       _bounded(float(np.mean(hits.hit))), atlas_hits, atlas_near)
+                       _bounded(float(np.mean(hits.hit))), atlas_hits, atlas_near,
+                       atlas_shaded)
 
 
 def harmonic_receivers(harmonics: str, space: StrandSpace,

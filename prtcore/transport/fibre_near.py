@@ -81,6 +81,11 @@ NEAR_DIRECT_LIGHTS = 64
 NEAR_SHADOW_PIECES = 32
 #: bytes each near ray keeps until the product is made (:class:`NearFibreRays`)
 NEAR_RAY_BYTES = 48
+#: shaded hits per chunk of :func:`shaded_fibre_correction`'s texel reads
+SHADED_CHUNK = 1 << 19
+#: bytes each shaded hit keeps until its correction is made (:class:`NearFibreHits`: row,
+#: texel, triangle int64, barycentric, direction float32 × 3; the gather batches' masks)
+SHADED_HIT_BYTES = 60
 
 
 def shaded_at_point(light: Light) -> bool:
@@ -274,7 +279,8 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
                       lights: Sequence[Light], exitance: str,
                       reads: tuple[np.ndarray, np.ndarray], seed: int,
                       pieces: int = NEAR_SHADOW_PIECES,
-                      stats: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      stats: dict | None = None, replace: bool = True
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """The second bullet of the module docstring: the near hits' direct light from the
     punctual ``lights`` shaded at the point met, written over their columns of ``reads``
     (:func:`near_fibre_direct`'s rows (r,) and values (r, K, 3), the same hits; the
@@ -288,7 +294,8 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
     over the texel's valid rays. V is its arc piece's (``pieces`` a strand texel, one hit
     of each drawn from ``seed``: :func:`shadow_pieces`, :func:`piece_visibility`): one
     shadow ray a piece and punctual light, not one a hit. ``stats``: gets the pieces'
-    count (``shadow_pieces``)."""
+    count (``shadow_pieces``). ``replace`` False: added to ``reads``' punctual columns,
+    not written over them (``reads``' rows then only need to hold the hits' rows)."""
     rows, out = reads
     punctual = [k for k, light in enumerate(lights) if shaded_at_point(light)]
     if not near.count or not punctual:
@@ -301,7 +308,8 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
                             [lights[k] for k in punctual])
     if stats is not None:
         stats["shadow_pieces"] = cut.count
-    out[:, punctual] = 0
+    if replace:
+        out[:, punctual] = 0
     table = fibre.albedo
     terms = EXITANCE_TERMS[exitance]
     light_rows = [emitter_for(lights[k]).kernel_row(lights[k]) for k in punctual]
@@ -325,3 +333,35 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
                          table.values, table.sin_theta, table.root_sigma, sums)
             out[mine, k] += sums.astype(np.float32)
     return rows, out
+
+
+def shaded_fibre_correction(hits: NearFibreHits, valid_rays: np.ndarray, space: StrandSpace,
+                            fibres: FibreMesh, fibre: ChiangFibre, tracer: RayTracer,
+                            lights: Sequence[Light], exitance: str, direct: np.ndarray,
+                            coefficient_rows: Callable[[int], slice], t_m: int,
+                            frames: tuple | None, seed: int,
+                            into: tuple[np.ndarray, np.ndarray],
+                            stats: dict | None = None) -> None:
+    """The shaded hits' first-bounce correction, added into ``into`` (rows (r,) int64
+    sorted unique, holding every one of ``hits``' rows, values (r, K, 3) float32): each
+    hit's direct light from the punctual lights shaded at the point met
+    (:func:`near_fibre_shaded`) less its strand texel's read toward the ray
+    (:func:`near_fibre_direct`), which the operator's entry for the hit gives the first
+    bounce. A shaded hit keeps that entry (its later bounces read the texel), so only
+    its direct light moves from the texel's mean to the point: the part of the near field
+    that moves the dark scalp's bias (docs/hair.md). The texel reads go in chunks of
+    SHADED_CHUNK hits, so their (F, n) reads stay bounded."""
+    rows, out = into
+    punctual = [k for k, light in enumerate(lights) if shaded_at_point(light)]
+    if not hits.count or not punctual:
+        return
+    t_h = space.count
+    terms = EXITANCE_TERMS[exitance]
+    for a in range(0, hits.count, SHADED_CHUNK):
+        part = NearFibreHits(*(getattr(hits, f)[a:a + SHADED_CHUNK] for f in (
+            "row", "texel", "triangle", "barycentric", "direction")))
+        mine, read = near_fibre_direct(part, valid_rays, direct, coefficient_rows, t_m, t_h,
+                                       terms, frames, punctual)
+        out[np.searchsorted(rows, mine)] -= read
+    near_fibre_shaded(hits, valid_rays, space, fibres, fibre, tracer, lights, exitance,
+                      into, seed, stats=stats, replace=False)

@@ -440,13 +440,14 @@ def side_normals(shading: np.ndarray, geometric: np.ndarray) -> np.ndarray:
 
 def hit_share(texels: TexelSpace, tracer: RayTracer, rays: int, count: int,
               rng: np.random.Generator, first: int | None = None,
-              reach: np.ndarray | None = None) -> tuple[float, float]:
+              *reach: np.ndarray) -> tuple[float, ...]:
     """The share of ``rays`` cosine gather rays from each of at most ``count`` random
     texels (from their sample points, offset as the gather offsets) that hit anything:
     before the gather, a bound on the entries it keeps (at most one per ray that hits;
-    rays below the surface, which the gather drops, count as hits here); and the share
-    that hit a triangle ≥ ``first`` (another receiver's: the fibre tubes) closer than
-    ``reach`` (T,) world units of its texel (0 without them). Draws from ``rng``."""
+    rays below the surface, which the gather drops, count as hits here); and for each
+    ``reach`` (T,) world units, the share that hit a triangle ≥ ``first`` (another
+    receiver's: the fibre tubes) closer than that to its texel (0 without ``first``).
+    Draws from ``rng``."""
     at = np.repeat(np.sort(rng.choice(texels.count, min(texels.count, count),
                                       replace=False)), max(rays, 1))
     if not len(at):
@@ -456,10 +457,9 @@ def hit_share(texels: TexelSpace, tracer: RayTracer, rays: int, count: int,
                        tracer.scale)
     d = directions_around(shade, np.sqrt(rng.random(len(at))), 2 * np.pi * rng.random(len(at)))
     hits = tracer.intersect(o, d)
-    near = 0.0
-    if first is not None and reach is not None:
-        near = float(np.mean((hits.triangle >= first) & (hits.t < reach[at])))
-    return float(np.mean(hits.hit)), near
+    foreign = hits.triangle >= first if first is not None else np.zeros(len(at), bool)
+    return float(np.mean(hits.hit)), *(float(np.mean(foreign & (hits.t < r[at])))
+                                       for r in reach)
 
 
 def _gather(scene: Scene, texels: TexelSpace, tracer: RayTracer, m: int, seed: int,

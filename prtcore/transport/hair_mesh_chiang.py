@@ -63,12 +63,14 @@ from prtcore.transport.fibre_chiang import (
 from prtcore.transport.fibre_near import (
     NEAR_FIBRE_RAYS,
     NEAR_RAY_BYTES,
+    SHADED_HIT_BYTES,
     NearFibreHits,
     NearFibreRays,
     near_fibre_direct,
     near_fibre_rays,
     near_fibre_shaded,
     shaded_at_point,
+    shaded_fibre_correction,
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
@@ -98,7 +100,8 @@ MESH_HIT_BYTES = 56
 
 def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
                       transport: TransportSpec, density: HairDensity | None = None,
-                      near_fibres: float = 0.0, *, samples: int) -> int:
+                      near_fibres: float = 0.0, *, samples: int,
+                      shaded_fibres: float = 0.0) -> int:
     """The transport's own peak memory (bytes, beyond the process and the texels' and
     fibres' fixed costs, which :func:`prtcore.hairbake.check_hair_memory` counts) for
     ``t_m`` atlas and ``t_h`` strand texels (the transport's arc pieces), ``k`` lights
@@ -109,7 +112,7 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     ``density`` (:func:`~prtcore.transport.fibre.hair_density`, traced before the
     transport; None: every ray a hit and every strand texel with near-field rows) the
     shares of rays that make product entries and of strand texels whose near-field
-    corrections are kept: the largest of five phases.
+    corrections are kept: the largest of six phases.
 
     * **Gathers.** The surface gather's and the fibre gather's own estimates, the rays
       to fibres they keep, then the product, at most one entry per gather ray of either
@@ -132,6 +135,12 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
       direct light and both). Their shadow pieces' visibility (a bit a piece and light,
       at most ⌈K/8⌉ bytes a near hit) is held after the surface gather's matrix and the
       mesh hits are dropped, so it stays below this phase's peak.
+    * **Shaded fibres** (``shaded_fibres`` > ``near_fibres``,
+      :func:`~prtcore.transport.fibre_near.shaded_fibre_correction`): the atlas rays
+      that meet a fibre within that reach (``density``'s ``atlas_shaded_share``, near
+      hits included, so a bound) each keep SHADED_HIT_BYTES from the gather until their
+      correction is added into the first bounce's, in a phase of its own after the near
+      fibres' with as much again of working arrays (their pieces, their rows' slots).
     * **Direct fibres.** The product, the stacked direct light, the near-field
       corrections, and the largest block of :func:`~prtcore.transport.fibre.
       direct_of_samples` (its J samples' radiance and F coefficients for K lights,
@@ -169,14 +178,19 @@ def chiang_mesh_bytes(t_m: int, t_h: int, k: int, rays: int, exitance: str,
     near = t_m + f * d.near_share * t_h
     stacked = (n + (f - 1) * t_h) * k * 12
     corrections = near * k * 12  # one array, each correction added into it
+    shaded = (t_m * transport.gather_rays * d.atlas_shaded_share * SHADED_HIT_BYTES
+              if shaded_fibres > near_fibres else 0)  # held from the gather to its phase
     near_stage = (product + stacked + corrections + t_m * transport.gather_rays * 12
-                  + t_h * rays * MESH_HIT_BYTES)
-    direct_stage = product + stacked + corrections + direct_block_bytes(t_h, samples, k, f)
-    near_fibre_stage = product + stacked + corrections + (
+                  + t_h * rays * MESH_HIT_BYTES + shaded)
+    direct_stage = (product + stacked + corrections + direct_block_bytes(t_h, samples, k, f)
+                    + shaded)
+    near_fibre_stage = product + stacked + corrections + shaded + (
         t_m * k * 12 if near_fibres > 0 else 0)  # the near hits' direct light
+    shaded_stage = product + stacked + corrections + 2 * shaded
     solve = (product + stacked + max(n, near) * k * 12  # the corrections, then the sum
              + min(SOLVE_WORK_ARRAYS * n * k * 12, SOLVE_BLOCK_BYTES))
-    return int(max(gathers, near_stage, direct_stage, near_fibre_stage, solve))
+    return int(max(gathers + shaded, near_stage, direct_stage, near_fibre_stage,
+                   shaded_stage, solve))
 
 
 class StrandRays(StrandHits):
@@ -185,27 +199,38 @@ class StrandRays(StrandHits):
     (T_m,) float64 (world units per atlas texel, :func:`~prtcore.transport.gather.
     near_field_reach`), a hit closer than its texel's reach is a near hit
     (:mod:`prtcore.transport.fibre_near`): kept apart (:meth:`near`) and left out of
-    :meth:`rays`."""
+    :meth:`rays`. With ``shade`` (T_m,) float64 too, a hit that is not near but closer
+    than that is a shaded hit (:meth:`shaded`): it stays in :meth:`rays` and is also
+    kept apart, for its direct light at the point met
+    (:func:`~prtcore.transport.fibre_near.shaded_fibre_correction`)."""
 
     def __init__(self, space: StrandSpace, fibres: FibreMesh, first: int, seed: int,
-                 reach: np.ndarray | None = None):
+                 reach: np.ndarray | None = None, shade: np.ndarray | None = None):
         super().__init__(space, fibres, first, seed)
-        self.reach = reach
+        self.reach, self.shade = reach, shade
         self._directions: dict[int, np.ndarray] = {}
-        # batch → (near (n,) bool, their tube triangles, barycentrics)
+        # batch → (near (n,) bool, their tube triangles, barycentrics); the shaded hits'
         self._near: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._shaded: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def __call__(self, batch, rows, triangle, barycentric, direction, distance=None):
         texel = super().__call__(batch, rows, triangle, barycentric, direction)
-        near = None
-        if self.reach is not None:
-            close = np.asarray(distance) < self.reach[rows]
-            near = (close, (triangle[close] - self.first).astype(np.int64),
-                    np.asarray(barycentric[close], np.float32))
+        kept = {}
+        close = np.zeros(len(rows), bool)
+        for name, reach in (("near", self.reach), ("shaded", self.shade)):
+            if reach is None:
+                continue
+            inside = (np.asarray(distance) < reach[rows]) & ~close
+            kept[name] = (inside, (triangle[inside] - self.first).astype(np.int64),
+                          np.asarray(barycentric[inside], np.float32))
+            if name == "near":
+                close = inside
         with self._lock:
             self._directions[batch] = np.asarray(direction, np.float32)
-            if near is not None:
-                self._near[batch] = near
+            if "near" in kept:
+                self._near[batch] = kept["near"]
+            if "shaded" in kept:
+                self._shaded[batch] = kept["shaded"]
         return texel
 
     def _batch(self, k: int, name: str) -> np.ndarray:
@@ -214,12 +239,11 @@ class StrandRays(StrandHits):
             return self._directions[k]
         return self._parts[k][{"row": 0, "texel": 1, "frac": 3}[name]]
 
-    def _joined(self, name: str, near: bool) -> np.ndarray:
-        """:meth:`_batch` ``name`` of every batch in order, of its near hits (``near``) or
-        of the others."""
-        if near:
-            return np.concatenate([self._batch(k, name)[self._near[k][0]]
-                                   for k in sorted(self._near)])
+    def _joined(self, name: str, kept: dict | None) -> np.ndarray:
+        """:meth:`_batch` ``name`` of every batch in order, of the hits ``kept`` marks
+        (``self._near`` or ``self._shaded``), or of all but the near hits (None)."""
+        if kept is not None:
+            return np.concatenate([self._batch(k, name)[kept[k][0]] for k in sorted(kept)])
         return np.concatenate([self._batch(k, name)[~self._near[k][0]] if k in self._near
                                else self._batch(k, name) for k in sorted(self._parts)])
 
@@ -235,28 +259,35 @@ class StrandRays(StrandHits):
         if not self._parts:
             return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
                     np.zeros(0))
-        rows = self._joined("row", False).astype(np.int64)
-        texel = self._joined("texel", False).astype(np.int64)
-        d = self._joined("direction", False).astype(np.float64)
+        rows = self._joined("row", None).astype(np.int64)
+        texel = self._joined("texel", None).astype(np.int64)
+        d = self._joined("direction", None).astype(np.float64)
         if root is None:
             return rows, texel, d, np.ones(len(rows))
-        frac = self._joined("frac", False).astype(np.float64)
+        frac = self._joined("frac", None).astype(np.float64)
         cols, w = self.space.arc_weights(texel, frac, root)
         return np.repeat(rows, 2), cols.ravel(), np.repeat(d, 2, axis=0), w.ravel()
 
     def near(self) -> NearFibreHits:
         """The near hits, in batch order (:class:`~prtcore.transport.fibre_near.
         NearFibreHits`; none without ``reach``)."""
-        if not self._near:
+        return self._hits(self._near)
+
+    def shaded(self) -> NearFibreHits:
+        """The shaded hits, in batch order (none without ``shade``)."""
+        return self._hits(self._shaded)
+
+    def _hits(self, kept: dict) -> NearFibreHits:
+        if not kept:
             return NearFibreHits(np.zeros(0, np.int64), np.zeros(0, np.int64),
                                  np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
                                  np.zeros((0, 3), np.float32))
-        keys = sorted(self._near)
-        return NearFibreHits(row=self._joined("row", True).astype(np.int64),
-                             texel=self._joined("texel", True).astype(np.int64),
-                             triangle=np.concatenate([self._near[k][1] for k in keys]),
-                             barycentric=np.concatenate([self._near[k][2] for k in keys]),
-                             direction=self._joined("direction", True))
+        keys = sorted(kept)
+        return NearFibreHits(row=self._joined("row", kept).astype(np.int64),
+                             texel=self._joined("texel", kept).astype(np.int64),
+                             triangle=np.concatenate([kept[k][1] for k in keys]),
+                             barycentric=np.concatenate([kept[k][2] for k in keys]),
+                             direction=self._joined("direction", kept))
 
 
 def chiang_mesh_product(mesh_rows, strand_rays: tuple, valid_rays: np.ndarray,
@@ -361,7 +392,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   fibre_rays: int | None = None,
                                   arc_reads: str | None = None, near_fibres: float = 0.0,
                                   near_fibre_count: int = NEAR_FIBRE_RAYS,
-                                  direct_samples: int | str = "auto") -> Dataset:
+                                  direct_samples: int | str = "auto",
+                                  shaded_fibres: float = 0.0) -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
@@ -377,13 +409,20 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     (``hair.chiang.near_fibres``): an atlas ray that meets a fibre closer than this many
     footprints of its texel is shaded at the point it meets
     (:mod:`prtcore.transport.fibre_near`, ``near_fibre_count`` rays from each such hit);
-    0: every hit reads its strand texel. ``direct_samples`` (``hair.direct_samples``):
-    the hair's direct samples per strand texel (:func:`chiang_samples`)."""
+    0: every hit reads its strand texel. ``shaded_fibres`` (``hair.chiang.shaded_fibres``,
+    above ``near_fibres``): an atlas ray that meets a fibre beyond ``near_fibres`` but
+    closer than this many footprints keeps its texel read for the later bounces, and its
+    first bounce takes the fibre's direct light from punctual lights shaded at the point
+    met (:func:`~prtcore.transport.fibre_near.shaded_fibre_correction`).
+    ``direct_samples`` (``hair.direct_samples``): the hair's direct samples per strand
+    texel (:func:`chiang_samples`)."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
     reach = near_field_reach(texels, near_fibres) if near_fibres > 0 else None
-    strands = StrandRays(space, fibres, f, spec.seed, reach)
+    shade = (near_field_reach(texels, shaded_fibres) if shaded_fibres > near_fibres
+             else None)
+    strands = StrandRays(space, fibres, f, spec.seed, reach, shade)
     gather = gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
                              near_field=spec.near_field, direct_samples=spec.direct_samples,
                              foreign=strands)
@@ -392,7 +431,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     t = t_m + t_h
     m_h = spec.gather_rays if fibre_rays is None else int(fibre_rays)
     mapper = HitMapper(scene, texels, tracer)
-    near = strands.near()
+    near, shaded = strands.near(), strands.shaded()
+    shaded_stats = {"hits": shaded.count}
     near_rays = None
     if near.count:  # the atlas's rays: counted with its gather's
         with timer.stage("near fibres"):
@@ -426,7 +466,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         # one array for every first-bounce correction, each added into it in place: the
         # near fields' and the near fibre hits' (near_fibre_direct's rows)
         first = first_bounce_rows(*map(near_field_rows, fields), np.unique(near.row),
-                                  configurations=len(lights))
+                                  np.unique(shaded.row), configurations=len(lights))
         for x in fields:
             near_field_correction(scene, tracer, x, lights, direct[:t_m], timer, into=first)
         del atlas_near, nf, fields
@@ -452,6 +492,12 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                                      if not shaded_at_point(light)]),
                 spec.seed + 4, stats=near_rays.stats))
     del near
+    if shaded.count:  # the shaded hits' direct light: at the point met, less the texel's
+        with timer.stage("shaded fibres (direct)"):
+            shaded_fibre_correction(shaded, valid_rays, space, fibres, fibre, tracer, lights,
+                                    exitance, direct, product.coefficient_rows, t_m, frames,
+                                    spec.seed + 5, first, shaded_stats)
+    del shaded
     r6 = tracer.rays_traced
     albedo = np.full((product.shape[0], 3), 0.5)
     albedo[:t_m] = texels.albedo
@@ -473,5 +519,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                             solve_stats, model="chiang", exitance=exitance)
     if near_rays is not None:
         stats["near_fibres"] = near_rays.stats
+    if shade is not None:
+        stats["shaded_fibres"] = shaded_stats
     return Dataset(lights=lights, direct_points=direct_points, direct_texels=None,
                    indirect=indirect, iterations=bounces, residual=resid, stats=stats)
