@@ -293,7 +293,8 @@ class ChiangSpec:
     #: reaches the first bounce shaded at the point met (prtcore.transport.fibre_near.
     #: shaded_fibre_correction); at most ``near_fibres``: off. docs/hair.md: 20 took
     #: the dark 10k head's scalp bias from +2.2 to +0.8 % (the light one's from −1.2 to
-    #: −1.8 %), for 7.8 min at 528 lights
+    #: −1.8 %, and −1.4 to −2.0 % against another draw: on the bound's edge), for 7.8
+    #: min at 528 lights
     shaded_fibres: float = 20.0
 
 

@@ -121,8 +121,9 @@ DOCS: dict[str, str] = {
                             "(as `near_fibres` shades it), not the texel's mean; 0–1024, "
                             "at most `near_fibres` off. 20 (the default) takes the 10k "
                             "head's dark scalp bias from +2.2 to +0.8 % and the light "
-                            "one's from −1.2 to −1.8 %, for 0.88 s a light there: 7.8 "
-                            "min at 528 lights (docs/hair.md)",
+                            "one's from −1.2 to −1.8 % (to −2.0 % against another "
+                            "draw), for 0.88 s a light there: 7.8 min at 528 lights "
+                            "(docs/hair.md)",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `adaptive` for hair "
                       "baked with a mesh) · `first_bounce` (the direct light's first "
                       "azimuthal harmonic in the first bounce) · `all_bounces` (every "
