@@ -407,13 +407,15 @@ def test_the_shaded_correction_swaps_the_texel_read_for_the_point_s_light(
     assert stats["shadow_pieces"] > 0 and not np.allclose(into[1], start)
 
 
-def test_a_bake_with_shaded_fibres_moves_the_first_bounce_of_its_atlas_texels_alone(scalp):
-    """hair.chiang.shaded_fibres through the bake, first bounce alone: the strand texels'
-    light is the bake without it bit for bit, some of the atlas texels change (those with
-    shaded hits) and keep their scale (the point's light against its texel's mean),
-    and the stats count the hits."""
+@pytest.mark.parametrize("near", [REACH, 0.0])
+def test_a_bake_with_shaded_fibres_moves_the_first_bounce_of_its_atlas_texels_alone(scalp,
+                                                                                   near):
+    """hair.chiang.shaded_fibres through the bake, first bounce alone, with the near
+    fibres on or off: the strand texels' light is the bake without it bit for bit, some
+    of the atlas texels change (those with shaded hits) and keep their scale (the point's
+    light against its texel's mean), and the stats count the hits."""
     texels = scalp[1]
-    on, off = (_bake(scalp, 1, "second_order", near_fibres=REACH, shaded_fibres=shaded)
+    on, off = (_bake(scalp, 1, "second_order", near_fibres=near, shaded_fibres=shaded)
                for shaded in (4 * REACH, 0.0))
     t_m = texels.count
     assert np.array_equal(on.indirect[t_m:], off.indirect[t_m:])
