@@ -257,19 +257,19 @@ def shadow_pieces(near: NearFibreHits, space: StrandSpace, fibres: FibreMesh, se
 
 def piece_visibility(pieces: ShadowPieces, near: NearFibreHits, space: StrandSpace,
                      fibres: FibreMesh, fibre: ChiangFibre, tracer: RayTracer,
-                     lights: Sequence[Light]) -> np.ndarray:
+                     lights: Sequence[Light], label: str = "near fibres") -> np.ndarray:
     """(u, ⌈L/8⌉) uint8, bits packed along the lights (``np.packbits``, big-endian):
     whether each light reaches each piece, by one shadow ray from its drawn hit's fibre
     point facing the light (:func:`prtcore.core.fibres.facing`, the outside radius: as
     the path tracer's next-event estimation leaves a fibre). 66 bytes a piece at 528
-    lights."""
+    lights. ``label``: the stage its progress bar names."""
     hair = space.hair
     hit = pieces.hit
     tangent, centre, radius, _ = fibre_at_hits(
         hair, fibres, outside_offset(hair, fibres.sides), fibre.sigma_points,
         near.triangle[hit], near.barycentric[hit].astype(np.float64))
     seen = np.zeros((pieces.count, -(-len(lights) // 8)), np.uint8)
-    for k, light in enumerate(bar(lights, "near fibres (shadow pieces)", total=len(lights))):
+    for k, light in enumerate(bar(lights, f"{label} (shadow pieces)", total=len(lights))):
         _, to_light, _ = unshadowed_irradiance(light, centre, tangent)
         e = irradiance(light, centre + radius[:, None] * facing(tangent, to_light), to_light,
                        tracer)
@@ -288,8 +288,8 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
                       lights: Sequence[Light], exitance: str,
                       reads: tuple[np.ndarray, np.ndarray], seed: int,
                       pieces: int = NEAR_SHADOW_PIECES,
-                      stats: dict | None = None, replace: bool = True
-                      ) -> tuple[np.ndarray, np.ndarray]:
+                      stats: dict | None = None, replace: bool = True,
+                      label: str = "near fibres") -> tuple[np.ndarray, np.ndarray]:
     """The second bullet of the module docstring: the near hits' direct light from the
     punctual ``lights`` shaded at the point met, written over their columns of ``reads``
     (:func:`near_fibre_direct`'s rows (r,) and values (r, K, 3), the same hits; the
@@ -304,7 +304,8 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
     of each drawn from ``seed``: :func:`shadow_pieces`, :func:`piece_visibility`): one
     shadow ray a piece and punctual light, not one a hit. ``stats``: gets the pieces'
     count (``shadow_pieces``). ``replace`` False: added to ``reads``' punctual columns,
-    not written over them (``reads``' rows then only need to hold the hits' rows)."""
+    not written over them (``reads``' rows then only need to hold the hits' rows).
+    ``label``: the stage its progress bars name."""
     rows, out = reads
     punctual = [k for k, light in enumerate(lights) if shaded_at_point(light)]
     if not near.count or not punctual:
@@ -314,7 +315,7 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
     off = outside_offset(hair, fibres.sides)
     cut = shadow_pieces(near, space, fibres, seed, pieces)
     seen = piece_visibility(cut, near, space, fibres, fibre, tracer,
-                            [lights[k] for k in punctual])
+                            [lights[k] for k in punctual], label)
     if stats is not None:
         stats["shadow_pieces"] = cut.count
     if replace:
@@ -322,7 +323,7 @@ def near_fibre_shaded(near: NearFibreHits, valid_rays: np.ndarray, space: Strand
     table = fibre.albedo
     terms = EXITANCE_TERMS[exitance]
     light_rows = [emitter_for(lights[k]).kernel_row(lights[k]) for k in punctual]
-    for a in bar(range(0, near.count, NEAR_FIBRE_CHUNK), "near fibres (direct)",
+    for a in bar(range(0, near.count, NEAR_FIBRE_CHUNK), f"{label} (direct)",
                  total=-(-near.count // NEAR_FIBRE_CHUNK)):
         idx = np.arange(a, min(a + NEAR_FIBRE_CHUNK, near.count))
         tangent, centre, radius, sigma = fibre_at_hits(
@@ -366,11 +367,12 @@ def shaded_fibre_correction(hits: NearFibreHits, valid_rays: np.ndarray, space: 
         return
     t_h = space.count
     terms = EXITANCE_TERMS[exitance]
-    for a in range(0, hits.count, SHADED_CHUNK):
+    starts = range(0, hits.count, SHADED_CHUNK)
+    for a in bar(starts, "shaded fibres (texel reads)", total=len(starts)):
         part = NearFibreHits(*(getattr(hits, f)[a:a + SHADED_CHUNK] for f in (
             "row", "texel", "triangle", "barycentric", "direction")))
         mine, read = near_fibre_direct(part, valid_rays, direct, coefficient_rows, t_m, t_h,
                                        terms, frames, punctual)
         out[np.searchsorted(rows, mine)] -= read
     near_fibre_shaded(hits, valid_rays, space, fibres, fibre, tracer, lights, exitance,
-                      into, seed, stats=stats, replace=False)
+                      into, seed, stats=stats, replace=False, label="shaded fibres")

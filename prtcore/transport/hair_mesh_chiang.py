@@ -215,22 +215,18 @@ class StrandRays(StrandHits):
 
     def __call__(self, batch, rows, triangle, barycentric, direction, distance=None):
         texel = super().__call__(batch, rows, triangle, barycentric, direction)
-        kept = {}
-        close = np.zeros(len(rows), bool)
-        for name, reach in (("near", self.reach), ("shaded", self.shade)):
-            if reach is None:
-                continue
-            inside = (np.asarray(distance) < reach[rows]) & ~close
-            kept[name] = (inside, (triangle[inside] - self.first).astype(np.int64),
-                          np.asarray(barycentric[inside], np.float32))
-            if name == "near":
-                close = inside
+
+        def kept(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            return (mask, (triangle[mask] - self.first).astype(np.int64),
+                    np.asarray(barycentric[mask], np.float32))
+        t = np.asarray(distance) if distance is not None else None
+        close = t < self.reach[rows] if self.reach is not None else np.zeros(len(rows), bool)
         with self._lock:
             self._directions[batch] = np.asarray(direction, np.float32)
-            if "near" in kept:
-                self._near[batch] = kept["near"]
-            if "shaded" in kept:
-                self._shaded[batch] = kept["shaded"]
+            if self.reach is not None:
+                self._near[batch] = kept(close)
+            if self.shade is not None:
+                self._shaded[batch] = kept((t < self.shade[rows]) & ~close)
         return texel
 
     def _batch(self, k: int, name: str) -> np.ndarray:
