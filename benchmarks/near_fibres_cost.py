@@ -15,7 +15,7 @@ across machines.
 
 Printed and written to benchmarks/results/near_fibres_cost.json.
 
-Usage: python benchmarks/near_fibres_cost.py [--strands 10000] [--near-fibres 5]
+Usage: python benchmarks/near_fibres_cost.py [--strands 10000] [--near-fibres 20]
        [--lights 528] [--timed-lights 16] [--pieces 32 1048576] [--shaded-fibres R]
 """
 
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--texels-per-strand", type=int, default=10)
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--atlas-rays", type=int, default=64)
-    ap.add_argument("--near-fibres", type=float, default=5.0)
+    ap.add_argument("--near-fibres", type=float, default=ChiangSpec().near_fibres)
     ap.add_argument("--exitance", default="second_order")
     ap.add_argument("--lights", type=int, default=528)
     ap.add_argument("--timed-lights", type=int, default=16,

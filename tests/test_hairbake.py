@@ -336,7 +336,7 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
     # atlas's entries made smaller (13.79 GiB before; docs/hair.md)
     from prtcore.hairbake import DENSE_MESH_RAYS, dense_hair
     from prtcore.transport.fibre import HairDensity
-    density = HairDensity(0.679, 0.093, 0.806, 0.786, 0.177, 0.388)
+    density = HairDensity(0.679, 0.093, 0.806, 0.786, 0.388, 0.388)
     dense, lines = dense_hair("head.hair", space, got, density, limit, atlas, True)
     assert lines[1].endswith("the strand texels are denoised")
     assert lines[2].startswith(f"hair.gather_rays auto → {DENSE_MESH_RAYS}: dense hair")

@@ -284,18 +284,20 @@ class ChiangSpec:
     #: from punctual lights, and its light from the mesh and the other fibres gathered
     #: there), not read as its strand texel's mean (prtcore.transport.fibre_near;
     #: docs/hair.md: 5 took the dark 10k head's scalp from 15.0 to 12.4 % per texel and
-    #: the light one from 9.4 to 7.7 %, for 3.1 min at 528 lights); 0: every hit reads
-    #: its texel
-    near_fibres: float = 5.0
+    #: the light one from 9.4 to 7.7 %; 20, the default since 2026-12-07, took the light
+    #: scalp's bias from −1.8 to −1.2 % and the dark one's from +0.8 to +0.5 % against
+    #: the near fibres at 5 and the shaded hits at 20, for 11.9 min at 528 lights); 0:
+    #: every hit reads its texel
+    near_fibres: float = 20.0
     #: with a mesh: beyond ``near_fibres``, an atlas texel's gather ray that meets a
     #: fibre closer than this many of the texel's footprints still reads its strand
     #: texel for the later bounces, but the fibre's direct light from punctual lights
     #: reaches the first bounce shaded at the point met (prtcore.transport.fibre_near.
-    #: shaded_fibre_correction); at most ``near_fibres``: off. docs/hair.md: 20 took
-    #: the dark 10k head's scalp bias from +2.2 to +0.8 % (the light one's from −1.2 to
-    #: −1.8 %, and −1.4 to −2.0 % against another draw: on the bound's edge), for 7.8
-    #: min at 528 lights
-    shaded_fibres: float = 20.0
+    #: shaded_fibre_correction); at most ``near_fibres`` (the default): off. docs/hair.md:
+    #: with the near fibres at 5, 20 took the dark 10k head's scalp bias from +2.2 to
+    #: +0.8 % (the light one's from −1.2 to −1.8 %); the near fibres at 20 do that and
+    #: gather the fibre's indirect light at the point too
+    shaded_fibres: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,11 @@ shaded at the point, as the second bullet shades it. The scalp sees a fibre's ne
 part, deeper in the hair and more shadowed than its texel's mean, at every distance: on
 the dark 10k head the shaded hits to 20 footprints took the scalp's bias from +2.2 to
 +0.8 % (to every hit: the same), for 0.88 s a light (docs/hair.md, "The fibres' direct
-light at the point the scalp sees").
+light at the point the scalp sees"). They are off by default since the near hits reach
+20 footprints: the fibre's light from the scalp, gathered at the point, is brighter there
+than its texel's mean too, and the light scalp's bias went from −1.8 to −1.2 % (to −0.3 %
+with every hit near, at 4.5 s a light; docs/hair.md, "The fibres' light from the scalp at
+the point").
 
 Measured on the 10k curly head with dark hair (docs/hair.md, "The scalp's reads of the
 fibres near it"): 5 footprints take 0.13 of the atlas's rays; the dark scalp's error per
