@@ -56,7 +56,7 @@ Usage: python benchmarks/hair_mesh_chiang_accuracy.py [--strands 500] [--rays 64
        [--rows exact exact_1 model_1 exact_denoised] [--hairs light dark] [--second-seed]
        [--neighbours 64 128] [--atlas-rays 64] [--arc-reads extrapolate] [--bounces 16]
        [--read-models longitudinal_4 longitudinal_6] [--save DIR] [--hair-near 3]
-       [--reference-cache DIR]
+       [--reference-cache DIR] [--near-fibres 20] [--shaded-fibres R] [--gathered-fibres R]
 """
 
 from __future__ import annotations
@@ -117,14 +117,17 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
           arc_reads: str | None = None, hair_near: float | None = None,
           near_fibres: float = ChiangSpec().near_fibres,
           atlas_radius: float = DENOISE_FALLBACK,
-          shaded_fibres: float = ChiangSpec().shaded_fibres) -> tuple[np.ndarray, float]:
+          shaded_fibres: float = ChiangSpec().shaded_fibres,
+          gathered_fibres: float = ChiangSpec().gathered_fibres
+          ) -> tuple[np.ndarray, float]:
     """The head's transport under ``transport`` (kept in ``bakes`` by bounces and seed,
     so a denoised row reuses its bake; ``fibre_rays``: the fibre gather's rays, None
     for the transport's; ``arc_reads``: how the atlas reads a fibre; ``hair_near``: the
     fibre gather's near-field reach, None for the transport's; ``near_fibres``: the
     atlas's near field on the fibres, ``hair.chiang.near_fibres``; ``shaded_fibres``:
     how far the fibres' direct light is shaded at the point, ``hair.chiang.
-    shaded_fibres``), denoised as a bake
+    shaded_fibres``; ``gathered_fibres``: how far the fibres' light is gathered at the
+    point, ``hair.chiang.gathered_fibres``), denoised as a bake
     denoises with ``neighbours`` k > 0 (and its atlas filtered, ``atlas_radius`` texels,
     ``fit.denoise``): the indirect light at
     ``rows`` (n, K, 3) float64 and the seconds it took."""
@@ -136,7 +139,7 @@ def _bake(bakes: dict, setup: tuple, fibre, transport: TransportSpec, exitance: 
             scene, texels, space, fibres, points, tracer, LIGHTS, (), transport,
             StageTimer(quiet=True), fibre, exitance=exitance, fibre_rays=fibre_rays,
             arc_reads=arc_reads, hair_near=hair_near, near_fibres=near_fibres,
-            shaded_fibres=shaded_fibres),
+            shaded_fibres=shaded_fibres, gathered_fibres=gathered_fibres),
             time.perf_counter() - t0)
     data, seconds = bakes[key]
     if neighbours:
@@ -203,6 +206,11 @@ def main(argv: list[str] | None = None) -> dict:
                     help="beyond the near field, the footprints within which a fibre's "
                          "direct light is shaded at the point an atlas ray meets "
                          "(hair.chiang.shaded_fibres; at most --near-fibres: off)")
+    ap.add_argument("--gathered-fibres", type=float, default=ChiangSpec().gathered_fibres,
+                    help="beyond the near field, the footprints within which a fibre's "
+                         "light from the mesh and other fibres is gathered at the point "
+                         "an atlas ray meets, its direct light read from its texel "
+                         "(hair.chiang.gathered_fibres; at most --near-fibres: off)")
     ap.add_argument("--paths", type=int, default=4096)
     ap.add_argument("--texels", type=int, default=2000, help="of each kind (the atlas has "
                     "fewer: all of them then)")
@@ -296,7 +304,7 @@ def main(argv: list[str] | None = None) -> dict:
                           model, rows, k, m,
                           None if args.arc_reads == "mean" else args.arc_reads,
                           args.hair_near, args.near_fibres, args.atlas_radius,
-                          args.shaded_fibres)
+                          args.shaded_fibres, args.gathered_fibres)
                     for seed in seeds]
             t1 = time.perf_counter()
             a, b = reference(bounces, exitance)

@@ -104,6 +104,7 @@ from prtcore.transport.fibre_chiang import (
     chiang_samples,
     texel_albedo,
 )
+from prtcore.transport.fibre_near import near_hits_reach
 from prtcore.transport.hair import bake_hair_dataset
 from prtcore.transport.hair_mesh import bake_hair_mesh_dataset, per_piece
 from prtcore.transport.hair_mesh_chiang import bake_chiang_hair_mesh_dataset, chiang_mesh_bytes
@@ -443,6 +444,11 @@ def run_hair_intake(asset: str | Path, spec: BakeSpec, timer: StageTimer,
                       scene=surface.scene, seconds=dict(timer.seconds), strands=space)
 
 
+def _near_reach(spec: BakeSpec) -> float:
+    """The Chiang fibre's near hits' reach in the atlas's footprints (their rays)."""
+    return near_hits_reach(spec.hair.chiang.near_fibres, spec.hair.chiang.gathered_fibres)
+
+
 def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
                       limit_bytes: int, mesh_texels: int = 0,
                       density: HairDensity | None = None) -> int:
@@ -515,7 +521,7 @@ def check_hair_memory(asset: str | Path, space: StrandSpace, spec: BakeSpec,
     if spec.hair.fibre == "chiang" and mesh_texels:  # its own transport's phases
         return _checked(asset, space, mesh_texels, k, limit_bytes, whole + chiang_mesh_bytes(
             mesh_texels, t, k, m, spec.hair.chiang.exitance, spec.transport, density,
-            spec.hair.chiang.near_fibres, samples=samples,
+            _near_reach(spec), samples=samples,
             shaded_fibres=spec.hair.chiang.shaded_fibres))
     gather = operator_for("fibre").estimate_bytes(
         t, k, dataclasses.replace(spec.transport, gather_rays=m))
@@ -647,7 +653,7 @@ def bake_hair(asset: str | Path, spec: BakeSpec, out: Path, *, run_files: RunFil
                                    spec.transport.gather_rays, spec.transport.seed,
                                    atlas=intake.texels.mesh,
                                    near_field=spec.transport.near_field,
-                                   near_fibres=spec.hair.chiang.near_fibres
+                                   near_fibres=_near_reach(spec)
                                    if spec.hair.fibre == "chiang" else 0.0,
                                    shaded_fibres=spec.hair.chiang.shaded_fibres
                                    if spec.hair.fibre == "chiang" else 0.0)
@@ -840,7 +846,8 @@ def _transport_and_fit(spec: BakeSpec, intake, tracer, fibres, m: Method,
                                              fibre_rays=rays,
                                              near_fibres=spec.hair.chiang.near_fibres,
                                              direct_samples=spec.hair.direct_samples,
-                                             shaded_fibres=spec.hair.chiang.shaded_fibres)
+                                             shaded_fibres=spec.hair.chiang.shaded_fibres,
+                                             gathered_fibres=spec.hair.chiang.gathered_fibres)
     else:
         data = bake_hair_mesh_dataset(scene, intake.texels.mesh, space, fibres, intake.points,
                                       tracer, train, hold, transport, timer,

@@ -200,15 +200,15 @@ def test_the_direct_light_at_the_point_met_is_the_texels_model_there(scalp):
         assert not np.allclose(a, b)  # shaded, not read
 
 
-def _bake(scalp, bounces: int, exitance: str, **fibres_near):
-    """The scalp's hair + mesh dataset under the head's two lights (32 rays, J = 4,
-    seed 0, ``bounces`` bounces), with bake_chiang_hair_mesh_dataset's ``fibres_near``
-    (near_fibres, shaded_fibres)."""
+def _bake(scalp, bounces: int, exitance: str, lights=None, **fibres_near):
+    """The scalp's hair + mesh dataset under ``lights`` (the head's two by default; 32
+    rays, J = 4, seed 0, ``bounces`` bounces), with bake_chiang_hair_mesh_dataset's
+    ``fibres_near`` (near_fibres, shaded_fibres, gathered_fibres)."""
     scene, texels, space, tracer, fibres, *_ = scalp
     points = place_measurement_points(hair_scene(space.hair), parse_spec(
         {"measurement_points": {"count": 16, "placement": "hull"}}).measurement_points)
     return bake_chiang_hair_mesh_dataset(
-        scene, texels, space, fibres, points, tracer, head_lights(), (),
+        scene, texels, space, fibres, points, tracer, lights or head_lights(), (),
         TransportSpec(gather_rays=32, direct_samples=4, seed=0, max_bounces=bounces),
         StageTimer(quiet=True), chiang_fibre(ChiangSpec(), space), exitance=exitance,
         **fibres_near)
@@ -424,3 +424,45 @@ def test_a_bake_with_shaded_fibres_moves_the_first_bounce_of_its_atlas_texels_al
     moved = np.any(a != b, axis=(1, 2))
     assert 0 < moved.sum() < t_m and np.isfinite(a).all()
     assert 0.8 < a.sum() / b.sum() < 1.2, a.sum() / b.sum()
+
+
+def test_gathered_hits_are_near_hits_whose_direct_light_is_beyond_the_lit_reach(scalp):
+    """StrandRays with ``lit`` inside its reach: the near hits are the reach's, in the
+    same order, and near_lit marks exactly those the lit reach alone would keep near;
+    without ``lit`` it says None (every near hit shaded at the point)."""
+    scene, texels, space, tracer, fibres, _, split, _ = scalp
+    f = scene.triangle_count
+    both = StrandRays(space, fibres, f, seed=1, reach=near_field_reach(texels, REACH),
+                      lit=near_field_reach(texels, 1.0))
+    inner = StrandRays(space, fibres, f, seed=1, reach=near_field_reach(texels, 1.0))
+    for rays in (both, inner):
+        gather_operator(scene, texels, tracer, 32, 1, foreign=rays)
+    near, lit, want = both.near(), both.near_lit(), split.near()
+    assert np.array_equal(near.row, want.row) and np.array_equal(near.triangle, want.triangle)
+    assert 0 < lit.sum() < near.count and split.near_lit() is None
+    close = inner.near()
+    assert np.array_equal(near.subset(lit).row, close.row)
+    assert np.array_equal(near.subset(lit).triangle, close.triangle)
+
+
+def test_a_bake_with_gathered_fibres_reads_their_direct_light_from_the_texels(scalp):
+    """hair.chiang.gathered_fibres through the bake, first bounce alone: the near hits and
+    their rays are those of near_fibres at that reach, so the strand texels are
+    bit-identical; the atlas texels whose hits lie beyond near_fibres move (their direct
+    light read from the texel, not shaded at the point) and keep their scale. Under an
+    environment light alone (read from the texel either way) the two bakes agree."""
+    t_m = scalp[1].count
+    args = (scalp, 1, "second_order")
+    split = _bake(*args, near_fibres=1.0, gathered_fibres=REACH)
+    whole = _bake(*args, near_fibres=REACH)
+    s, w = split.stats["near_fibres"], whole.stats["near_fibres"]
+    assert (s["hits"], s["rays"]) == (w["hits"], w["rays"])
+    assert 0 < s["read_direct"] < s["hits"] and "read_direct" not in w
+    assert np.array_equal(split.indirect[t_m:], whole.indirect[t_m:])
+    a, b = split.indirect[:t_m].astype(np.float64), whole.indirect[:t_m].astype(np.float64)
+    assert not np.array_equal(a, b) and np.isfinite(a).all()
+    assert 0.8 < a.sum() / b.sum() < 1.2, a.sum() / b.sum()
+    sky = [Light(type="environment", color=np.ones(3), intensity=1.0, environment="ambient")]
+    split, whole = (_bake(*args, lights=sky, near_fibres=1.0, gathered_fibres=REACH),
+                    _bake(*args, lights=sky, near_fibres=REACH))
+    np.testing.assert_allclose(split.indirect, whole.indirect, rtol=1e-5, atol=1e-7)

@@ -298,6 +298,12 @@ class ChiangSpec:
     #: +0.8 % (the light one's from −1.2 to −1.8 %); the near fibres at 20 do that and
     #: gather the fibre's indirect light at the point too
     shaded_fibres: float = 0.0
+    #: with a mesh: beyond ``near_fibres``, an atlas texel's gather ray that meets a
+    #: fibre closer than this many of the texel's footprints is a near hit whose rays
+    #: gather the fibre's light from the mesh and the other fibres at the point met, but
+    #: whose direct light is read from its strand texel (prtcore.transport.fibre_near;
+    #: the shaded hits start beyond it); at most ``near_fibres`` (the default): off
+    gathered_fibres: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -620,7 +626,9 @@ def _chiang(v: Any) -> ChiangSpec:
         near_fibres=_num(c.get("near_fibres", d.near_fibres), "hair.chiang.near_fibres",
                          lo=0.0, hi=64.0),
         shaded_fibres=_num(c.get("shaded_fibres", d.shaded_fibres),
-                           "hair.chiang.shaded_fibres", lo=0.0, hi=1024.0))
+                           "hair.chiang.shaded_fibres", lo=0.0, hi=1024.0),
+        gathered_fibres=_num(c.get("gathered_fibres", d.gathered_fibres),
+                             "hair.chiang.gathered_fibres", lo=0.0, hi=1024.0))
 
 
 def _section(cls: type, v: Any, key: str) -> dict:

@@ -125,6 +125,13 @@ DOCS: dict[str, str] = {
                             "+2.2 to +0.8 % and the light one's from −1.2 to −1.8 %; "
                             "the near fibres at 20 shade those hits and gather their "
                             "light at the point too (docs/hair.md)",
+    "chiang.gathered_fibres": "with a `--mesh`: beyond `near_fibres`, an atlas texel's "
+                              "gather ray that meets a fibre closer than this many of the "
+                              "texel's footprints gathers the fibre's light from the mesh "
+                              "and the other fibres at the point met (2 rays, as "
+                              "`near_fibres`), and reads its direct light from the strand "
+                              "texel; 0–1024, at most `near_fibres` (the default) off; "
+                              "the shaded hits start beyond it (docs/hair.md)",
     "hair.harmonics": "`auto` (`first_bounce` for hair alone, `adaptive` for hair "
                       "baked with a mesh) · `first_bounce` (the direct light's first "
                       "azimuthal harmonic in the first bounce) · `all_bounces` (every "

@@ -101,6 +101,13 @@ SHADED_CHUNK = 1 << 19
 SHADED_HIT_BYTES = 60
 
 
+def near_hits_reach(near_fibres: float, gathered_fibres: float) -> float:
+    """The reach (footprints) within which an atlas fibre hit is a near hit, its rays
+    traced at the point met: ``near_fibres`` (direct light at the point too), or
+    ``gathered_fibres`` beyond it (direct light read from the texel)."""
+    return max(near_fibres, gathered_fibres)
+
+
 def shaded_at_point(light: Light) -> bool:
     """Whether a near hit's direct light from ``light`` is shaded at the point met
     (:func:`near_fibre_shaded`: one direction, one shadow ray) rather than read from its
@@ -124,6 +131,11 @@ class NearFibreHits:
     @property
     def count(self) -> int:
         return len(self.row)
+
+    def subset(self, mask: np.ndarray | slice) -> NearFibreHits:
+        """The hits ``mask`` ((n,) bool, or a slice) picks, in order."""
+        return NearFibreHits(self.row[mask], self.texel[mask], self.triangle[mask],
+                             self.barycentric[mask], self.direction[mask])
 
 
 @dataclass(frozen=True)
@@ -365,18 +377,32 @@ def shaded_fibre_correction(hits: NearFibreHits, valid_rays: np.ndarray, space: 
     its direct light moves from the texel's mean to the point: the part of the near field
     that moves the dark scalp's bias (docs/hair.md). The texel reads go in chunks of
     SHADED_CHUNK hits, so their (F, n) reads stay bounded."""
-    rows, out = into
     punctual = [k for k, light in enumerate(lights) if shaded_at_point(light)]
     if not hits.count or not punctual:
         return
-    t_h = space.count
-    terms = EXITANCE_TERMS[exitance]
-    starts = range(0, hits.count, SHADED_CHUNK)
-    for a in bar(starts, "shaded fibres (texel reads)", total=len(starts)):
-        part = NearFibreHits(*(getattr(hits, f)[a:a + SHADED_CHUNK] for f in (
-            "row", "texel", "triangle", "barycentric", "direction")))
-        mine, read = near_fibre_direct(part, valid_rays, direct, coefficient_rows, t_m, t_h,
-                                       terms, frames, punctual)
-        out[np.searchsorted(rows, mine)] -= read
+    texel_reads(hits, valid_rays, direct, coefficient_rows, t_m, space.count,
+                EXITANCE_TERMS[exitance], frames, punctual, into, -1,
+                "shaded fibres (texel reads)")
     near_fibre_shaded(hits, valid_rays, space, fibres, fibre, tracer, lights, exitance,
                       into, seed, stats=stats, replace=False, label="shaded fibres")
+
+
+def texel_reads(hits: NearFibreHits, valid_rays: np.ndarray, direct: np.ndarray,
+                coefficient_rows: Callable[[int], slice], t_m: int, t_h: int, terms: int,
+                frames: tuple | None, lights: Sequence[int] | None,
+                into: tuple[np.ndarray, np.ndarray], sign: int, label: str) -> None:
+    """:func:`near_fibre_direct`'s reads of ``hits``' strand texels for the light columns
+    ``lights`` (None: every one), added (``sign`` 1) into or taken (−1) out of ``into``
+    (rows (r,) int64 sorted unique, holding every one of the hits' rows, values (r, K, 3)
+    float32) in chunks of SHADED_CHUNK hits, so their (F, n) reads stay bounded;
+    ``label``: the progress bar's."""
+    rows, out = into
+    starts = range(0, hits.count, SHADED_CHUNK)
+    for a in bar(starts, label, total=len(starts)):
+        part = hits.subset(slice(a, a + SHADED_CHUNK))
+        mine, read = near_fibre_direct(part, valid_rays, direct, coefficient_rows, t_m, t_h,
+                                       terms, frames, lights)
+        if sign < 0:
+            out[np.searchsorted(rows, mine)] -= read
+        else:
+            out[np.searchsorted(rows, mine)] += read

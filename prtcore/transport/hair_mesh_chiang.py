@@ -69,8 +69,10 @@ from prtcore.transport.fibre_near import (
     near_fibre_direct,
     near_fibre_rays,
     near_fibre_shaded,
+    near_hits_reach,
     shaded_at_point,
     shaded_fibre_correction,
+    texel_reads,
 )
 from prtcore.transport.gather import HitMapper, NearField, gather_operator, near_field_reach
 from prtcore.transport.hair_mesh import StrandHits, hair_mesh_stats
@@ -202,16 +204,20 @@ class StrandRays(StrandHits):
     :meth:`rays`. With ``shade`` (T_m,) float64 too, a hit that is not near but closer
     than that is a shaded hit (:meth:`shaded`): it stays in :meth:`rays` and is also
     kept apart, for its direct light at the point met
-    (:func:`~prtcore.transport.fibre_near.shaded_fibre_correction`)."""
+    (:func:`~prtcore.transport.fibre_near.shaded_fibre_correction`). With ``lit`` (T_m,)
+    float64 (at most ``reach``), a near hit beyond it gathers its light at the point but
+    reads its direct light from its texel (:meth:`near_lit`)."""
 
     def __init__(self, space: StrandSpace, fibres: FibreMesh, first: int, seed: int,
-                 reach: np.ndarray | None = None, shade: np.ndarray | None = None):
+                 reach: np.ndarray | None = None, shade: np.ndarray | None = None,
+                 lit: np.ndarray | None = None):
         super().__init__(space, fibres, first, seed)
-        self.reach, self.shade = reach, shade
+        self.reach, self.shade, self.lit = reach, shade, lit
         self._directions: dict[int, np.ndarray] = {}
         # batch → (near (n,) bool, their tube triangles, barycentrics); the shaded hits'
         self._near: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._shaded: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._lit: dict[int, np.ndarray] = {}  # batch → its near hits within ``lit``
 
     def __call__(self, batch, rows, triangle, barycentric, direction, distance=None):
         texel = super().__call__(batch, rows, triangle, barycentric, direction)
@@ -225,6 +231,8 @@ class StrandRays(StrandHits):
             self._directions[batch] = np.asarray(direction, np.float32)
             if self.reach is not None:
                 self._near[batch] = kept(close)
+                if self.lit is not None:
+                    self._lit[batch] = (t < self.lit[rows])[close]
             if self.shade is not None:
                 self._shaded[batch] = kept((t < self.shade[rows]) & ~close)
         return texel
@@ -268,6 +276,14 @@ class StrandRays(StrandHits):
         """The near hits, in batch order (:class:`~prtcore.transport.fibre_near.
         NearFibreHits`; none without ``reach``)."""
         return self._hits(self._near)
+
+    def near_lit(self) -> np.ndarray | None:
+        """(n,) bool over :meth:`near`'s hits: those whose direct light is shaded at the
+        point met (within ``lit``); None without ``lit`` (every one)."""
+        if self.lit is None:
+            return None
+        return (np.concatenate([self._lit[k] for k in sorted(self._near)]) if self._near
+                else np.zeros(0, bool))
 
     def shaded(self) -> NearFibreHits:
         """The shaded hits, in batch order (none without ``shade``)."""
@@ -389,7 +405,8 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
                                   arc_reads: str | None = None, near_fibres: float = 0.0,
                                   near_fibre_count: int = NEAR_FIBRE_RAYS,
                                   direct_samples: int | str = "auto",
-                                  shaded_fibres: float = 0.0) -> Dataset:
+                                  shaded_fibres: float = 0.0,
+                                  gathered_fibres: float = 0.0) -> Dataset:
     """The lighting database of a hair + mesh bake with the Chiang fibre, as
     :func:`prtcore.transport.hair_mesh.bake_hair_mesh_dataset` (mesh rows first, training
     lights first, the texels' direct light not kept). The same rays as the diffuse
@@ -410,15 +427,21 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     closer than this many footprints keeps its texel read for the later bounces, and its
     first bounce takes the fibre's direct light from punctual lights shaded at the point
     met (:func:`~prtcore.transport.fibre_near.shaded_fibre_correction`).
-    ``direct_samples`` (``hair.direct_samples``): the hair's direct samples per strand
+    ``gathered_fibres`` (``hair.chiang.gathered_fibres``, above ``near_fibres``): an atlas
+    ray that meets a fibre beyond ``near_fibres`` but closer than this many footprints
+    is a near hit whose direct light is its texel's read (its rays gather the fibre's
+    light from the mesh and the other fibres at the point; the shaded hits then start
+    beyond it). ``direct_samples`` (``hair.direct_samples``): the hair's direct samples per strand
     texel (:func:`chiang_samples`)."""
     lights = (*tuple(lights_train), *tuple(lights_holdout))
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     r0 = tracer.rays_traced
-    reach = near_field_reach(texels, near_fibres) if near_fibres > 0 else None
-    shade = (near_field_reach(texels, shaded_fibres) if shaded_fibres > near_fibres
+    rays_to = near_hits_reach(near_fibres, gathered_fibres)
+    reach = near_field_reach(texels, rays_to) if rays_to > 0 else None
+    shade = (near_field_reach(texels, shaded_fibres) if shaded_fibres > rays_to
              else None)
-    strands = StrandRays(space, fibres, f, spec.seed, reach, shade)
+    lit = near_field_reach(texels, near_fibres) if gathered_fibres > near_fibres else None
+    strands = StrandRays(space, fibres, f, spec.seed, reach, shade, lit)
     gather = gather_operator(scene, texels, tracer, spec.gather_rays, spec.seed, timer,
                              near_field=spec.near_field, direct_samples=spec.direct_samples,
                              foreign=strands)
@@ -427,7 +450,7 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
     t = t_m + t_h
     m_h = spec.gather_rays if fibre_rays is None else int(fibre_rays)
     mapper = HitMapper(scene, texels, tracer)
-    near, shaded = strands.near(), strands.shaded()
+    near, shaded, near_lit = strands.near(), strands.shaded(), strands.near_lit()
     shaded_stats = {"hits": shaded.count}
     near_rays = None
     if near.count:  # the atlas's rays: counted with its gather's
@@ -481,13 +504,23 @@ def bake_chiang_hair_mesh_dataset(scene: Scene, texels: TexelSpace, space: Stran
         del views
     if near.count:  # the near hits' direct light: at the point met, or as read
         with timer.stage("near fibres (direct)"):  # its rays count as the direct fibres'
-            first = add_first_bounce(first, near_fibre_shaded(
-                near, valid_rays, space, fibres, fibre, tracer, lights, exitance,
-                near_fibre_direct(near, valid_rays, direct, product.coefficient_rows, t_m,
-                                  t_h, n_f, frames, [k for k, light in enumerate(lights)
-                                                     if not shaded_at_point(light)]),
-                spec.seed + 4, stats=near_rays.stats))
-    del near
+            split = near_lit is not None and not near_lit.all()
+            point = near.subset(near_lit) if split else near
+            if point.count:
+                first = add_first_bounce(first, near_fibre_shaded(
+                    point, valid_rays, space, fibres, fibre, tracer, lights, exitance,
+                    near_fibre_direct(point, valid_rays, direct, product.coefficient_rows,
+                                      t_m, t_h, n_f, frames,
+                                      [k for k, light in enumerate(lights)
+                                       if not shaded_at_point(light)]),
+                    spec.seed + 4, stats=near_rays.stats))
+            if split:  # beyond ``near_fibres``: the texels' reads
+                texel_reads(near.subset(~near_lit), valid_rays, direct,
+                            product.coefficient_rows, t_m, t_h, n_f, frames, None, first,
+                            1, "gathered fibres (texel reads)")
+                near_rays.stats["read_direct"] = int((~near_lit).sum())
+            del point
+    del near, near_lit
     if shaded.count:  # the shaded hits' direct light: at the point met, less the texel's
         with timer.stage("shaded fibres (direct)"):
             shaded_fibre_correction(shaded, valid_rays, space, fibres, fibre, tracer, lights,
