@@ -17,6 +17,7 @@ Printed and written to benchmarks/results/near_fibres_cost.json.
 
 Usage: python benchmarks/near_fibres_cost.py [--strands 10000] [--near-fibres 20]
        [--lights 528] [--timed-lights 16] [--pieces 32 1048576] [--shaded-fibres R]
+       [--gathered-fibres R]
 """
 
 from __future__ import annotations
@@ -50,7 +51,9 @@ from prtcore.transport.fibre_near import (  # noqa: E402
     near_fibre_direct,
     near_fibre_rays,
     near_fibre_shaded,
+    near_hits_reach,
     shaded_fibre_correction,
+    texel_reads,
 )
 from prtcore.transport.gather import HitMapper, gather_operator, near_field_reach  # noqa: E402
 from prtcore.transport.hair_mesh_chiang import StrandRays  # noqa: E402
@@ -73,6 +76,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--shaded-fibres", type=float, default=0.0,
                     help="also time the shaded hits' correction (hair.chiang."
                          "shaded_fibres, footprints; above --near-fibres)")
+    ap.add_argument("--gathered-fibres", type=float, default=ChiangSpec().gathered_fibres,
+                    help="the near hits beyond --near-fibres to this reach gather at the "
+                         "point and read their direct light from the texel (hair.chiang."
+                         "gathered_fibres): their texel reads are timed")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/near_fibres_cost.json"))
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
@@ -82,13 +89,16 @@ def main(argv: list[str] | None = None) -> dict:
     tracer, fibres = hair_tracer(space, scene)
     f, t_m, t_h = scene.triangle_count, texels.count, space.count
     fibre = chiang_fibre(ChiangSpec(eumelanin=1.3), space)
-    strands = StrandRays(space, fibres, f, 0, near_field_reach(texels, args.near_fibres),
+    rays_to = near_hits_reach(args.near_fibres, args.gathered_fibres)
+    strands = StrandRays(space, fibres, f, 0, near_field_reach(texels, rays_to),
                          near_field_reach(texels, args.shaded_fibres)
-                         if args.shaded_fibres > args.near_fibres else None)
+                         if args.shaded_fibres > rays_to else None,
+                         near_field_reach(texels, args.near_fibres)
+                         if args.gathered_fibres > args.near_fibres else None)
     t0 = time.perf_counter()
     g = gather_operator(scene, texels, tracer, args.atlas_rays, 0, foreign=strands)
     gather_s = time.perf_counter() - t0
-    near = strands.near()
+    near, lit = strands.near(), strands.near_lit()
     hits = strands.shaded()
     fibre_hits = len(strands.rays()[0]) + near.count
     t0 = time.perf_counter()
@@ -108,6 +118,22 @@ def main(argv: list[str] | None = None) -> dict:
                               texel_frames(space) if needs_frames(args.exitance) else None)
     read_s = time.perf_counter() - t0
     lights = [LIGHTS[i % len(LIGHTS)] for i in range(args.timed_lights)]
+    gathered = {}
+    if lit is not None:  # beyond near_fibres: rays at the point, the texel's direct light
+        tiled = np.tile(direct, (1, len(lights) // k + 1, 1))[:, :len(lights)]
+        beyond = near.subset(~lit)
+        into = (np.unique(beyond.row), np.zeros((len(np.unique(beyond.row)), len(lights), 3),
+                                                np.float32))
+        t0 = time.perf_counter()
+        texel_reads(beyond, g.valid_rays, tiled, rows_of, t_m, t_h, n_f,
+                    texel_frames(space) if needs_frames(args.exitance) else None, None,
+                    into, 1, "gathered fibres (texel reads)")
+        s = time.perf_counter() - t0
+        gathered = {"gathered_fibres": args.gathered_fibres, "hits": beyond.count,
+                    "share_of_fibre_hits": beyond.count / max(fibre_hits, 1),
+                    "s_per_light": s / len(lights),
+                    "s_at_lights": s / len(lights) * args.lights}
+        near = near.subset(lit)  # the rest shade their direct light at the point
     reads = near_fibre_direct(near, g.valid_rays, np.tile(direct, (1, len(lights) // k + 1,
                                                                      1))[:, :len(lights)],
                               rows_of, t_m, t_h, n_f,
@@ -146,7 +172,8 @@ def main(argv: list[str] | None = None) -> dict:
            "gather_s": gather_s, "near_rays_s": rays_s, "near_rays": rays.stats,
            "texel_reads_s_per_light": read_s / k, "shaded_s_per_light": per_light,
            "shaded_s_at_lights": per_light * args.lights, "lights": args.lights,
-           "timed_lights": len(lights), "shaded_by_pieces": shaded, "shaded_hits": far}
+           "timed_lights": len(lights), "shaded_by_pieces": shaded, "shaded_hits": far,
+           "gathered_hits": gathered}
     print(f"{args.strands} strands, {t_m} atlas texels × {args.atlas_rays} rays: "
           f"{near.count} near hits at {args.near_fibres:g} footprints "
           f"({res['near_share_of_atlas_rays']:.3f} of the atlas's rays, "
@@ -162,6 +189,12 @@ def main(argv: list[str] | None = None) -> dict:
               f"({far['share_of_fibre_hits']:.3f} of the fibre hits), "
               f"{far['shadow_pieces']} shadow rays a light: {far['s_per_light']:.2f} s a "
               f"light → {far['s_at_lights'] / 60:.1f} min at {args.lights} lights")
+    if gathered:
+        print(f"gathered hits {args.near_fibres:g}–{args.gathered_fibres:g} footprints: "
+              f"{gathered['hits']} ({gathered['share_of_fibre_hits']:.3f} of the fibre "
+              f"hits), their texels' direct light {gathered['s_per_light']:.2f} s a light "
+              f"→ {gathered['s_at_lights'] / 60:.1f} min at {args.lights} lights (their "
+              f"rays are the near rays above)")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(res, indent=2))
     print(f"wrote {args.out}")
