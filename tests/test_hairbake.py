@@ -328,7 +328,8 @@ def test_the_10k_head_with_the_chiang_fibre_takes_the_second_order_under_the_def
         check_hair_memory("head.hair", space, second, limit, mesh_texels=atlas)
     # once its density is traced (the shares measured on this head, hair_density) it is
     # dense, denoised, and the second order's estimate with 128 fibre rays and the near
-    # fibres at 5 footprints and its shaded hits at 20 (13.3 GiB without them: entries,
+    # fibres at 20 footprints (13.53 GiB; 13.32 GiB with them at 5 and the shaded hits at
+    # 20, as in 5c24296; 13.3 GiB without either: entries,
     # near-field rows and near fibre hits at their shares, not every ray's and every
     # texel's; 15.7 GiB until the atlas rows' entries kept three weights and the first
     # bounce's corrections one array) fits the
