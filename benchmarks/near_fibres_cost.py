@@ -118,12 +118,12 @@ def main(argv: list[str] | None = None) -> dict:
                               texel_frames(space) if needs_frames(args.exitance) else None)
     read_s = time.perf_counter() - t0
     lights = [LIGHTS[i % len(LIGHTS)] for i in range(args.timed_lights)]
+    tiled = np.tile(direct, (1, len(lights) // k + 1, 1))[:, :len(lights)]  # a column a light
     gathered = {}
     if lit is not None:  # beyond near_fibres: rays at the point, the texel's direct light
-        tiled = np.tile(direct, (1, len(lights) // k + 1, 1))[:, :len(lights)]
         beyond = near.subset(~lit)
-        into = (np.unique(beyond.row), np.zeros((len(np.unique(beyond.row)), len(lights), 3),
-                                                np.float32))
+        rows = np.unique(beyond.row)
+        into = (rows, np.zeros((len(rows), len(lights), 3), np.float32))
         t0 = time.perf_counter()
         texel_reads(beyond, g.valid_rays, tiled, rows_of, t_m, t_h, n_f,
                     texel_frames(space) if needs_frames(args.exitance) else None, None,
@@ -134,9 +134,7 @@ def main(argv: list[str] | None = None) -> dict:
                     "s_per_light": s / len(lights),
                     "s_at_lights": s / len(lights) * args.lights}
         near = near.subset(lit)  # the rest shade their direct light at the point
-    reads = near_fibre_direct(near, g.valid_rays, np.tile(direct, (1, len(lights) // k + 1,
-                                                                     1))[:, :len(lights)],
-                              rows_of, t_m, t_h, n_f,
+    reads = near_fibre_direct(near, g.valid_rays, tiled, rows_of, t_m, t_h, n_f,
                               texel_frames(space) if needs_frames(args.exitance) else None)
     shaded = {}
     for pieces in args.pieces:  # one shadow ray a piece and light; many: one a hit
@@ -150,7 +148,6 @@ def main(argv: list[str] | None = None) -> dict:
                                "shadow_pieces": stats["shadow_pieces"]}
     far = {}
     if hits.count:  # the shaded hits' correction: texel reads out, the point's light in
-        tiled = np.tile(direct, (1, len(lights) // k + 1, 1))[:, :len(lights)]
         into = (np.arange(t_m), np.zeros((t_m, len(lights), 3), np.float32))
         stats = {}
         t0 = time.perf_counter()
